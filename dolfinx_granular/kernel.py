@@ -1,0 +1,241 @@
+"""Numba kernels of the Taylor RVE: candidate contacts and the per-point contact sums.
+
+Notation (paper, sections 2-3): a candidate contact c is a pair of disks (i, j), j possibly a
+periodic image, with reference branch vector L = X_j + shift - X_i and R = r_i + r_j. Under the
+Taylor assumption its current branch vector is l = F L, with d = |l| and overlap eps = R - d; it is
+active when eps >= 0.
+
+Every output of the material is a contraction of two moment sums over the active contacts,
+
+    S_bd   = sum_c (eps/d)      v_b v_d                 (3 distinct entries)
+    T_efbd = sum_c (R/d^3)      v_e v_f v_b v_d         (5 distinct entries, fully symmetric)
+
+with v = L (material, eqs. 10 and 12-13) or v = l (spatial, eqs. 11 and 14). With K = k_n / V:
+
+    W = K/2 sum eps^2                       (eq. 7, each contact counted once)
+    P = -K F S(L)                           (eq. 10)
+    A_abcd = K [F_ae F_cf T_efbd(L) - delta_ac S_bd(L)]      (eqs. 12-13)
+    sigma = -K/J S(l),  a_abcd = K/J [T_acbd(l) - delta_ac S_bd(l)]   (eqs. 11, 14)
+
+The 4th-order term follows from n_a n_c L_b L_d = l_a l_c L_b L_d / d^2 = F_ae F_cf L_e L_f L_b L_d / d^2.
+Accumulating 8 scalars per contact instead of the 16 entries of A is what makes the kernel fast.
+
+Contacts can only be active where |F L| <= R, and |F L| >= s_min(F) |L| with s_min the smallest
+singular value of F. Candidates are therefore all pairs with rho = |L| / R <= 1 / min_stretch,
+sorted by rho; a point with s_min(F) >= min_stretch visits only the prefix rho <= 1 / s_min(F).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# Status codes written per point by the batch kernels.
+OK = 0
+NOT_FINITE = 1
+NOT_ORIENTATION_PRESERVING = 2
+BELOW_MIN_STRETCH = 3
+
+# Tolerance on the singular-value test: F built as exactly min_stretch * Q must pass despite
+# rounding in the 2x2 singular-value formula.
+_STRETCH_RTOL = 1e-12
+
+
+@njit(cache=True)
+def _scan_pairs(centers, radii, box, max_ratio, fill, L, R, rho, ij, shift):
+    """Count (``fill`` False) or store (``fill`` True) the candidate pairs; returns the count."""
+    n = radii.shape[0]
+    reach = 2.0 * radii.max() * max_ratio
+    kx = int(np.ceil(reach / box[0]))
+    ky = int(np.ceil(reach / box[1]))
+    m = 0
+    for i in range(n):
+        for j in range(i, n):
+            rsum = radii[i] + radii[j]
+            cut2 = (max_ratio * rsum) ** 2
+            for sx in range(-kx, kx + 1):
+                for sy in range(-ky, ky + 1):
+                    if i == j and (sx < 0 or (sx == 0 and sy <= 0)):
+                        continue  # a disk and its own image: one of each +-shift, never shift 0
+                    lx = centers[j, 0] + sx * box[0] - centers[i, 0]
+                    ly = centers[j, 1] + sy * box[1] - centers[i, 1]
+                    d2 = lx * lx + ly * ly
+                    if d2 <= cut2:
+                        if fill:
+                            L[m, 0] = lx
+                            L[m, 1] = ly
+                            R[m] = rsum
+                            rho[m] = np.sqrt(d2) / rsum
+                            ij[m, 0] = i
+                            ij[m, 1] = j
+                            shift[m, 0] = sx
+                            shift[m, 1] = sy
+                        m += 1
+    return m
+
+
+def candidate_pairs(centers, radii, box, max_ratio):
+    """All pairs (i, j, image) with |L| <= max_ratio * (r_i + r_j), sorted by |L| / (r_i + r_j).
+
+    Args:
+        centers: (N, 2) centres inside the cell.
+        radii: (N,) radii.
+        box: (2,) cell lengths.
+        max_ratio: 1 / min_stretch, >= 1.
+
+    Returns:
+        ``(L, R, rho, ij, shift)``: L (M, 2) reference branch vectors, R (M,) radius sums, rho (M,)
+        = |L|/R ascending, ij (M, 2) disk indices, shift (M, 2) integer image offsets in cells.
+        A disk paired with its own image appears once per pair of opposite shifts.
+    """
+    args = (np.ascontiguousarray(centers, dtype=np.float64),
+            np.ascontiguousarray(radii, dtype=np.float64),
+            np.ascontiguousarray(box, dtype=np.float64), float(max_ratio))
+    m = _scan_pairs(*args, False, np.empty((0, 2)), np.empty(0), np.empty(0),
+                    np.empty((0, 2), np.int64), np.empty((0, 2), np.int64))
+    L, R, rho = np.empty((m, 2)), np.empty(m), np.empty(m)
+    ij, shift = np.empty((m, 2), np.int64), np.empty((m, 2), np.int64)
+    _scan_pairs(*args, True, L, R, rho, ij, shift)
+    order = np.argsort(rho, kind="stable")
+    return (np.ascontiguousarray(L[order]), R[order], rho[order], ij[order], shift[order])
+
+
+@njit(cache=True, inline="always")
+def _check_F(F00, F01, F10, F11, min_stretch):
+    """Status code of one F and, when valid, the number-independent bound 1 / s_min(F)."""
+    if not (
+        np.isfinite(F00) and np.isfinite(F01) and np.isfinite(F10) and np.isfinite(F11)
+    ):
+        return NOT_FINITE, 0.0
+    J = F00 * F11 - F01 * F10
+    if not J > 0.0:
+        return NOT_ORIENTATION_PRESERVING, 0.0
+    # s_max^2 = (tr C + sqrt(tr C^2 - 4 J^2)) / 2 with C = F^T F; s_min = J / s_max is stable.
+    trC = F00 * F00 + F01 * F01 + F10 * F10 + F11 * F11
+    disc = max(trC * trC - 4.0 * J * J, 0.0)
+    smax = np.sqrt(0.5 * (trC + np.sqrt(disc)))
+    smin = J / smax
+    if smin < min_stretch * (1.0 - _STRETCH_RTOL):
+        return BELOW_MIN_STRETCH, 0.0
+    return OK, 1.0 / smin
+
+
+@njit(cache=True, inline="always")
+def _moment_sums(F00, F01, F10, F11, L, R, n_visit, spatial, tangent, acc):
+    """Accumulate sum eps^2, S (3) and, if ``tangent``, T (5) into ``acc`` (9,) over active contacts.
+
+    ``spatial`` selects v = l (spatial quantities) instead of v = L (material quantities).
+    """
+    e2 = 0.0
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    t0 = 0.0
+    t1 = 0.0
+    t2 = 0.0
+    t3 = 0.0
+    t4 = 0.0
+    for c in range(n_visit):
+        X = L[c, 0]
+        Y = L[c, 1]
+        lx = F00 * X + F01 * Y
+        ly = F10 * X + F11 * Y
+        d = np.sqrt(lx * lx + ly * ly)
+        eps = R[c] - d
+        if eps >= 0.0:
+            if spatial:
+                X = lx
+                Y = ly
+            xx = X * X
+            xy = X * Y
+            yy = Y * Y
+            b = eps / d
+            e2 += eps * eps
+            s0 += b * xx
+            s1 += b * xy
+            s2 += b * yy
+            if tangent:
+                g = R[c] / (d * d * d)
+                t0 += g * xx * xx
+                t1 += g * xx * xy
+                t2 += g * xx * yy
+                t3 += g * xy * yy
+                t4 += g * yy * yy
+    acc[0] = e2
+    acc[1] = s0
+    acc[2] = s1
+    acc[3] = s2
+    acc[4] = t0
+    acc[5] = t1
+    acc[6] = t2
+    acc[7] = t3
+    acc[8] = t4
+
+
+@njit(cache=True)
+def evaluate_batch(F, L, R, rho, stiffness_per_area, min_stretch, spatial, tangent, W, P, A, status):
+    """Energy, stress and (optionally) tangent at n points.
+
+    Args:
+        F: (n, 2, 2) deformation gradients.
+        L, R, rho: candidate arrays from :func:`candidate_pairs`.
+        stiffness_per_area: k_n / V_rve.
+        min_stretch: smallest supported singular value of F.
+        spatial: False -> P (eq. 10) and A = dP/dF (eqs. 12-13);
+            True -> Cauchy stress (eq. 11) and spatial tangent (eq. 14).
+        tangent: compute A (else A is left untouched and may be a dummy array).
+        W: (n,) out, energy density per reference area (eq. 7).
+        P: (n, 2, 2) out, stress.
+        A: (n, 2, 2, 2, 2) out, tangent.
+        status: (n,) int out, OK or the reason F was rejected (W, P, A then zero).
+    """
+    K = stiffness_per_area
+    acc = np.empty(9)
+    for q in range(F.shape[0]):
+        F00 = F[q, 0, 0]
+        F01 = F[q, 0, 1]
+        F10 = F[q, 1, 0]
+        F11 = F[q, 1, 1]
+        code, limit = _check_F(F00, F01, F10, F11, min_stretch)
+        status[q] = code
+        if code != OK:
+            W[q] = 0.0
+            P[q, :, :] = 0.0
+            if tangent:
+                A[q, :, :, :, :] = 0.0
+            continue
+        n_visit = np.searchsorted(rho, limit, side="right")
+        _moment_sums(F00, F01, F10, F11, L, R, n_visit, spatial, tangent, acc)
+        S = acc[1:4]  # S[b + d] = S_bd
+        T = acc[4:9]  # T[e + f + b + d] = T_efbd
+        W[q] = 0.5 * K * acc[0]
+        if spatial:
+            scale = K / (F00 * F11 - F01 * F10)
+            for a in range(2):
+                for b in range(2):
+                    P[q, a, b] = -scale * S[a + b]
+            if tangent:
+                for a in range(2):
+                    for b in range(2):
+                        for c in range(2):
+                            for dd in range(2):
+                                val = T[a + c + b + dd]
+                                if a == c:
+                                    val -= S[b + dd]
+                                A[q, a, b, c, dd] = scale * val
+        else:
+            for a in range(2):
+                for b in range(2):
+                    P[q, a, b] = -K * (F[q, a, 0] * S[b] + F[q, a, 1] * S[1 + b])
+            if tangent:
+                for a in range(2):
+                    for b in range(2):
+                        for c in range(2):
+                            for dd in range(2):
+                                val = 0.0
+                                for e in range(2):
+                                    for f in range(2):
+                                        val += F[q, a, e] * F[q, c, f] * T[e + f + b + dd]
+                                if a == c:
+                                    val -= S[b + dd]
+                                A[q, a, b, c, dd] = K * val

@@ -1,0 +1,207 @@
+"""The Taylor RVE material: energy, stresses and tangents of a disk packing under a macroscopic F.
+
+Equation numbers refer to Meier, Steinmann & Kuhl (paper in ``shared/paper``). Every particle
+follows the macroscopic deformation gradient (x = F X, eq. 1); disks in contact (overlap eps >= 0,
+eq. 3) interact through linear normal springs (eq. 4). Each physical contact is counted once, which
+equals the paper's double sum over i != j with its factor 1/2.
+
+Units: ``normal_stiffness`` k_n in N/m² (force per unit overlap per unit thickness), lengths in the
+packing's units; energy density W and all stresses and tangents in Pa. The Taylor stress does not
+depend on the packing's absolute size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kernel
+from .packing import Packing
+
+_REASONS = {
+    kernel.NOT_FINITE: "has a NaN or inf entry",
+    kernel.NOT_ORIENTATION_PRESERVING: "has det F <= 0 (an inverted or collapsed element)",
+    kernel.BELOW_MIN_STRETCH: "compresses below the supported smallest singular value",
+}
+
+
+class UnsupportedDeformationError(ValueError):
+    """F is non-finite, has det F <= 0 or a singular value below ``min_stretch``.
+
+    Attributes:
+        points: indices of the rejected points in the batch.
+        status: (n,) status code per point (see :mod:`dolfinx_granular.kernel`).
+    """
+
+    def __init__(self, message, points, status):
+        super().__init__(message)
+        self.points = points
+        self.status = status
+
+
+@dataclass(frozen=True)
+class ContactSet:
+    """Active contacts of one RVE at one F (for force networks and diagnostics).
+
+    Attributes:
+        pairs: (m, 2) disk indices i, j.
+        shift: (m, 2) periodic image offset of j, in cells.
+        branch: (m, 2) current branch vectors l = F L (length).
+        overlap: (m,) eps >= 0 (length).
+        force: (m,) normal force magnitude k_n * eps (N per unit thickness).
+    """
+
+    pairs: np.ndarray
+    shift: np.ndarray
+    branch: np.ndarray
+    overlap: np.ndarray
+    force: np.ndarray
+
+
+class TaylorRVE:
+    """Taylor-assumption RVE of a periodic disk packing with linear normal contact springs.
+
+    Args:
+        packing: the reference microstructure.
+        normal_stiffness: k_n > 0 in N/m².
+        min_stretch: smallest singular value of F that is supported, 0 < min_stretch <= 1.
+            Candidate contacts are all pairs that can touch at such an F; a smaller bound costs
+            more memory and set-up time but not evaluation time at moderate strain.
+
+    Every ``F`` argument is an array of shape (n, 2, 2) (or (2, 2) for a single point); an F that
+    is non-finite, has det F <= 0 or a singular value below ``min_stretch`` raises
+    :class:`UnsupportedDeformationError` naming the points.
+    """
+
+    def __init__(self, packing: Packing, normal_stiffness: float, min_stretch: float = 0.5):
+        if not isinstance(packing, Packing):
+            raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
+        k = float(normal_stiffness)
+        if not (np.isfinite(k) and k > 0.0):
+            raise ValueError(f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}")
+        s = float(min_stretch)
+        if not (0.0 < s <= 1.0):
+            raise ValueError(f"min_stretch must lie in (0, 1], got {min_stretch!r}")
+        self.packing = packing
+        self.normal_stiffness = k
+        self.min_stretch = s
+        self._L, self._R, self._rho, self._ij, self._shift = kernel.candidate_pairs(
+            packing.centers, packing.radii, packing.box, 1.0 / s
+        )
+        self._K = k / packing.area
+
+    @property
+    def n_candidates(self) -> int:
+        """Number of candidate contacts (pairs that can touch at a supported F)."""
+        return self._R.shape[0]
+
+    # -- batch evaluation -------------------------------------------------------------------------
+
+    def _run(self, F, spatial, tangent, out=None):
+        F, single = _as_batch(F)
+        n = F.shape[0]
+        if out is None:
+            W = np.empty(n)
+            P = np.empty((n, 2, 2))
+            A = np.empty((n, 2, 2, 2, 2)) if tangent else np.empty((0, 2, 2, 2, 2))
+        else:
+            W, P, A = out
+            if not tangent:
+                A = np.empty((0, 2, 2, 2, 2))
+        status = np.empty(n, dtype=np.int8)
+        kernel.evaluate_batch(
+            F, self._L, self._R, self._rho, self._K, self.min_stretch, spatial, tangent,
+            W, P, A, status,
+        )
+        if status.any():
+            self._raise(F, status)
+        if single:
+            return W[0], P[0], (A[0] if tangent else None)
+        return W, P, (A if tangent else None)
+
+    def _raise(self, F, status):
+        bad = np.flatnonzero(status)
+        q = int(bad[0])
+        reason = _REASONS[int(status[q])]
+        if status[q] == kernel.BELOW_MIN_STRETCH:
+            smin = np.linalg.svd(F[q], compute_uv=False).min()
+            reason += f" ({smin:.4g} < min_stretch={self.min_stretch}; build the TaylorRVE with a smaller min_stretch)"
+        raise UnsupportedDeformationError(
+            f"F at {bad.size} of {F.shape[0]} points is outside the Taylor RVE's range; the first, "
+            f"point {q}, F = {F[q].tolist()}, {reason}",
+            bad,
+            status,
+        )
+
+    def evaluate(self, F, out=None):
+        """Energy, first Piola stress and its tangent.
+
+        Args:
+            F: (n, 2, 2) deformation gradients.
+            out: optional ``(W, P, A)`` C-contiguous arrays of shapes (n,), (n, 2, 2),
+                (n, 2, 2, 2, 2) to write into (e.g. views of DOLFINx quadrature data).
+
+        Returns:
+            ``(W, P, A)``: W (n,) energy density (eq. 7), P (n, 2, 2) first Piola stress (eq. 10),
+            A (n, 2, 2, 2, 2) with ``A[q, a, b, c, d] = dP_ab / dF_cd`` (eqs. 12-13), in Pa.
+        """
+        return self._run(F, spatial=False, tangent=True, out=out)
+
+    def stress(self, F, out=None):
+        """Energy and first Piola stress without the tangent (cheaper): ``(W (n,), P (n, 2, 2))``."""
+        W, P, _ = self._run(F, spatial=False, tangent=False, out=out)
+        return W, P
+
+    def energy(self, F):
+        """Energy density W (n,) per reference area (eq. 7), in Pa."""
+        return self.stress(F)[0]
+
+    def cauchy(self, F):
+        """Cauchy stress sigma (n, 2, 2) (eq. 11), in Pa; symmetric by construction."""
+        return self._run(F, spatial=True, tangent=False)[1]
+
+    def spatial_tangent(self, F):
+        """Spatial tangent a (n, 2, 2, 2, 2) of eq. 14, summed over contacts in the current
+        configuration; equals (1/J) F_bB F_dD A_aBcD."""
+        return self._run(F, spatial=True, tangent=True)[2]
+
+    def small_strain_modulus(self):
+        """Linear modulus C (2, 2, 2, 2) of eq. 15 over the contacts active at F = I, in Pa.
+
+        C_abcd = (k_n / V) sum_c |L|² n_a n_b n_c n_d. It equals A(I) when the reference contacts
+        are exactly touching (no prestress).
+        """
+        l, eps = self._overlaps(np.eye(2))
+        L = self._L[eps >= 0.0]
+        w = self._K / np.einsum("ci,ci->c", L, L)
+        return np.einsum("m,ma,mb,mc,md->abcd", w, L, L, L, L)
+
+    def contacts(self, F) -> ContactSet:
+        """Active contacts at a single F (2, 2): pairs, current branch vectors, overlaps, forces."""
+        F = np.asarray(F, dtype=np.float64)
+        if F.shape != (2, 2):
+            raise ValueError(f"contacts() takes one F of shape (2, 2), got {F.shape}")
+        self.stress(F)  # validates F with the kernel's own rule
+        l, eps = self._overlaps(F)
+        on = eps >= 0.0
+        return ContactSet(
+            pairs=self._ij[on], shift=self._shift[on], branch=l[on], overlap=eps[on],
+            force=self.normal_stiffness * eps[on],
+        )
+
+    def _overlaps(self, F):
+        """Current branch vectors (M, 2) and overlaps (M,) of all candidates, with the same
+        arithmetic as the kernel so that the active set is identical."""
+        X, Y = self._L[:, 0], self._L[:, 1]
+        l = np.stack([F[0, 0] * X + F[0, 1] * Y, F[1, 0] * X + F[1, 1] * Y], axis=1)
+        return l, self._R - np.sqrt(l[:, 0] * l[:, 0] + l[:, 1] * l[:, 1])
+
+
+def _as_batch(F):
+    F = np.asarray(F, dtype=np.float64)
+    if F.shape == (2, 2):
+        return np.ascontiguousarray(F[None]), True
+    if F.ndim != 3 or F.shape[1:] != (2, 2):
+        raise ValueError(f"F must have shape (n, 2, 2) or (2, 2), got {F.shape}")
+    return np.ascontiguousarray(F), False
