@@ -1,0 +1,178 @@
+"""Slope stability benchmark of Meier, Steinmann & Kuhl (section 5, figure 6), reconstructed.
+
+Figure 6 of the paper is not available; :class:`SlopeGeometry` holds the reconstruction (every
+dimension in metres, plane strain, unit thickness) so it can be changed in one place. The mesh is a
+structured Q1 mesh: one column of ``rows`` quadrilaterals per ``column_width``, rows spaced evenly
+between the bottom and the ground surface. Each column is its own transfinite gmsh surface, so the
+mapping is exactly bilinear and no node drifts off the evenly spaced rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: physical group tags of the facets
+BOTTOM, LEFT, RIGHT, FOOTING, SURFACE = 1, 2, 3, 4, 5
+#: physical group tag of the cells
+SOIL = 10
+
+
+@dataclass(frozen=True)
+class SlopeGeometry:
+    """Dimensions (m) and loads of the slope benchmark.
+
+    Ground at ``crest_height`` for x <= ``slope_start``, a straight slope down to ``toe_height``
+    at ``slope_end``, then flat. The footing load is a linearly varying pressure over
+    [footing_start, footing_end] whose resultant ``footing_load`` (N per metre, negative = down)
+    acts ``eccentricity`` toward the slope (+x) from the footing centre.
+    """
+
+    width: float = 77.5
+    crest_height: float = 58.125
+    toe_height: float = 38.75
+    slope_start: float = 38.75
+    slope_end: float = 58.125
+    column_width: float = 3.875
+    rows: int = 19
+    footing_start: float = 11.625
+    footing_end: float = 34.875
+    footing_load: float = -4.0e7
+    eccentricity: float = 3.875
+    density: float = 2.5e3
+    gravity: float = 9.81
+
+    def __post_init__(self):
+        cols = self.width / self.column_width
+        for name in ("slope_start", "slope_end", "footing_start", "footing_end"):
+            k = getattr(self, name) / self.column_width
+            if abs(k - round(k)) > 1e-9:
+                raise ValueError(
+                    f"{name}={getattr(self, name)} m is not on a column boundary (multiple of "
+                    f"column_width={self.column_width} m); move it or change column_width"
+                )
+        if abs(cols - round(cols)) > 1e-9:
+            raise ValueError(f"width={self.width} m is not a multiple of column_width={self.column_width} m")
+        if not (0 <= self.footing_start < self.footing_end <= self.width):
+            raise ValueError("need 0 <= footing_start < footing_end <= width")
+        if not (0 < self.slope_start <= self.slope_end <= self.width):
+            raise ValueError("need 0 < slope_start <= slope_end <= width")
+        if min(self.crest_height, self.toe_height) <= 0 or self.rows < 1:
+            raise ValueError("heights must be > 0 and rows >= 1")
+        if abs(self.eccentricity) > self.footing_width / 6 * (1 + 1e-12):
+            raise ValueError(
+                f"eccentricity {self.eccentricity} m exceeds B/6 = {self.footing_width / 6} m: the "
+                "linear footing pressure would change sign (the footing would lift off)"
+            )
+
+    @property
+    def columns(self) -> int:
+        return int(round(self.width / self.column_width))
+
+    @property
+    def footing_width(self) -> float:
+        return self.footing_end - self.footing_start
+
+    @property
+    def n_cells(self) -> int:
+        return self.columns * self.rows
+
+    def surface_height(self, x):
+        """Ground height y_s(x) (m) for x (array) in [0, width]."""
+        return np.interp(x, [0.0, self.slope_start, self.slope_end, self.width],
+                         [self.crest_height, self.crest_height, self.toe_height, self.toe_height])
+
+    def footing_pressure(self, x):
+        """Footing pressure q(x) (Pa, signed like ``footing_load``) for x (array) on the footing.
+
+        Linear in x with resultant ``footing_load`` and moment arm ``eccentricity``:
+        q = P/B (1 + 12 e (x - x_c) / B²); for e = B/6 it is 0 at the heel and 2P/B at the edge.
+        """
+        B = self.footing_width
+        xc = 0.5 * (self.footing_start + self.footing_end)
+        x = np.asarray(x, dtype=float)
+        q = self.footing_load / B * (1.0 + 12.0 * self.eccentricity * (x - xc) / B**2)
+        return np.where((x >= self.footing_start) & (x <= self.footing_end), q, 0.0)
+
+    @property
+    def loaded_edge(self) -> float:
+        """x (m) of the footing edge with the larger pressure (where settlement is reported)."""
+        return self.footing_end if self.eccentricity >= 0 else self.footing_start
+
+
+def build_gmsh_model(geometry: SlopeGeometry = SlopeGeometry(), name: str = "slope"):
+    """Create the structured Q1 slope mesh in the current gmsh model (gmsh must be initialised).
+
+    Physical groups: facets BOTTOM, LEFT, RIGHT, FOOTING, SURFACE (free surface, footing
+    excluded); cells SOIL.
+    """
+    import gmsh
+
+    g = geometry
+    gmsh.model.add(name)
+    geo = gmsh.model.geo
+    xs = np.linspace(0.0, g.width, g.columns + 1)
+    ys = g.surface_height(xs)
+    bot = [geo.addPoint(x, 0.0, 0.0) for x in xs]
+    top = [geo.addPoint(x, y, 0.0) for x, y in zip(xs, ys)]
+    vert = [geo.addLine(b, t) for b, t in zip(bot, top)]
+    bottom = [geo.addLine(bot[i], bot[i + 1]) for i in range(g.columns)]
+    surface = [geo.addLine(top[i], top[i + 1]) for i in range(g.columns)]
+    faces = []
+    for i in range(g.columns):
+        loop = geo.addCurveLoop([bottom[i], vert[i + 1], -surface[i], -vert[i]])
+        faces.append(geo.addPlaneSurface([loop]))
+    geo.synchronize()
+    mesh = gmsh.model.mesh
+    for c in bottom + surface:
+        mesh.setTransfiniteCurve(c, 2)
+    for c in vert:
+        mesh.setTransfiniteCurve(c, g.rows + 1)
+    for f in faces:
+        mesh.setTransfiniteSurface(f)
+        mesh.setRecombine(2, f)
+    mid = 0.5 * (xs[:-1] + xs[1:])
+    on_footing = (mid > g.footing_start) & (mid < g.footing_end)
+    _group(1, bottom, BOTTOM, "bottom")
+    _group(1, [vert[0]], LEFT, "left")
+    _group(1, [vert[-1]], RIGHT, "right")
+    _group(1, [c for c, f in zip(surface, on_footing) if f], FOOTING, "footing")
+    _group(1, [c for c, f in zip(surface, on_footing) if not f], SURFACE, "surface")
+    _group(2, faces, SOIL, "soil")
+    mesh.generate(2)
+
+
+def _group(dim, entities, tag, name):
+    import gmsh
+
+    gmsh.model.addPhysicalGroup(dim, entities, tag)
+    gmsh.model.setPhysicalName(dim, tag, name)
+
+
+def create_mesh(comm, geometry: SlopeGeometry = SlopeGeometry()):
+    """Build the slope mesh with gmsh on rank 0 and distribute it over ``comm``.
+
+    Returns:
+        ``(mesh, cell_tags, facet_tags)`` (DOLFINx objects); facet tags as in this module.
+    """
+    import gmsh
+    from dolfinx.io import gmshio
+
+    # gmsh 4.8 has no isInitialized(); then assume nobody else holds a session.
+    initialized = getattr(gmsh, "isInitialized", lambda: False)()
+    if not initialized:
+        gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        if comm.rank == 0:
+            build_gmsh_model(geometry)
+        msh, cell_tags, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
+    finally:
+        if comm.rank == 0:
+            gmsh.model.remove()
+        if not initialized:
+            gmsh.finalize()
+    msh.name = "slope"
+    return msh, cell_tags, facet_tags
+
