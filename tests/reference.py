@@ -1,0 +1,58 @@
+"""Slow, obvious NumPy reference of the Taylor RVE, written straight from the paper's formulas.
+
+The paper's double sums over i != j (eqs. 7, 10, 13, 14) with their factor 1/2, periodic images
+included by brute force over a fixed range of image shifts. Independent of the package's kernel:
+no candidate lists, no moment sums, no pruning.
+"""
+
+import numpy as np
+
+
+def all_branch_vectors(packing, images=3):
+    """Every ordered pair (i, j, image) except a disk with itself: L (M, 2), R (M,)."""
+    X, r, box = packing.centers, packing.radii, packing.box
+    n = len(r)
+    s = np.arange(-images, images + 1)
+    shifts = np.array([(a, b) for a in s for b in s], dtype=float) * box  # (S, 2)
+    i, j, k = np.meshgrid(np.arange(n), np.arange(n), np.arange(len(shifts)), indexing="ij")
+    i, j, k = i.ravel(), j.ravel(), k.ravel()
+    keep = ~((i == j) & np.all(shifts[k] == 0.0, axis=1))
+    i, j, k = i[keep], j[keep], k[keep]
+    L = X[j] + shifts[k] - X[i]
+    return L, r[i] + r[j]
+
+
+def reference(packing, k_n, F, images=3):
+    """W, P, A, sigma, a at one F (2, 2) from eqs. 7, 10, 11, 13, 14."""
+    L, R = all_branch_vectors(packing, images)
+    V = packing.area
+    l = L @ F.T
+    d = np.linalg.norm(l, axis=1)
+    eps = R - d
+    on = eps >= 0.0
+    L, R, l, d, eps = L[on], R[on], l[on], d[on], eps[on]
+    n = l / d[:, None]
+    I = np.eye(2)
+    W = np.sum(k_n * eps**2) / (4.0 * V)  # eq. 7
+    f = -k_n * eps[:, None] * n  # eq. 5
+    P = np.einsum("ma,mb->ab", f, L) / (2.0 * V)  # eq. 10
+    J = np.linalg.det(F)
+    sigma = np.einsum("ma,mb->ab", f, l) / (2.0 * J * V)  # eq. 11
+    w = k_n / d
+    LL = np.einsum("mb,md->mbd", L, L)
+    A_geo = -np.einsum("m,ac,mbd->abcd", w * eps, I, LL) / (2.0 * V)  # eq. 13, geometric part
+    nn = np.einsum("ma,mc->mac", n, n)
+    A_mat = np.einsum("m,mac,mbd->abcd", w * R, nn, LL) / (2.0 * V)  # eq. 13, material part
+    inner = R[:, None, None] * nn - eps[:, None, None] * I  # [r_i + r_j] n x n - eps 1
+    a = np.einsum("m,mac,mbd->abcd", d * k_n, inner, nn) / (2.0 * J * V)  # eq. 14
+    return W, P, A_geo + A_mat, sigma, a
+
+
+def reference_modulus(packing, k_n, images=3):
+    """Small-strain modulus of eq. 15 over the contacts touching at F = I."""
+    L, R = all_branch_vectors(packing, images)
+    d = np.linalg.norm(L, axis=1)
+    on = R - d >= 0.0
+    L, d = L[on], d[on]
+    n = L / d[:, None]
+    return np.einsum("m,ma,mb,mc,md->abcd", k_n * d**2, n, n, n, n) / (2.0 * packing.area)

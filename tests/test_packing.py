@@ -1,0 +1,110 @@
+"""Packing: validation, wrapping and the .npz file format."""
+
+import zipfile
+
+import numpy as np
+import pytest
+from packings import random_packing
+
+from dolfinx_granular import Packing, PackingFileError
+
+
+def test_attributes_and_wrapping():
+    p = Packing([[-0.25, 1.5], [2.25, 0.5]], [0.4, 0.3], (2.0, 1.0))
+    assert p.centers.tolist() == [[1.75, 0.5], [0.25, 0.5]]
+    assert p.radii.dtype == np.float64 and p.box.tolist() == [2.0, 1.0]
+    assert np.all((p.centers >= 0) & (p.centers < p.box))
+    assert p.n_particles == 2 and p.area == 2.0
+    assert p.volume_fraction == pytest.approx(np.pi * 0.25 / 2.0)
+
+
+def test_tiny_negative_center_stays_inside_box():
+    p = Packing([[-1e-20, 0.5], [0.5, 0.5]], [0.1, 0.1], (1.0, 1.0))
+    assert np.all(p.centers < p.box)
+
+
+@pytest.mark.parametrize(
+    "centers, radii, box, words",
+    [
+        (np.zeros((3, 3)), np.ones(3), (5, 5), r"centers must have shape \(N, 2\)"),
+        (np.zeros((3, 2)), np.ones(2), (5, 5), r"radii must have shape"),
+        (np.zeros((3, 2)), np.ones(3), (5, 5, 5), r"box must be"),
+        (np.zeros((1, 2)), np.ones(1), (5, 5), "at least 2 disks"),
+        ([[0, 0], [np.nan, 1]], [1, 1], (5, 5), "centers has non-finite"),
+        ([[0, 0], [1, 1]], [1, np.inf], (5, 5), "radii has non-finite"),
+        ([[0, 0], [1, 1]], [1, 1], (5, np.nan), "box has non-finite"),
+        ([[0, 0], [1, 1]], [1, 0.0], (5, 5), "radii must be > 0"),
+        ([[0, 0], [1, 1]], [1, -1.0], (5, 5), "radii must be > 0"),
+        ([[0, 0], [1, 1]], [1, 1], (5, 0.0), "box lengths must be > 0"),
+        ([[0, 0], [1, 1]], [1, 2.5], (10, 5), "own periodic image"),
+        ([[0, 0], [1, 1]], [1, "a"], (5, 5), "numeric"),
+    ],
+)
+def test_bad_input_raises(centers, radii, box, words):
+    with pytest.raises(ValueError, match=words):
+        Packing(centers, radii, box)
+
+
+def test_save_load_round_trip(tmp_path):
+    p = random_packing(30, seed=1)
+    p.save(tmp_path / "p.npz")
+    q = Packing.load(tmp_path / "p.npz")
+    assert q == p
+
+
+def test_save_needs_npz_suffix(tmp_path):
+    with pytest.raises(ValueError, match=r"\.npz"):
+        random_packing(5).save(tmp_path / "p.dat")
+
+
+def test_load_missing_file(tmp_path):
+    with pytest.raises(PackingFileError, match="does not exist"):
+        Packing.load(tmp_path / "nope.npz")
+
+
+def test_load_truncated_file(tmp_path):
+    random_packing(30).save(tmp_path / "p.npz")
+    data = (tmp_path / "p.npz").read_bytes()
+    (tmp_path / "t.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(PackingFileError, match="not a readable packing file"):
+        Packing.load(tmp_path / "t.npz")
+
+
+def test_load_text_file(tmp_path):
+    (tmp_path / "x.npz").write_text("centers,radii\n1,2\n")
+    with pytest.raises(PackingFileError, match="not a readable packing file"):
+        Packing.load(tmp_path / "x.npz")
+
+
+def test_load_foreign_npz(tmp_path):
+    np.savez(tmp_path / "f.npz", centers=np.zeros((2, 2)), radii=np.ones(2))
+    with pytest.raises(PackingFileError, match="not a dolfinx_granular packing"):
+        Packing.load(tmp_path / "f.npz")
+
+
+def test_load_future_version(tmp_path):
+    np.savez(tmp_path / "v.npz", format=np.array("dolfinx_granular.packing"), version=np.array(99),
+             centers=np.zeros((2, 2)), radii=np.ones(2), box=np.ones(2) * 5)
+    with pytest.raises(PackingFileError, match="version 99"):
+        Packing.load(tmp_path / "v.npz")
+
+
+def test_load_invalid_contents(tmp_path):
+    np.savez(tmp_path / "v.npz", format=np.array("dolfinx_granular.packing"), version=np.array(1),
+             centers=np.zeros((2, 2)), radii=np.array([1.0, -1.0]), box=np.ones(2) * 5)
+    with pytest.raises(PackingFileError, match="radii must be > 0"):
+        Packing.load(tmp_path / "v.npz")
+
+
+def test_load_pickled_object_array_is_refused(tmp_path):
+    np.savez(tmp_path / "o.npz", format=np.array("dolfinx_granular.packing"), version=np.array(1),
+             centers=np.array([None, None], dtype=object), radii=np.ones(2), box=np.ones(2))
+    with pytest.raises(PackingFileError):
+        Packing.load(tmp_path / "o.npz")
+
+
+def test_zip_without_arrays(tmp_path):
+    with zipfile.ZipFile(tmp_path / "z.npz", "w") as z:
+        z.writestr("hello.txt", "hi")
+    with pytest.raises(PackingFileError):
+        Packing.load(tmp_path / "z.npz")
