@@ -357,10 +357,10 @@ def generate_packing(
     # Cell sized for phi ~ 0.84 at the sampled radii; stage 2 scales the radii, stage 3 scales back.
     area = np.pi * np.sum(r0**2) / 0.84
     box = np.array([np.sqrt(area / aspect), np.sqrt(area * aspect)])
-    if 2.0 * r0.max() >= 0.5 * box.min():
+    if 2.0 * r0.max() >= 0.8 * box.min():
         raise ValueError(
             f"{n} disks are too few for this size span: the largest grain "
-            f"({2 * r0.max():.3g} mm) would span half the cell; use more particles or a "
+            f"({2 * r0.max():.3g} mm) would span 80 % of the cell; use more particles or a "
             "narrower grading (larger d_min)"
         )
     x = rng.random((n, 2)) * box
@@ -399,33 +399,46 @@ def _jam(x, r0, box, p_target, d_mean, say):
         say(f"  phi = {phi:.5f}: p/k = {p:.3e} after {steps} FIRE steps")
         if p_target / 1.5 <= p <= 1.5 * p_target:
             return x, scale, p
-        if p < 1e-3 * p_target:
-            lo = phi
+        if p > p_target:
+            hi = phi if hi is None else min(hi, phi)
         else:
-            if p > p_target:
-                hi = phi
-            else:
-                lo = phi
+            lo = phi if lo is None else max(lo, phi)
+        if p > 1e-2 * p_target:
             jammed.append((phi, p))
+        if lo is not None and hi is not None and hi - lo < 1e-9:
+            # p jumps across the target (small N): accept the jammed state at the upper bound
+            phi = hi
+            scale = np.sqrt(phi / phi0)
+            _fire(x, scale * r0, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000)
+            return x, scale, _pressure(x, scale * r0, box)
         # next phi: secant on the last two jammed states (p is ~ linear in phi above jamming),
-        # else a fixed slope guess; bisect when the step leaves the bracket.
-        if len(jammed) >= 2 and jammed[-1][1] != jammed[-2][1]:
+        # else a slope guess; bisect when the step leaves the bracket.
+        if len(jammed) >= 2 and jammed[-1][1] != jammed[-2][1] and jammed[-1][0] != jammed[-2][0]:
             (f1, p1), (f2, p2) = jammed[-2], jammed[-1]
             slope = max((p2 - p1) / (f2 - f1), 1e-3)
             new = f2 + (p_target - p2) / slope
         elif jammed:
             new = jammed[-1][0] + (p_target - jammed[-1][1]) / 0.3
         else:
-            new = phi + 0.01
-        if lo is not None and hi is not None and not (lo < new < hi):
+            new = phi + 0.005
+        if hi is None:
+            new = max(new, phi + 1e-4)
+        elif lo is None:
+            new = min(new, phi - 1e-4)
+        elif not (lo < new < hi):
             new = 0.5 * (lo + hi)
-        elif hi is not None and new >= hi:
-            new = hi - 0.002
         phi = new
     raise RuntimeError(f"jamming did not reach p/k = {p_target:g} (last p/k = {p:.3g})")
 
 
 # -- stage 3: stress-free reference ------------------------------------------------------------------
+
+
+def _pressure(x, r, box):
+    """Virial pressure p / k of centres x at radii r."""
+    m, pi, pj, sh = _build_pairs(x, r, box, 0.0)
+    e, vir, omax = _forces(x, r, m, pi, pj, sh, np.empty_like(x))
+    return vir / (2.0 * box.prod())
 
 
 def _rattlers(pairs, n):
