@@ -7,6 +7,11 @@ The microscale lives in :mod:`~dolfinx_granular.packing` (disk packings) and
 
 from .packing import Packing, PackingFileError
 from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
+from .gsd import SieveCurve, cen_standard_sand
+from .generation import NetworkStats, generate_packing, network_stats
+from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
 
-__all__ = ["Packing", "PackingFileError", "TaylorRVE", "ContactSet", "UnsupportedDeformationError"]
+__all__ = ["Packing", "PackingFileError", "TaylorRVE", "ContactSet", "UnsupportedDeformationError",
+           "SieveCurve", "cen_standard_sand", "generate_packing", "network_stats", "NetworkStats",
+           "contact_angles", "normal_density", "fabric_tensor", "anisotropy", "density_deviation"]
 __version__ = "0.1.0"
