@@ -96,8 +96,14 @@ def candidate_pairs(centers, radii, box, max_ratio):
     L, R, rho = np.empty((m, 2)), np.empty(m), np.empty(m)
     ij, shift = np.empty((m, 2), np.int64), np.empty((m, 2), np.int64)
     _scan_pairs(*args, True, L, R, rho, ij, shift)
+    if m and np.any(rho == 0.0):
+        c = int(np.flatnonzero(rho == 0.0)[0])
+        raise ValueError(
+            f"disks {ij[c, 0]} and {ij[c, 1]} have the same centre, so their contact normal is "
+            "undefined; move one of them"
+        )
     order = np.argsort(rho, kind="stable")
-    return (np.ascontiguousarray(L[order]), R[order], rho[order], ij[order], shift[order])
+    return L[order], R[order], rho[order], ij[order], shift[order]
 
 
 @njit(cache=True, inline="always")
@@ -120,12 +126,17 @@ def _check_F(F00, F01, F10, F11, min_stretch):
     return OK, 1.0 / smin
 
 
-@njit(cache=True, inline="always")
-def _moment_sums(F00, F01, F10, F11, L, R, n_visit, spatial, tangent, acc):
-    """Accumulate sum eps^2, S (3) and, if ``tangent``, T (5) into ``acc`` (9,) over active contacts.
+# Fast-math flags without 'nnan'/'ninf' (inputs are validated finite, d > 0) and without
+# 'contract', so that l = F L rounds exactly as in NumPy and the active set matches
+# TaylorRVE.contacts(). error_model="numpy" drops the ZeroDivisionError check, which would
+# otherwise stop LLVM from vectorising the loop.
+_FASTMATH = {"reassoc", "nsz", "arcp"}
 
-    ``spatial`` selects v = l (spatial quantities) instead of v = L (material quantities).
-    """
+
+@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+def _moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc):
+    """Accumulate sum eps^2, S(L) (3) and, if ``tangent``, T(L) (5) into ``acc`` (9,) over the
+    active contacts among the first ``n_visit`` candidates (X, Y, R of shape (M,))."""
     e2 = 0.0
     s0 = 0.0
     s1 = 0.0
@@ -136,31 +147,30 @@ def _moment_sums(F00, F01, F10, F11, L, R, n_visit, spatial, tangent, acc):
     t3 = 0.0
     t4 = 0.0
     for c in range(n_visit):
-        X = L[c, 0]
-        Y = L[c, 1]
-        lx = F00 * X + F01 * Y
-        ly = F10 * X + F11 * Y
+        x = X[c]
+        y = Y[c]
+        r = R[c]
+        lx = F00 * x + F01 * y
+        ly = F10 * x + F11 * y
         d = np.sqrt(lx * lx + ly * ly)
-        eps = R[c] - d
-        if eps >= 0.0:
-            if spatial:
-                X = lx
-                Y = ly
-            xx = X * X
-            xy = X * Y
-            yy = Y * Y
-            b = eps / d
-            e2 += eps * eps
-            s0 += b * xx
-            s1 += b * xy
-            s2 += b * yy
-            if tangent:
-                g = R[c] / (d * d * d)
-                t0 += g * xx * xx
-                t1 += g * xx * xy
-                t2 += g * xx * yy
-                t3 += g * xy * yy
-                t4 += g * yy * yy
+        eps = r - d
+        on = 1.0 if eps >= 0.0 else 0.0  # Heaviside with H(0) = 1; a select, so it vectorises
+        inv = on / d
+        xx = x * x
+        xy = x * y
+        yy = y * y
+        b = eps * inv
+        e2 += on * eps * eps
+        s0 += b * xx
+        s1 += b * xy
+        s2 += b * yy
+        if tangent:
+            g = r * inv * inv * inv
+            t0 += g * xx * xx
+            t1 += g * xx * xy
+            t2 += g * xx * yy
+            t3 += g * xy * yy
+            t4 += g * yy * yy
     acc[0] = e2
     acc[1] = s0
     acc[2] = s1
@@ -173,24 +183,26 @@ def _moment_sums(F00, F01, F10, F11, L, R, n_visit, spatial, tangent, acc):
 
 
 @njit(cache=True)
-def evaluate_batch(F, L, R, rho, stiffness_per_area, min_stretch, spatial, tangent, W, P, A, status):
+def evaluate_batch(F, X, Y, R, rho, stiffness_per_area, min_stretch, spatial, tangent, W, P, A, status):
     """Energy, stress and (optionally) tangent at n points.
 
     Args:
         F: (n, 2, 2) deformation gradients.
-        L, R, rho: candidate arrays from :func:`candidate_pairs`.
+        X, Y, R, rho: (M,) candidate arrays from :func:`candidate_pairs` (L = (X, Y)).
         stiffness_per_area: k_n / V_rve.
         min_stretch: smallest supported singular value of F.
         spatial: False -> P (eq. 10) and A = dP/dF (eqs. 12-13);
-            True -> Cauchy stress (eq. 11) and spatial tangent (eq. 14).
-        tangent: compute A (else A is left untouched and may be a dummy array).
+            True -> Cauchy stress (eq. 11) and spatial tangent (eq. 14), pushed forward from the
+            material sums (S(l) = F S(L) F^T, since l = F L with the same weights).
+        tangent: compute A (else A is not touched and may have length 0).
         W: (n,) out, energy density per reference area (eq. 7).
         P: (n, 2, 2) out, stress.
         A: (n, 2, 2, 2, 2) out, tangent.
-        status: (n,) int out, OK or the reason F was rejected (W, P, A then zero).
+        status: (n,) int8 out, OK or the reason F was rejected (W, P, A then zero).
     """
     K = stiffness_per_area
     acc = np.empty(9)
+    Am = np.empty((2, 2, 2, 2))
     for q in range(F.shape[0]):
         F00 = F[q, 0, 0]
         F01 = F[q, 0, 1]
@@ -205,37 +217,43 @@ def evaluate_batch(F, L, R, rho, stiffness_per_area, min_stretch, spatial, tange
                 A[q, :, :, :, :] = 0.0
             continue
         n_visit = np.searchsorted(rho, limit, side="right")
-        _moment_sums(F00, F01, F10, F11, L, R, n_visit, spatial, tangent, acc)
+        _moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc)
         S = acc[1:4]  # S[b + d] = S_bd
         T = acc[4:9]  # T[e + f + b + d] = T_efbd
         W[q] = 0.5 * K * acc[0]
-        if spatial:
-            scale = K / (F00 * F11 - F01 * F10)
+        J = F00 * F11 - F01 * F10
+        for a in range(2):
+            for b in range(2):
+                Pab = -K * (F[q, a, 0] * S[b] + F[q, a, 1] * S[1 + b])
+                P[q, a, b] = Pab
+        if spatial:  # sigma = P F^T / J
+            for a in range(2):
+                s0 = (P[q, a, 0] * F[q, 0, 0] + P[q, a, 1] * F[q, 0, 1]) / J
+                s1 = (P[q, a, 0] * F[q, 1, 0] + P[q, a, 1] * F[q, 1, 1]) / J
+                P[q, a, 0] = s0
+                P[q, a, 1] = s1
+        if not tangent:
+            continue
+        for a in range(2):
+            for b in range(2):
+                for c in range(2):
+                    for d in range(2):
+                        val = 0.0
+                        for e in range(2):
+                            for f in range(2):
+                                val += F[q, a, e] * F[q, c, f] * T[e + f + b + d]
+                        if a == c:
+                            val -= S[b + d]
+                        Am[a, b, c, d] = K * val
+        if spatial:  # a_abcd = F_bB F_dD A_aBcD / J
             for a in range(2):
                 for b in range(2):
-                    P[q, a, b] = -scale * S[a + b]
-            if tangent:
-                for a in range(2):
-                    for b in range(2):
-                        for c in range(2):
-                            for dd in range(2):
-                                val = T[a + c + b + dd]
-                                if a == c:
-                                    val -= S[b + dd]
-                                A[q, a, b, c, dd] = scale * val
+                    for c in range(2):
+                        for d in range(2):
+                            val = 0.0
+                            for B in range(2):
+                                for D in range(2):
+                                    val += F[q, b, B] * F[q, d, D] * Am[a, B, c, D]
+                            A[q, a, b, c, d] = val / J
         else:
-            for a in range(2):
-                for b in range(2):
-                    P[q, a, b] = -K * (F[q, a, 0] * S[b] + F[q, a, 1] * S[1 + b])
-            if tangent:
-                for a in range(2):
-                    for b in range(2):
-                        for c in range(2):
-                            for dd in range(2):
-                                val = 0.0
-                                for e in range(2):
-                                    for f in range(2):
-                                        val += F[q, a, e] * F[q, c, f] * T[e + f + b + dd]
-                                if a == c:
-                                    val -= S[b + dd]
-                                A[q, a, b, c, dd] = K * val
+            A[q] = Am

@@ -89,6 +89,9 @@ class TaylorRVE:
         self._L, self._R, self._rho, self._ij, self._shift = kernel.candidate_pairs(
             packing.centers, packing.radii, packing.box, 1.0 / s
         )
+        # structure-of-arrays copies: contiguous loads let the kernel loop vectorise
+        self._X = np.ascontiguousarray(self._L[:, 0])
+        self._Y = np.ascontiguousarray(self._L[:, 1])
         self._K = k / packing.area
 
     @property
@@ -111,7 +114,7 @@ class TaylorRVE:
                 A = np.empty((0, 2, 2, 2, 2))
         status = np.empty(n, dtype=np.int8)
         kernel.evaluate_batch(
-            F, self._L, self._R, self._rho, self._K, self.min_stretch, spatial, tangent,
+            F, self._X, self._Y, self._R, self._rho, self._K, self.min_stretch, spatial, tangent,
             W, P, A, status,
         )
         if status.any():
@@ -162,8 +165,7 @@ class TaylorRVE:
         return self._run(F, spatial=True, tangent=False)[1]
 
     def spatial_tangent(self, F):
-        """Spatial tangent a (n, 2, 2, 2, 2) of eq. 14, summed over contacts in the current
-        configuration; equals (1/J) F_bB F_dD A_aBcD."""
+        """Spatial tangent a (n, 2, 2, 2, 2) of eq. 14, in Pa: (1/J) F_bB F_dD A_aBcD."""
         return self._run(F, spatial=True, tangent=True)[2]
 
     def small_strain_modulus(self):

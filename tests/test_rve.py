@@ -185,7 +185,8 @@ def test_stress_only_matches_full_evaluation(rve, rng):
     F = random_F(rng, 5)
     W, P, _ = rve.evaluate(F)
     W2, P2 = rve.stress(F)
-    assert np.array_equal(W, W2) and np.array_equal(P, P2)
+    # equal to round-off: the vectorised sums associate differently with and without the tangent
+    assert rel(W2, W) <= 1e-14 and rel(P2, P) <= 1e-14
 
 
 def test_out_arrays_are_written(rve, rng):
@@ -193,7 +194,7 @@ def test_out_arrays_are_written(rve, rng):
     out = (np.empty(3), np.empty((3, 2, 2)), np.empty((3, 2, 2, 2, 2)))
     res = rve.evaluate(F, out=out)
     assert all(r is o for r, o in zip(res, out))
-    assert np.array_equal(out[1], rve.stress(F)[1])
+    assert rel(out[1], rve.stress(F)[1]) <= 1e-14
 
 
 def test_contact_set_reproduces_stress(packing, rve, rng):
@@ -249,3 +250,9 @@ def test_bad_rve_arguments(packing, kwargs, words):
 def test_bad_F_shape(rve):
     with pytest.raises(ValueError, match=r"shape \(n, 2, 2\)"):
         rve.evaluate(np.eye(3))
+
+
+def test_coincident_centres_are_refused():
+    packing = Packing([[1.0, 1.0], [1.0, 1.0], [3.0, 3.0]], [0.5, 0.4, 0.5], (5.0, 5.0))
+    with pytest.raises(ValueError, match="disks 0 and 1 have the same centre"):
+        TaylorRVE(packing, K_N)
