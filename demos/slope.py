@@ -1,0 +1,235 @@
+"""Slope stability benchmark (section 5 of Meier, Steinmann & Kuhl): dead load, then an eccentric
+flexible strip footing in load steps, with a Taylor RVE of a disk packing at every Gauss point.
+
+    python demos/slope.py [--particles 700] [--seed 0] [--packing FILE] [--steps 20] [--out DIR]
+    mpirun -n 2 python demos/slope.py
+
+Writes convergence.csv, summary.json, slope.xdmf (+ .h5) and slope.png to DIR (see README).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)  # for meshes/ when run from a checkout
+
+import numpy as np  # noqa: E402
+from mpi4py import MPI  # noqa: E402
+
+K_N = 2.8e7  # normal contact stiffness, N/m² (table 1)
+
+
+def make_packing(particles, seed, packing_file=None):
+    """The RVE's packing: from ``packing_file`` if given, else ``generate_packing(particles, seed)``."""
+    from dolfinx_granular import Packing
+
+    if packing_file:
+        return Packing.load(packing_file)
+    from dolfinx_granular.generation import generate_packing  # lazy: a separate, optional module
+
+    return generate_packing(particles, seed=seed)
+
+
+def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=None,
+        normal_stiffness=K_N, figure=True, verbose=True, petsc_options=None):
+    """Run the benchmark and write the results to ``out``; returns the summary dict.
+
+    Args:
+        packing: the RVE microstructure (a Packing; same on every rank).
+        steps: number of equal footing load steps after the gravity step.
+        geometry: a :class:`meshes.slope.SlopeGeometry` (default: the reconstruction).
+    """
+    t_start = time.perf_counter()
+    import ufl
+    from dolfinx import fem, io
+    from petsc4py import PETSc
+
+    from dolfinx_granular import TaylorRVE
+    from dolfinx_granular.material import GranularMaterial
+    from dolfinx_granular.postprocess import (cell_function, gather_mesh, global_extremum,
+                                              nearest_point_value, plot_slope, von_mises)
+    from dolfinx_granular.solver import NewtonSolver
+    from meshes.slope import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
+
+    g = geometry or SlopeGeometry()
+    say = (lambda *a: print(*a, flush=True)) if (verbose and comm.rank == 0) else (lambda *a: None)
+    if comm.rank == 0:
+        os.makedirs(out, exist_ok=True)
+    msh, _, facets = create_mesh(comm, g)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    u = fem.Function(V, name="displacement")
+    v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
+    rve = TaylorRVE(packing, normal_stiffness)
+    material = GranularMaterial(rve, u, quadrature_degree=2)
+
+    # Dead loads on the reference configuration: gravity and the footing pressure (no follower).
+    gravity = fem.Constant(msh, PETSc.ScalarType(0.0))
+    footing = fem.Constant(msh, PETSc.ScalarType(0.0))
+    x = ufl.SpatialCoordinate(msh)
+    B, xc = g.footing_width, 0.5 * (g.footing_start + g.footing_end)
+    q = g.footing_load / B * (1.0 + 12.0 * g.eccentricity * (x[0] - xc) / B**2)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facets)
+    f_ext = (gravity * (-g.density * g.gravity) * v[1] * ufl.dx
+             + footing * q * v[1] * ds(FOOTING))
+    residual = material.residual_form(v) - f_ext
+    jacobian = material.jacobian_form(du, v)
+
+    fdim = msh.topology.dim - 1
+    zero = np.zeros(2, dtype=PETSc.ScalarType)
+    bcs = [fem.dirichletbc(zero, fem.locate_dofs_topological(V, fdim, facets.find(BOTTOM)), V)]
+    for tag in (LEFT, RIGHT):
+        dofs = fem.locate_dofs_topological(V.sub(0), fdim, facets.find(tag))
+        bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), dofs, V.sub(0)))
+
+    # Round-off level of the residual: a small fraction of the full external load.
+    gravity.value, footing.value = 1.0, 1.0
+    f_full = fem.petsc.assemble_vector(fem.form(f_ext))
+    f_full.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    residual_atol = 1e-12 * f_full.norm()
+    f_full.destroy()
+    solver = NewtonSolver(residual, jacobian, u, bcs, material, residual_atol=residual_atol,
+                          max_it=15, prefix="slope_", petsc_options=petsc_options,
+                          verbose=verbose)
+
+    V0 = fem.FunctionSpace(msh, ("DG", 0))
+    xdmf = io.XDMFFile(comm, os.path.join(out, "slope.xdmf"), "w")
+    xdmf.write_mesh(msh)
+    # Settlement under the loaded footing edge: the mesh node there (columns end on it).
+    edge = np.array([g.loaded_edge, float(g.surface_height(g.loaded_edge))])
+    dof_x = V.tabulate_dof_coordinates()[:, :2]
+    n_owned_dofs = V.dofmap.index_map.size_local
+    edge_dofs = np.flatnonzero(np.linalg.norm(dof_x[:n_owned_dofs] - edge, axis=1) < 1e-6 * g.width)
+
+    schedule = [(1.0, 0.0)] + [(1.0, k / steps) for k in range(1, steps + 1)]
+    rows, iterations, step_info = [], [], []
+    failed = None
+    say(f"slope: {msh.topology.index_map(2).size_global} cells, "
+        f"{comm.allreduce(material.n_points)} RVEs of {packing.n_particles} particles, "
+        f"{comm.size} rank(s), {len(schedule)} load steps")
+    setup_time = time.perf_counter() - t_start
+    vm_cells = None
+    for step, (lam_g, lam_f) in enumerate(schedule, start=1):
+        t0 = time.perf_counter()
+        gravity.value, footing.value = lam_g, lam_f
+        result = solver.solve()
+        iterations.append(result.iterations)
+        rows += [(step, it, rn, en) for it, rn, en in result.history]
+        step_info.append({"step": step, "gravity": lam_g, "footing_load": lam_f * g.footing_load,
+                          "iterations": result.iterations, "converged": result.converged,
+                          "reason": result.reason_name, "time": time.perf_counter() - t0})
+        say(f"step {step:2d}/{len(schedule)}: gravity x{lam_g:.2f}, footing {lam_f * g.footing_load:.3e} N/m, "
+            f"{result.iterations} iterations, {time.perf_counter() - t0:.2f} s"
+            + ("" if result.converged else f"  NOT CONVERGED ({result.reason_name})"))
+        if not result.converged:
+            # A cut-back would retry here with a smaller increment from the last converged u.
+            failed = {"step": step, "reason": result.reason_name, "error": result.error}
+            say(f"slope: load step {step} did not converge ({result.reason_name})"
+                + (f": {result.error}" if result.error else "") + "; stopping.")
+            break
+        vm = von_mises(material.cauchy())
+        vm_cells = cell_function(V0, material.cell_average(vm))
+        vm_cells.name = "von_mises"
+        xdmf.write_function(u, float(step))
+        xdmf.write_function(vm_cells, float(step))
+    xdmf.close()
+
+    # Extremes at the Gauss points of the last converged state (reference coordinates).
+    vm = von_mises(material.cauchy())
+    X = material.points
+    vmax, xmax = global_extremum(comm, vm, X, "max")
+    vmin, xmin = global_extremum(comm, vm, X, "min")
+    settle_local = [float(u.x.array[2 * d + 1]) for d in edge_dofs]
+    settlement = [s for part in comm.allgather(settle_local) for s in part][0]
+    smin = comm.allreduce(
+        float(np.linalg.svd(material.F, compute_uv=False).min()) if material.n_points else np.inf,
+        op=MPI.MIN)
+    t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in solver.timings.items()}
+    t_kernel = comm.allreduce(material.timings["rve"], op=MPI.MAX)
+
+    probes = [("A", xmax, "max von Mises"),
+              ("B", [g.loaded_edge - 0.5 * g.column_width, 0.75 * g.crest_height], "under the footing"),
+              ("C", [g.slope_end + 0.5 * g.column_width, 0.9 * g.toe_height], "at the toe"),
+              ("D", [0.5 * g.footing_start + 0.5 * g.column_width, 0.1 * g.crest_height], "deep")]
+    probe_F = [nearest_point_value(comm, X, material.F, p) for _, p, _ in probes]
+    if figure:
+        data = gather_mesh(V, u, vm_cells.x.array[V0.dofmap.list.array.reshape(-1)[
+            :msh.topology.index_map(2).size_local]] if vm_cells is not None else
+            np.zeros(msh.topology.index_map(2).size_local))
+        if comm.rank == 0:
+            markers = [(lab, xp, txt) for (lab, _, txt), (xp, _) in zip(probes, probe_F)]
+            markers.append(("min", xmin, f"min {vmin / 1e6:.3f} MPa"))
+            markers[0] = ("A", xmax, f"max {vmax / 1e6:.3f} MPa")
+            insets = [(lab, rve, Fp, f"{txt}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
+                      for (lab, _, txt), (xp, Fp) in zip(probes, probe_F)]
+            plot_slope(os.path.join(out, "slope.png"), data, markers, insets,
+                       title=f"step {len(iterations)}: settlement {settlement:.3f} m, "
+                             f"{packing.n_particles} particles, deformation x1")
+
+    wall = time.perf_counter() - t_start
+    summary = {
+        "ranks": comm.size,
+        "steps": len(schedule),
+        "completed_steps": len(iterations) - (failed is not None),
+        "converged": failed is None,
+        "failed": failed,
+        "iterations": iterations,
+        "footing_settlement": settlement,
+        "footing_settlement_point": edge.tolist(),
+        "max_von_mises": vmax, "max_von_mises_location": xmax,
+        "min_von_mises": vmin, "min_von_mises_location": xmin,
+        "min_singular_value_F": smin,
+        "particles": packing.n_particles,
+        "rves": comm.allreduce(material.n_points),
+        "wall_time": wall,
+        "time_setup": setup_time,
+        "time_rve": t["rve"],
+        "time_rve_kernel": t_kernel,
+        "time_assembly": t["assembly"],
+        "time_solve": t["solve"],
+        "step_info": step_info,
+        "probes": {lab: {"point": xp.tolist(), "F": Fp.tolist()}
+                   for (lab, _, _), (xp, Fp) in zip(probes, probe_F)},
+    }
+    if comm.rank == 0:
+        with open(os.path.join(out, "convergence.csv"), "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["step", "iteration", "residual_norm", "energy_norm_rel"])
+            w.writerows((s, i, f"{r:.16e}", f"{e:.16e}") for s, i, r, e in rows)
+        with open(os.path.join(out, "summary.json"), "w") as f:
+            json.dump(summary, f, indent=1)
+        say(f"slope: done in {wall:.1f} s (set-up {setup_time:.1f} s, RVE {t['rve']:.1f} s, "
+            f"assembly {t['assembly']:.1f} s, solve {t['solve']:.1f} s); settlement "
+            f"{settlement:.4f} m; von Mises {vmin:.4g} .. {vmax:.4g} Pa; results in {out}")
+    solver.destroy()
+    return summary
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--particles", type=int, default=700, help="particles per RVE (default 700)")
+    p.add_argument("--seed", type=int, default=0, help="packing generator seed (default 0)")
+    p.add_argument("--packing", help="load the packing from this .npz file instead of generating")
+    p.add_argument("--steps", type=int, default=20, help="footing load steps (default 20)")
+    p.add_argument("--out", default="results/slope", help="output folder (default results/slope)")
+    p.add_argument("--no-figure", action="store_true", help="skip slope.png")
+    a = p.parse_args(argv)
+    if a.steps < 1:
+        p.error("--steps must be >= 1")
+    comm = MPI.COMM_WORLD
+    packing = None
+    if comm.rank == 0:
+        packing = make_packing(a.particles, a.seed, a.packing)
+    packing = comm.bcast(packing, root=0)  # every rank must use the identical RVE
+    summary = run(packing, steps=a.steps, out=a.out, comm=comm, figure=not a.no_figure)
+    return 0 if summary["converged"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

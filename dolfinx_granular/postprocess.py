@@ -1,0 +1,221 @@
+"""Post-processing: von Mises stress, XDMF output and the figure-7 style pyvista plot.
+
+Functions that take a communicator gather to rank 0 what they need; pyvista is imported only by
+:func:`plot_slope`, and only on rank 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from mpi4py import MPI
+
+
+def von_mises(sigma) -> np.ndarray:
+    """Von Mises stress (n,) in Pa of in-plane Cauchy stresses sigma (n, 2, 2).
+
+    ``sqrt(3/2 s:s)`` with the 2-D deviator ``s = sigma - tr(sigma)/2 I`` (the Taylor RVE's
+    stress is a 2x2 tensor and has no out-of-plane component), i.e.
+    ``sqrt(3/4 (s11 - s22)^2 + 3/4 (s12 + s21)^2)``.
+    """
+    sigma = np.asarray(sigma, dtype=float)
+    if sigma.ndim != 3 or sigma.shape[1:] != (2, 2):
+        raise ValueError(f"sigma must have shape (n, 2, 2), got {sigma.shape}")
+    s = sigma - 0.5 * np.trace(sigma, axis1=1, axis2=2)[:, None, None] * np.eye(2)
+    return np.sqrt(1.5 * np.einsum("qij,qij->q", s, s))
+
+
+def global_extremum(comm, values, points, kind="max"):
+    """Global max or min of per-rank ``values`` (n,) with the ``points`` (n, d) where it occurs.
+
+    Returns ``(value, point)``, the same on every rank (ties: lowest rank).
+    """
+    values = np.asarray(values, dtype=float)
+    if values.size:
+        i = int(np.argmax(values) if kind == "max" else np.argmin(values))
+        local = (float(values[i]), np.asarray(points[i], dtype=float).tolist())
+    else:
+        local = (-np.inf if kind == "max" else np.inf, None)
+    found = comm.allgather(local)
+    pick = max if kind == "max" else min
+    return pick((v for v in found if v[1] is not None), key=lambda vp: vp[0])
+
+
+def nearest_point_value(comm, points, values, target):
+    """Value at the point nearest to ``target`` over all ranks.
+
+    Args:
+        points: (n, d) this rank's point coordinates; values: (n, ...) data at them.
+
+    Returns:
+        ``(point, value)`` identical on every rank.
+    """
+    target = np.asarray(target, dtype=float)
+    if len(points):
+        d = np.linalg.norm(np.asarray(points) - target, axis=1)
+        i = int(np.argmin(d))
+        local = (float(d[i]), comm.rank, np.asarray(points[i]), np.asarray(values[i]))
+    else:
+        local = (np.inf, comm.rank, None, None)
+    best = min(comm.allgather(local), key=lambda t: (t[0], t[1]))
+    return best[2], best[3]
+
+
+def cell_function(V0, owned_values):
+    """Fill a DG0 Function on space ``V0`` from (n_owned_cells,) values; ghosts are scattered."""
+    from dolfinx import fem
+
+    f = fem.Function(V0)
+    n = owned_values.shape[0]
+    dofs = V0.dofmap.list.array.reshape(-1)[:n]
+    f.x.array[dofs] = owned_values
+    f.x.scatter_forward()
+    return f
+
+
+def gather_mesh(V, u, cell_values):
+    """Collect the owned cells of a first-order vector space on rank 0.
+
+    Returns on rank 0 ``(points (N, 3), cells (M, k), cell_types (M,), u (N, 2), values (M,))``
+    (reference coordinates; points on partition boundaries are duplicated), else ``None``.
+    """
+    from dolfinx.plot import create_vtk_mesh
+
+    msh = V.mesh
+    n_owned = msh.topology.index_map(msh.topology.dim).size_local
+    topology, cell_types, geometry = create_vtk_mesh(V)
+    k = topology[0]
+    cells = topology.reshape(-1, k + 1)[:n_owned, 1:]
+    uu = u.x.array.reshape(-1, 2)
+    parts = msh.comm.gather((geometry, cells, cell_types[:n_owned], uu, np.asarray(cell_values)), root=0)
+    if msh.comm.rank != 0:
+        return None
+    offset = 0
+    out = [[], [], [], [], []]
+    for g, c, t, du, v in parts:
+        out[0].append(g)
+        out[1].append(c + offset)
+        out[2].append(t)
+        out[3].append(du)
+        out[4].append(v)
+        offset += g.shape[0]
+    return tuple(np.concatenate(o) for o in out)
+
+
+def force_network(rve, F, force_scale):
+    """Polygons of a deformed RVE's force network: one quad per contact, width ∝ force.
+
+    Args:
+        rve: the :class:`~dolfinx_granular.rve.TaylorRVE`.
+        F: (2, 2) deformation gradient.
+        force_scale: branch half-width per unit contact force (length / N).
+
+    Returns:
+        ``(quads (m, 4, 2), disks (N, 2) centres, radii (N,))`` in the deformed RVE, centred
+        on the origin.
+    """
+    c = rve.contacts(F)
+    pk = rve.packing
+    centers = pk.centers @ np.asarray(F).T
+    centers = centers - (np.asarray(F) @ (0.5 * pk.box))
+    start = centers[c.pairs[:, 0]]
+    end = start + c.branch
+    length = np.linalg.norm(c.branch, axis=1)
+    normal = np.stack([-c.branch[:, 1], c.branch[:, 0]], axis=1) / length[:, None]
+    w = (force_scale * c.force)[:, None] * normal
+    quads = np.stack([start - w, end - w, end + w, start + w], axis=1)
+    return quads, centers, pk.radii
+
+
+def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
+    """Figure 7: von Mises contour on the deformed slope with min/max and four RVE force networks.
+
+    Args:
+        path: PNG file to write.
+        mesh_data: output of :func:`gather_mesh` (rank 0).
+        markers: list of ``(label, point (2,) reference coordinates, text)``; marked on the slope.
+        rves: list of ``(label, rve, F (2, 2), text)`` for the insets (same force and length scale).
+        deformation_scale: factor on u for the deformed shape.
+    """
+    import pyvista as pv
+
+    pv.OFF_SCREEN = True
+    points, cells, cell_types, u, vm = mesh_data
+    pts = points.copy()
+    pts[:, :2] += deformation_scale * u
+    grid = pv.UnstructuredGrid(np.hstack([np.full((cells.shape[0], 1), cells.shape[1]), cells]).ravel(),
+                               cell_types, pts)
+    grid.cell_data["von Mises [MPa]"] = vm / 1e6
+    grid = grid.clean().cell_data_to_point_data(pass_cell_data=True)
+    plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
+                         window_size=(1800, 860), border=False)
+    plotter.subplot(0, 0)
+    sbar = dict(title="von Mises stress [MPa]", vertical=False, position_x=0.15, position_y=0.04,
+                width=0.7, height=0.06, title_font_size=16, label_font_size=14)
+    plotter.add_mesh(grid, scalars="von Mises [MPa]", cmap="turbo", n_colors=16,
+                     scalar_bar_args=sbar, show_edges=False)
+    plotter.add_mesh(grid.extract_all_edges(), color="black", line_width=0.5, opacity=0.25)
+    u_of = _displacement_lookup(points, u)
+    mk = []
+    for label, X, text in markers:
+        x = np.array([X[0], X[1], 0.0])
+        x[:2] += deformation_scale * u_of(X)
+        mk.append((label, x, text))
+    plotter.add_point_labels(np.array([m[1] for m in mk]), [f"{m[0]}: {m[2]}" for m in mk],
+                             point_size=14, font_size=14, point_color="black", text_color="black",
+                             shape_opacity=0.7, always_visible=True, render_points_as_spheres=True)
+    plotter.add_text(title, font_size=11, position="upper_left")
+    plotter.view_xy()
+    plotter.camera.parallel_projection = True
+    plotter.camera.zoom(1.25)
+
+    nets = [force_network(rve, F, 1.0) for _, rve, F, _ in rves]
+    fmax = max((rv.contacts(F).force.max(initial=0.0) for _, rv, F, _ in rves), default=0.0)
+    mean_r = np.mean([rv.packing.radii.mean() for _, rv, _, _ in rves])
+    scale = 0.45 * mean_r / fmax if fmax > 0 else 0.0
+    extent = max(np.abs(F @ (0.5 * rv.packing.box)).max() + np.abs(F @ (0.5 * rv.packing.box * [1, -1])).max()
+                 for _, rv, F, _ in rves) if rves else 1.0
+    for n, ((label, rve, F, text), _) in enumerate(zip(rves, nets)):
+        plotter.subplot(n // 2, 2 + n % 2)
+        quads, centers, radii = force_network(rve, F, scale)
+        disks = _circles(centers, radii)
+        plotter.add_mesh(disks, color="#9a9a9a", line_width=1)
+        box = _cell_outline(F, rve.packing.box)
+        plotter.add_mesh(box, color="black", line_width=1)
+        if len(quads):
+            faces = np.hstack([np.full((len(quads), 1), 4), np.arange(4 * len(quads)).reshape(-1, 4)])
+            qpts = np.c_[quads.reshape(-1, 2), np.zeros(4 * len(quads))]
+            plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color="#b2182b")
+        plotter.add_text(f"{label}: {text}", font_size=10, position="upper_left")
+        plotter.view_xy()
+        plotter.camera.parallel_projection = True
+        plotter.camera.focal_point = (0.0, 0.0, 0.0)
+        plotter.camera.position = (0.0, 0.0, 10.0 * extent)
+        plotter.camera.parallel_scale = 0.55 * extent
+    plotter.screenshot(path)
+    plotter.close()
+
+
+def _displacement_lookup(points, u):
+    def at(X):
+        i = int(np.argmin(np.linalg.norm(points[:, :2] - np.asarray(X)[:2], axis=1)))
+        return u[i]
+    return at
+
+
+def _circles(centers, radii, n=24):
+    import pyvista as pv
+
+    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    ring = np.stack([np.cos(t), np.sin(t)], axis=1)
+    pts = (centers[:, None, :] + radii[:, None, None] * ring[None]).reshape(-1, 2)
+    idx = np.arange(len(centers) * n).reshape(-1, n)
+    lines = np.hstack([np.full((len(centers), 1), n + 1), idx, idx[:, :1]])
+    return pv.PolyData(np.c_[pts, np.zeros(len(pts))], lines=lines.ravel())
+
+
+def _cell_outline(F, box):
+    import pyvista as pv
+
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]], dtype=float) - 0.5
+    pts = (corners * box) @ np.asarray(F).T
+    return pv.PolyData(np.c_[pts, np.zeros(5)], lines=np.array([5, 0, 1, 2, 3, 4]))

@@ -1,0 +1,238 @@
+"""Newton solver for a quadrature-point material: petsc4py SNES (newtonls + LU), DOLFINx 0.5.
+
+The material is evaluated at exactly the state SNES hands to the residual callback (line searches
+write trial points there); the Jacobian callback reuses that tangent only if SNES asks for the
+Jacobian at the same x and re-evaluates otherwise, so the tangent is always consistent.
+
+Convergence follows table 2 of the paper: after Newton step k the relative energy norm
+``|R_k . du_k| / |R_0 . du_0|`` is logged (R_k residual at iterate k, du_k the increment actually
+applied, 0-based), and the solve stops when it is <= ``energy_rtol`` or the residual norm is <=
+``residual_atol`` (round-off).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from dolfinx import fem, la
+from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, create_matrix, set_bc
+from petsc4py import PETSc
+
+
+@dataclass
+class SolveResult:
+    """Outcome of one :meth:`NewtonSolver.solve`.
+
+    Attributes:
+        converged: SNES converged.
+        reason: SNES converged reason (> 0 converged, < 0 diverged) and its name.
+        iterations: Newton steps taken.
+        history: one ``(iteration, residual_norm, energy_norm_rel)`` per Newton step, iteration
+            1-based; residual_norm is ||R|| (N) at the iterate the step started from.
+        residual_norm: ||R|| at the final iterate (N).
+        error: message of an exception raised while evaluating the material (e.g. F outside the
+            RVE's range), else None.
+    """
+
+    converged: bool
+    reason: int
+    reason_name: str
+    iterations: int
+    history: list = field(default_factory=list)
+    residual_norm: float = float("nan")
+    error: str | None = None
+
+
+_REASON_NAMES = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if isinstance(v, int)}
+
+
+class NewtonSolver:
+    """Solve R(u) = 0 with SNES; R and its Jacobian read quadrature data written by ``material``.
+
+    Args:
+        residual: UFL linear form R(u; v) (e.g. ``material.residual_form(v) - f_ext``).
+        jacobian: UFL bilinear form dR/du (e.g. ``material.jacobian_form(du, v)``).
+        u: the displacement Function; holds the initial guess and receives the solution.
+        bcs: Dirichlet conditions (values are imposed on the first iterate).
+        material: object with ``update(tangent=True)`` that refreshes the quadrature data from
+            ``u`` (a :class:`~dolfinx_granular.material.GranularMaterial`).
+        energy_rtol: relative energy norm that counts as converged.
+        residual_atol: residual norm (N) that counts as converged (round-off level); 0 disables.
+        max_it: most Newton steps per solve.
+        prefix: PETSc options prefix of this solver.
+        petsc_options: options set under ``prefix`` (defaults: newtonls, ``basic`` line search,
+            preonly + LU with MUMPS).
+        verbose: print one line per Newton step on rank 0.
+
+    Attributes:
+        timings: seconds spent in ``"rve"`` (material updates), ``"assembly"`` and ``"solve"``
+            (everything else in SNES: essentially the LU factorisation and solve).
+    """
+
+    def __init__(self, residual, jacobian, u, bcs=(), material=None, *, energy_rtol=1e-20,
+                 residual_atol=0.0, max_it=20, prefix="granular_", petsc_options=None,
+                 verbose=False):
+        self.u = u
+        self.bcs = list(bcs)
+        self.material = material
+        self.energy_rtol = float(energy_rtol)
+        self.residual_atol = float(residual_atol)
+        self.max_it = int(max_it)
+        self.verbose = verbose
+        self.L = fem.form(residual)
+        self.a = fem.form(jacobian)
+        V = u.function_space
+        comm = V.mesh.comm
+        self.comm = comm
+        self.b = la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
+        self.A = create_matrix(self.a)
+        self.x = u.vector.duplicate()  # SNES's own vector: line searches write trial points
+        self._x_eval = self.x.duplicate()
+        self._have_eval = False
+        self._x_prev = self.x.duplicate()
+        self._R_prev = self.x.duplicate()
+        opts = {
+            "snes_type": "newtonls",
+            "snes_linesearch_type": "basic",
+            "ksp_type": "preonly",
+            "pc_type": "lu",
+        }
+        if PETSc.Sys.hasExternalPackage("mumps"):
+            opts["pc_factor_mat_solver_type"] = "mumps"  # PETSc's own LU is serial only
+        opts.update(petsc_options or {})
+        self.snes = PETSc.SNES().create(comm)
+        self.snes.setOptionsPrefix(prefix)
+        db = PETSc.Options()
+        for key, val in opts.items():
+            db[prefix + key] = val
+        self.snes.setFunction(self._residual, self.b)
+        self.snes.setJacobian(self._jacobian, self.A)
+        self.snes.setConvergenceTest(self._converged)
+        self.snes.setTolerances(max_it=self.max_it)
+        self.snes.setFromOptions()
+        self.snes.getKSP().setFromOptions()
+        for key in opts:
+            db.delValue(prefix + key)
+        self.timings = {"rve": 0.0, "assembly": 0.0, "solve": 0.0}
+
+    # -- SNES callbacks ----------------------------------------------------------------------------
+
+    def _evaluate(self, x):
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        x.copy(self.u.vector)
+        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        if self.material is not None:
+            t = time.perf_counter()
+            try:
+                self.material.update(tangent=True)
+            finally:
+                self.timings["rve"] += time.perf_counter() - t
+        x.copy(self._x_eval)
+        self._have_eval = True
+
+    def _residual(self, snes, x, b):
+        try:
+            self._evaluate(x)
+        except ValueError as err:  # UnsupportedDeformationError: NaN residual -> SNES diverges
+            self._error = str(err)
+            self._have_eval = False
+            with b.localForm() as b_local:
+                b_local.set(np.nan)
+            return
+        t = time.perf_counter()
+        with b.localForm() as b_local:
+            b_local.set(0.0)
+        assemble_vector(b, self.L)
+        apply_lifting(b, [self.a], [self.bcs], [x], -1.0)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        set_bc(b, self.bcs, x, -1.0)
+        self.timings["assembly"] += time.perf_counter() - t
+
+    def _same_as_evaluated(self, x):
+        same = self._have_eval and np.array_equal(x.array_r, self._x_eval.array_r)
+        return self.comm.allreduce(bool(same), op=_MPI_LAND())
+
+    def _jacobian(self, snes, x, A, P):
+        if not self._same_as_evaluated(x):
+            self._evaluate(x)
+        t = time.perf_counter()
+        A.zeroEntries()
+        assemble_matrix(A, self.a, self.bcs)
+        A.assemble()
+        self.timings["assembly"] += time.perf_counter() - t
+
+    def _converged(self, snes, it, norms):
+        fnorm = norms[2]
+        x = snes.getSolution()
+        R = snes.getFunction()[0]
+        if it > 0:
+            du = x.copy()
+            du.axpy(-1.0, self._x_prev)
+            energy = abs(self._R_prev.dot(du))
+            du.destroy()
+            if it == 1:
+                self._energy0 = energy
+            rel = energy / self._energy0 if self._energy0 > 0 else 0.0
+            self.history.append((it, self._rnorm_prev, rel))
+            if self.verbose and self.comm.rank == 0:
+                print(f"    Newton {it:2d}: |R| = {self._rnorm_prev:.3e} N, energy norm (rel) = "
+                      f"{rel:.3e}", flush=True)
+        x.copy(self._x_prev)
+        R.copy(self._R_prev)
+        self._rnorm_prev = fnorm
+        if not np.isfinite(fnorm):
+            return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
+        if fnorm <= self.residual_atol or fnorm == 0.0:
+            return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
+        if it > 0 and self.history[-1][2] <= self.energy_rtol:
+            return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
+        if it >= self.max_it:
+            return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
+        return PETSc.SNES.ConvergedReason.ITERATING
+
+    # -- driver ------------------------------------------------------------------------------------
+
+    def solve(self) -> SolveResult:
+        """Newton solve from the current u (Dirichlet values imposed first); u gets the result.
+
+        A failed solve leaves u at the last iterate and returns ``converged=False``; it does not
+        raise, so a load-step driver can cut back.
+        """
+        self.history = []
+        self._error = None
+        self._have_eval = False
+        set_bc(self.u.vector, self.bcs)
+        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        self.u.vector.copy(self.x)
+        t = time.perf_counter()
+        spent = self.timings["rve"] + self.timings["assembly"]
+        self.snes.solve(None, self.x)
+        self.timings["solve"] += (time.perf_counter() - t) - (
+            self.timings["rve"] + self.timings["assembly"] - spent)
+        # The material data must belong to the returned u (the last residual was at x if basic).
+        if not self._same_as_evaluated(self.x):
+            try:
+                self._evaluate(self.x)
+            except ValueError as err:
+                self._error = self._error or str(err)
+        else:
+            self.x.copy(self.u.vector)
+            self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        reason = int(self.snes.getConvergedReason())
+        return SolveResult(
+            converged=reason > 0, reason=reason, reason_name=_REASON_NAMES.get(reason, str(reason)),
+            iterations=len(self.history), history=list(self.history),
+            residual_norm=float(self._rnorm_prev), error=self._error,
+        )
+
+    def destroy(self):
+        for obj in (self.snes, self.A, self.b, self.x, self._x_eval, self._x_prev, self._R_prev):
+            obj.destroy()
+
+
+def _MPI_LAND():
+    from mpi4py import MPI
+
+    return MPI.LAND
