@@ -164,7 +164,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
             np.zeros(msh.topology.index_map(2).size_local))
         if comm.rank == 0:
             markers = [(lab, xp, txt) for (lab, _, txt), (xp, _) in zip(probes, probe_F)]
-            markers.append(("min", xmin, f"min {vmin / 1e6:.3f} MPa"))
+            markers.append(("min", xmin, f"{vmin / 1e6:.3f} MPa"))
             markers[0] = ("A", xmax, f"max {vmax / 1e6:.3f} MPa")
             insets = [(lab, rve, Fp, f"{txt}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
                       for (lab, _, txt), (xp, Fp) in zip(probes, probe_F)]

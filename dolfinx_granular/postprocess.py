@@ -149,11 +149,13 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
     plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
                          window_size=(1800, 860), border=False)
     plotter.subplot(0, 0)
-    sbar = dict(title="von Mises stress [MPa]", vertical=False, position_x=0.15, position_y=0.04,
-                width=0.7, height=0.06, title_font_size=16, label_font_size=14)
-    plotter.add_mesh(grid, scalars="von Mises [MPa]", cmap="turbo", n_colors=16,
-                     scalar_bar_args=sbar, show_edges=False)
+    clim = (float(vm.min()) / 1e6, float(vm.max()) / 1e6)
+    # VTK's scalar bar actor crashes in this VTK wheel (std::regex in its label formatter), so the
+    # colour bar is drawn as a mesh of its own below the slope.
+    plotter.add_mesh(grid, scalars="von Mises [MPa]", cmap="turbo", n_colors=16, clim=clim,
+                     show_scalar_bar=False)
     plotter.add_mesh(grid.extract_all_edges(), color="black", line_width=0.5, opacity=0.25)
+    _colorbar(plotter, grid.bounds, clim, "von Mises stress [MPa], cell means of the Gauss points")
     u_of = _displacement_lookup(points, u)
     mk = []
     for label, X, text in markers:
@@ -163,7 +165,8 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
     plotter.add_point_labels(np.array([m[1] for m in mk]), [f"{m[0]}: {m[2]}" for m in mk],
                              point_size=14, font_size=14, point_color="black", text_color="black",
                              shape_opacity=0.7, always_visible=True, render_points_as_spheres=True)
-    plotter.add_text(title, font_size=11, position="upper_left")
+    plotter.add_text(title + "\nbranch width proportional to contact force, same scale in A-D", font_size=11,
+                     position="upper_left")
     plotter.view_xy()
     plotter.camera.parallel_projection = True
     plotter.camera.zoom(1.25)
@@ -171,7 +174,7 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
     nets = [force_network(rve, F, 1.0) for _, rve, F, _ in rves]
     fmax = max((rv.contacts(F).force.max(initial=0.0) for _, rv, F, _ in rves), default=0.0)
     mean_r = np.mean([rv.packing.radii.mean() for _, rv, _, _ in rves])
-    scale = 0.45 * mean_r / fmax if fmax > 0 else 0.0
+    scale = 0.3 * mean_r / fmax if fmax > 0 else 0.0
     extent = max(np.abs(F @ (0.5 * rv.packing.box)).max() + np.abs(F @ (0.5 * rv.packing.box * [1, -1])).max()
                  for _, rv, F, _ in rves) if rves else 1.0
     for n, ((label, rve, F, text), _) in enumerate(zip(rves, nets)):
@@ -185,7 +188,10 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
             faces = np.hstack([np.full((len(quads), 1), 4), np.arange(4 * len(quads)).reshape(-1, 4)])
             qpts = np.c_[quads.reshape(-1, 2), np.zeros(4 * len(quads))]
             plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color="#b2182b")
-        plotter.add_text(f"{label}: {text}", font_size=10, position="upper_left")
+        c = rve.contacts(F)
+        plotter.add_text(f"{label}: {text}\n{len(c.force)} contacts, max force "
+                         f"{c.force.max(initial=0.0) / 1e6:.2f} MN/m",
+                         font_size=10, position="upper_left")
         plotter.view_xy()
         plotter.camera.parallel_projection = True
         plotter.camera.focal_point = (0.0, 0.0, 0.0)
@@ -193,6 +199,23 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
         plotter.camera.parallel_scale = 0.55 * extent
     plotter.screenshot(path)
     plotter.close()
+
+
+def _colorbar(plotter, bounds, clim, title, n_ticks=5):
+    import pyvista as pv
+
+    x0, x1, y0, y1 = bounds[0], bounds[1], bounds[2], bounds[3]
+    h = 0.04 * (y1 - y0 + x1 - x0)
+    bar = pv.Plane(center=(0.5 * (x0 + x1), y0 - 2.2 * h, 0.0), direction=(0, 0, 1),
+                   i_size=x1 - x0, j_size=h, i_resolution=128, j_resolution=1)
+    bar.point_data["c"] = clim[0] + (bar.points[:, 0] - x0) / (x1 - x0) * (clim[1] - clim[0])
+    plotter.add_mesh(bar, scalars="c", cmap="turbo", n_colors=16, clim=clim, show_scalar_bar=False)
+    ticks = np.linspace(clim[0], clim[1], n_ticks)
+    pts = np.c_[np.linspace(x0, x1, n_ticks), np.full(n_ticks, y0 - 3.4 * h), np.zeros(n_ticks)]
+    plotter.add_point_labels(pts, [f"{t:.2f}" for t in ticks], shape=None, show_points=False,
+                             font_size=14, text_color="black", justification_horizontal="center",
+                             always_visible=True)
+    plotter.add_text(title, position="lower_left", font_size=10)
 
 
 def _displacement_lookup(points, u):
