@@ -114,10 +114,12 @@ def _check_F(F00, F01, F10, F11, min_stretch):
     ):
         return NOT_FINITE, 0.0
     J = F00 * F11 - F01 * F10
-    if not J > 0.0:
-        return NOT_ORIENTATION_PRESERVING, 0.0
     # s_max^2 = (tr C + sqrt(tr C^2 - 4 J^2)) / 2 with C = F^T F; s_min = J / s_max is stable.
     trC = F00 * F00 + F01 * F01 + F10 * F10 + F11 * F11
+    if not (np.isfinite(J) and np.isfinite(trC * trC)):
+        return NOT_FINITE, 0.0  # entries so large that F^T F overflows
+    if not J > 0.0:
+        return NOT_ORIENTATION_PRESERVING, 0.0
     disc = max(trC * trC - 4.0 * J * J, 0.0)
     smax = np.sqrt(0.5 * (trC + np.sqrt(disc)))
     smin = J / smax
@@ -154,13 +156,16 @@ def _moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc):
         ly = F10 * x + F11 * y
         d = np.sqrt(lx * lx + ly * ly)
         eps = r - d
-        on = 1.0 if eps >= 0.0 else 0.0  # Heaviside with H(0) = 1; a select, so it vectorises
+        # Heaviside with H(0) = 1, as selects (they vectorise); selecting eps itself rather than
+        # multiplying by 0 keeps an overflowed d = inf from turning into 0 * inf = NaN.
+        on = 1.0 if eps >= 0.0 else 0.0
+        ee = eps if eps >= 0.0 else 0.0
         inv = on / d
         xx = x * x
         xy = x * y
         yy = y * y
-        b = eps * inv
-        e2 += on * eps * eps
+        b = ee * inv
+        e2 += ee * ee
         s0 += b * xx
         s1 += b * xy
         s2 += b * yy

@@ -20,7 +20,7 @@ from . import kernel
 from .packing import Packing
 
 _REASONS = {
-    kernel.NOT_FINITE: "has a NaN or inf entry",
+    kernel.NOT_FINITE: "has a NaN or inf entry (or entries so large that F^T F overflows)",
     kernel.NOT_ORIENTATION_PRESERVING: "has det F <= 0 (an inverted or collapsed element)",
     kernel.BELOW_MIN_STRETCH: "compresses below the supported smallest singular value",
 }
