@@ -15,3 +15,18 @@ __all__ = ["Packing", "PackingFileError", "TaylorRVE", "ContactSet", "Unsupporte
            "SieveCurve", "cen_standard_sand", "generate_packing", "network_stats", "NetworkStats",
            "contact_angles", "normal_density", "fabric_tensor", "anisotropy", "density_deviation"]
 __version__ = "0.1.0"
+
+# DOLFINx-side names, imported on first use so that `import dolfinx_granular` stays DOLFINx-free.
+_LAZY = {
+    "GranularMaterial": "material", "NewtonSolver": "solver", "SolveResult": "solver",
+    "von_mises": "postprocess",
+}
+__all__ += list(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
