@@ -1,0 +1,234 @@
+"""RVE-size study (section 4 of Meier, Steinmann & Kuhl): figures 2-5 and speed against error.
+
+    python demos/rve_study.py [--out results/rve_study] [--small] [--no-cache]
+
+* 5 packings each of 70, 350 and 700 particles (seeds 0-4) from the CEN standard sand;
+* figure 2 (sieve curve with a packing's grains), figure 3 (packings and contact-normal densities
+  for angles of influence 10, 20, 30 degrees);
+* uniaxial compression in 11 and 22 and simple shear in 12 and 21 to 10 % (Taylor RVE, paper's
+  k_n = 2.8e7 N/m²): figures 4 and 5, mean ± standard deviation (ddof = 1) over the seeds;
+* speed against error: coefficient of variation over the seeds of sigma_11 at 5 % compression and
+  sigma_12 at 5 % shear, and the evaluation time of stress and tangent per quadrature point,
+  for 70 ... 2800 particles.
+
+Writes PNGs and CSVs to ``--out``; packings are cached in ``OUT/packings`` (``--no-cache``
+regenerates them). ``--small`` is a reduced run for the tests (2 seeds, 70 and 140 particles).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)
+
+import numpy as np  # noqa: E402
+
+from dolfinx_granular import Packing, TaylorRVE, cen_standard_sand  # noqa: E402
+from dolfinx_granular.fabric import anisotropy, contact_angles, density_deviation, fabric_tensor  # noqa: E402
+from dolfinx_granular.generation import generate_packing, network_stats  # noqa: E402
+from dolfinx_granular.gsd import DEFAULT_D_MIN  # noqa: E402
+from dolfinx_granular import plotting  # noqa: E402
+
+K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
+MAX_STRAIN = 0.10
+DPI = 110
+
+FULL = dict(fig_sizes=(70, 350, 700), speed_sizes=(70, 350, 700, 1400, 2800), seeds=5, steps=20)
+SMALL = dict(fig_sizes=(70,), speed_sizes=(70, 140), seeds=2, steps=4)
+
+# name -> (F as a function of the parameter s, axis label); s runs from 0 to MAX_STRAIN
+PATHS = {
+    "compression_11": (lambda s: np.array([[1.0 - s, 0.0], [0.0, 1.0]]), "1 − F11"),
+    "compression_22": (lambda s: np.array([[1.0, 0.0], [0.0, 1.0 - s]]), "1 − F22"),
+    "shear_12": (lambda s: np.array([[1.0, s], [0.0, 1.0]]), "F12"),
+    "shear_21": (lambda s: np.array([[1.0, 0.0], [s, 1.0]]), "F21"),
+}
+
+
+class PackingCache:
+    """Generated packings, cached as ``DIR/n{n}_s{seed}.npz`` with their generation times."""
+
+    def __init__(self, directory, use_cache=True):
+        self.dir = directory
+        self.use = use_cache
+        os.makedirs(directory, exist_ok=True)
+        self.times_file = os.path.join(directory, "generation_times.json")
+        self.times = {}
+        if use_cache and os.path.isfile(self.times_file):
+            with open(self.times_file) as f:
+                self.times = json.load(f)
+
+    def get(self, n, seed):
+        path = os.path.join(self.dir, f"n{n}_s{seed}.npz")
+        key = f"{n}/{seed}"
+        if self.use and os.path.isfile(path) and key in self.times:
+            return Packing.load(path)
+        t0 = time.perf_counter()
+        packing = generate_packing(n, seed=seed)
+        self.times[key] = time.perf_counter() - t0
+        packing.save(path)
+        with open(self.times_file, "w") as f:
+            json.dump(self.times, f, indent=1)
+        return packing
+
+
+def stress_paths(packings, steps):
+    """``{path: (s (steps+1,), mean (steps+1, 2, 2), std (steps+1, 2, 2))}`` over the packings."""
+    s = np.linspace(0.0, MAX_STRAIN, steps + 1)
+    out = {}
+    rves = [TaylorRVE(p, K_N, min_stretch=0.85) for p in packings]
+    for name, (F_of, _) in PATHS.items():
+        F = np.array([F_of(si) for si in s])
+        sig = np.array([rve.cauchy(F) for rve in rves])  # (seeds, steps+1, 2, 2)
+        out[name] = (s, sig.mean(axis=0), sig.std(axis=0, ddof=1 if len(rves) > 1 else 0))
+    return out
+
+
+def time_per_point(rve, n_points=2000, repeats=3):
+    """Best wall time (s) per quadrature point of stress + tangent for F near I (|strain| <= 5 %)."""
+    rng = np.random.default_rng(0)
+    F = np.eye(2) + rng.uniform(-0.05, 0.05, (n_points, 2, 2))
+    rve.evaluate(F[:10])  # compile / warm up
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        rve.evaluate(F)
+        best = min(best, time.perf_counter() - t0)
+    return best / n_points
+
+
+def write_csv(path, header, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
+    """Run the study, write figures and tables to ``out``; returns a summary dict."""
+    t_start = time.perf_counter()
+    cfg = SMALL if small else FULL
+    say = print if verbose else (lambda *a, **k: None)
+    os.makedirs(out, exist_ok=True)
+    cache = PackingCache(os.path.join(out, "packings"), use_cache)
+    seeds = list(range(cfg["seeds"]))
+    sizes = sorted(set(cfg["fig_sizes"]) | set(cfg["speed_sizes"]))
+
+    # -- packings and their networks --------------------------------------------------------------
+    packings = {}
+    stats_rows = []
+    for n in sizes:
+        packings[n] = [cache.get(n, s) for s in seeds]
+        for s, p in zip(seeds, packings[n]):
+            st = network_stats(p)
+            rve = TaylorRVE(p, K_N, min_stretch=0.85)
+            ratio = np.abs(rve.cauchy(np.eye(2))).max() / np.abs(rve.cauchy(0.99 * np.eye(2))).max()
+            ang = contact_angles(p)
+            a, _ = anisotropy(fabric_tensor(ang))
+            stats_rows.append([n, s, f"{cache.times[f'{n}/{s}']:.3f}", f"{st.volume_fraction:.4f}",
+                               f"{st.coordination:.3f}", st.min_coordination,
+                               f"{st.rattler_fraction:.3f}", f"{ratio:.2e}", f"{a:.4f}",
+                               f"{density_deviation(ang, np.radians(20.0)):.4f}"])
+        say(f"{n:5d} particles: generated / loaded {len(seeds)} packings "
+            f"({time.perf_counter() - t_start:.1f} s)")
+    write_csv(os.path.join(out, "packings.csv"),
+              ["n", "seed", "generation_time_s", "volume_fraction", "coordination_nonrattlers",
+               "min_coordination", "rattler_fraction", "prestress_ratio", "fabric_anisotropy",
+               "density_deviation_20deg"], stats_rows)
+
+    # -- figures 2 and 3 ----------------------------------------------------------------------------
+    n_show = max(cfg["fig_sizes"])
+    fig = plotting.plot_sieve_curve(cen_standard_sand(), packings[n_show][0], d_min=DEFAULT_D_MIN)
+    fig.savefig(os.path.join(out, "fig2_sieve_curve.png"), dpi=DPI)
+    sets = {n: packings[n] for n in cfg["fig_sizes"]}
+    ratt = {n: [network_stats(p).rattlers for p in packings[n]] for n in cfg["fig_sizes"]}
+    fig = plotting.plot_packings_and_densities(sets, rattlers=ratt)
+    fig.savefig(os.path.join(out, "fig3_packings_densities.png"), dpi=80)
+    say(f"figures 2 and 3 ({time.perf_counter() - t_start:.1f} s)")
+
+    # -- figures 4 and 5: stress paths ------------------------------------------------------------
+    curves = {n: stress_paths(packings[n], cfg["steps"]) for n in cfg["fig_sizes"]}
+    rows = []
+    for name in PATHS:
+        for n in cfg["fig_sizes"]:
+            s, mean, std = curves[n][name]
+            for k in range(s.size):
+                rows.append([name, n, f"{s[k]:.4f}"] + [
+                    f"{v:.6e}" for a, b in ((0, 0), (1, 1), (0, 1))
+                    for v in (mean[k, a, b], std[k, a, b])])
+    write_csv(os.path.join(out, "stress_curves.csv"),
+              ["path", "n", "strain", "sigma11_mean_Pa", "sigma11_std_Pa", "sigma22_mean_Pa",
+               "sigma22_std_Pa", "sigma12_mean_Pa", "sigma12_std_Pa"], rows)
+
+    def panels(names, titles):
+        return [(t, PATHS[k][1], {n: curves[n][k] for n in cfg["fig_sizes"]})
+                for k, t in zip(names, titles)]
+
+    fig = plotting.plot_stress_curves(
+        panels(["compression_11", "compression_22"],
+               ["uniaxial compression in 11", "uniaxial compression in 22"]),
+        f"Fig. 4: compression, mean ± std over {len(seeds)} RVEs (solid σ11, dashed σ22)")
+    fig.savefig(os.path.join(out, "fig4_compression.png"), dpi=DPI)
+    fig = plotting.plot_stress_curves(
+        panels(["shear_12", "shear_21"], ["simple shear in 12", "simple shear in 21"]),
+        f"Fig. 5: simple shear, mean ± std over {len(seeds)} RVEs (solid σ11, dashed σ22)")
+    fig.savefig(os.path.join(out, "fig5_shear.png"), dpi=DPI)
+    say(f"figures 4 and 5 ({time.perf_counter() - t_start:.1f} s)")
+
+    # -- speed against error -------------------------------------------------------------------------
+    F_c = np.array([[0.95, 0.0], [0.0, 1.0]])
+    F_s = np.array([[1.0, 0.05], [0.0, 1.0]])
+    table = []
+    for n in cfg["speed_sizes"]:
+        rves = [TaylorRVE(p, K_N, min_stretch=0.85) for p in packings[n]]
+        sc = np.array([r.cauchy(F_c)[0, 0] for r in rves])
+        ss = np.array([r.cauchy(F_s)[0, 1] for r in rves])
+        ddof = 1 if len(rves) > 1 else 0
+        table.append({
+            "n": n,
+            "sigma11_compression_mean_Pa": float(sc.mean()),
+            "cv_compression": float(sc.std(ddof=ddof) / abs(sc.mean())),
+            "sigma12_shear_mean_Pa": float(ss.mean()),
+            "cv_shear": float(ss.std(ddof=ddof) / abs(ss.mean())),
+            "time_per_point": float(np.median([time_per_point(r) for r in rves[:2]])),
+            "generation_time_s": float(np.mean([cache.times[f"{n}/{s}"] for s in seeds])),
+        })
+    keys = list(table[0])
+    write_csv(os.path.join(out, "speed_error.csv"), keys,
+              [[f"{row[k]:.6g}" if isinstance(row[k], float) else row[k] for k in keys]
+               for row in table])
+    fig = plotting.plot_speed_error(table)
+    fig.savefig(os.path.join(out, "speed_error.png"), dpi=DPI)
+
+    say("\n    n   CV(σ11, 5 % compr.)  CV(σ12, 5 % shear)  time/point [µs]  generation [s]")
+    for row in table:
+        say(f"{row['n']:5d}  {100 * row['cv_compression']:17.2f} %  {100 * row['cv_shear']:16.2f} %"
+            f"  {1e6 * row['time_per_point']:15.2f}  {row['generation_time_s']:14.2f}")
+    runtime = time.perf_counter() - t_start
+    say(f"\nwrote {out}/ in {runtime:.1f} s")
+    summary = {"runtime_s": runtime, "speed_error": table, "seeds": seeds,
+               "fig_sizes": list(cfg["fig_sizes"])}
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=1)
+    return summary
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", default="results/rve_study", help="output directory")
+    parser.add_argument("--small", action="store_true", help="reduced run (tests)")
+    parser.add_argument("--no-cache", action="store_true", help="regenerate the packings")
+    args = parser.parse_args(argv)
+    run(args.out, small=args.small, use_cache=not args.no_cache)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
