@@ -2,10 +2,11 @@
 
 A sieve curve gives the cumulative percentage P(d) of material passing a sieve of aperture d.
 In 2-D we read "percent passing" as an **area** fraction: the class between two consecutive
-apertures a_k < a_{k+1} carries the share dP_k of the grain area. Inside a class the diameters are
-log-uniform in number, so the class's number weight is dP_k / <d²>_k with
-<d²>_k = (a_{k+1}² - a_k²) / (2 ln(a_{k+1} / a_k)). Between sieve points P is interpolated linearly
-in log d (the usual semi-log plot of a grading curve).
+apertures a_k < a_{k+1} carries the share dP_k of the grain area. Between sieve points P is
+linear in log d (the usual semi-log plot of a grading curve), and the sampling follows exactly
+that: inside a class the grain *area* is log-uniform, i.e. the number density is proportional to
+d^-3. The class's number weight is then dP_k / <d²>_k with the number mean
+<d²>_k = 2 ln(a_{k+1} / a_k) / (a_k^-2 - a_{k+1}^-2).
 
 Fines below a cut size ``d_min`` are dropped (the grading is renormalised to 100 % above it):
 the CEN curve spans 25:1 in size and an RVE resolving its fines would need tens of thousands of
@@ -137,7 +138,7 @@ class SieveCurve:
     def number_fractions(self, d_min=None):
         """``(lo, hi, nfrac)``: class bounds (mm) and number fraction per class (sums to 1)."""
         lo, hi, share = self.classes(d_min)
-        mean_d2 = (hi**2 - lo**2) / (2.0 * np.log(hi / lo))
+        mean_d2 = 2.0 * np.log(hi / lo) / (lo**-2 - hi**-2)
         w = share / mean_d2
         return lo, hi, w / w.sum()
 
@@ -165,7 +166,8 @@ class SieveCurve:
         u = (np.arange(n) + rng.random(n)) / n
         k = np.clip(np.searchsorted(cdf, u, side="right") - 1, 0, lo.size - 1)
         t = np.clip((u - cdf[k]) / nfrac[k], 0.0, 1.0)
-        return lo[k] * (hi[k] / lo[k]) ** t
+        # inverse of the class's number CDF (a^-2 - d^-2) / (a^-2 - b^-2)
+        return (lo[k] ** -2 - t * (lo[k] ** -2 - hi[k] ** -2)) ** -0.5
 
     @staticmethod
     def area_passing(diameters, d):

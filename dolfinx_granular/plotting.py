@@ -46,7 +46,7 @@ def plot_sieve_curve(curve: SieveCurve, packing: Packing | None = None, d_min=No
         diam = np.sort(2.0 * packing.radii)
         base = float(curve.passing_at(d_min)) if d_min is not None else 0.0
         # steps after each grain: the sample's own sieve curve
-        pas = base + (100.0 - base) * SieveCurve.area_passing(diam, diam)
+        pas = base + (1.0 - base / 100.0) * SieveCurve.area_passing(diam, diam)
         ax.step(diam, pas, where="post", color="tab:red", lw=1.2,
                 label=f"generated packing, {packing.n_particles} grains")
     ax.set_xlabel("mesh aperture d [mm]")
