@@ -18,6 +18,7 @@ import numpy as np
 from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
+from matplotlib.ticker import FormatStrFormatter
 
 from .fabric import contact_angles, normal_density
 from .gsd import SieveCurve
@@ -170,6 +171,10 @@ def plot_speed_error(rows) -> Figure:
         for row, ti, ci in zip(rows, t, cv):
             ax.annotate(f"{row['n']}", (ti, ci), textcoords="offset points", xytext=(4, 4),
                         fontsize=8)
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_formatter(FormatStrFormatter("%g"))
+        axis.set_minor_formatter(FormatStrFormatter("%g"))
+    ax.tick_params(which="minor", labelsize=7)
     ax.set_xlabel("evaluation time per quadrature point (stress + tangent) [µs]")
     ax.set_ylabel("coefficient of variation over seeds [%]")
     ax.set_title("RVE size: speed against error (labels: particles)", fontsize=10)
