@@ -6,8 +6,9 @@ Jacobian at the same x and re-evaluates otherwise, so the tangent is always cons
 
 Convergence follows table 2 of the paper: after Newton step k the relative energy norm
 ``|R_k . du_k| / |R_0 . du_0|`` is logged (R_k residual at iterate k, du_k the increment actually
-applied, 0-based), and the solve stops when it is <= ``energy_rtol`` or the residual norm is <=
-``residual_atol`` (round-off).
+applied, 0-based), and the solve stops when it is <= ``energy_rtol``, when the residual norm is <=
+``residual_atol``, or at round-off: the energy norm is below ``roundoff_energy`` and the residual no
+longer halves.
 """
 
 from __future__ import annotations
@@ -60,6 +61,8 @@ class NewtonSolver:
             ``u`` (a :class:`~dolfinx_granular.material.GranularMaterial`).
         energy_rtol: relative energy norm that counts as converged.
         residual_atol: residual norm (N) that counts as converged (round-off level); 0 disables.
+        roundoff_energy: below this relative energy norm a residual that fails to halve in one
+            Newton step is taken as round-off (converged).
         max_it: most Newton steps per solve.
         prefix: PETSc options prefix of this solver.
         petsc_options: options set under ``prefix`` (defaults: newtonls, ``basic`` line search,
@@ -72,13 +75,14 @@ class NewtonSolver:
     """
 
     def __init__(self, residual, jacobian, u, bcs=(), material=None, *, energy_rtol=1e-20,
-                 residual_atol=0.0, max_it=20, prefix="granular_", petsc_options=None,
-                 verbose=False):
+                 residual_atol=0.0, roundoff_energy=1e-14, max_it=20, prefix="granular_",
+                 petsc_options=None, verbose=False):
         self.u = u
         self.bcs = list(bcs)
         self.material = material
         self.energy_rtol = float(energy_rtol)
         self.residual_atol = float(residual_atol)
+        self.roundoff_energy = float(roundoff_energy)
         self.max_it = int(max_it)
         self.verbose = verbose
         self.L = fem.form(residual)
@@ -179,6 +183,7 @@ class NewtonSolver:
             if self.verbose and self.comm.rank == 0:
                 print(f"    Newton {it:2d}: |R| = {self._rnorm_prev:.3e} N, energy norm (rel) = "
                       f"{rel:.3e}", flush=True)
+        stalled = it > 0 and fnorm > 0.5 * self._rnorm_prev
         x.copy(self._x_prev)
         R.copy(self._R_prev)
         self._rnorm_prev = fnorm
@@ -188,6 +193,8 @@ class NewtonSolver:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
         if it > 0 and self.history[-1][2] <= self.energy_rtol:
             return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
+        if stalled and self.history[-1][2] <= self.roundoff_energy:
+            return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
         if it >= self.max_it:
             return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
         return PETSc.SNES.ConvergedReason.ITERATING
