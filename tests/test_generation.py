@@ -1,0 +1,159 @@
+"""generate_packing: jammed, stress-free, rigid, periodic, deterministic; bad input."""
+
+import time
+
+import numpy as np
+import pytest
+
+from dolfinx_granular import Packing, TaylorRVE, generate_packing, network_stats
+from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
+
+CASES = [(70, 0), (70, 1), (70, 2), (350, 1), (700, 3)]
+
+
+@pytest.fixture(scope="module")
+def packings():
+    return {case: generate_packing(case[0], seed=case[1]) for case in CASES}
+
+
+def mandel(A):
+    """3x3 matrix of a 4th-order tensor on symmetric 2x2 tensors (Mandel basis)."""
+    s = np.sqrt(2.0)
+    idx = [(0, 0), (1, 1), (0, 1)]
+    w = [1.0, 1.0, s]
+    return np.array([[A[a + b] * wa * wb for b, wb in zip(idx, w)] for a, wa in zip(idx, w)])
+
+
+def brute_force_overlaps(p):
+    """Overlap eps of every pair at every periodic image within one cell, independent of the
+    kernel: (i, j, sx, sy, eps) rows for eps > -1e-3 * mean diameter."""
+    rows = []
+    c, r, L = p.centers, p.radii, p.box
+    for i in range(p.n_particles):
+        for j in range(i + 1, p.n_particles):
+            for sx in (-1, 0, 1):
+                for sy in (-1, 0, 1):
+                    d = np.hypot(c[j, 0] + sx * L[0] - c[i, 0], c[j, 1] + sy * L[1] - c[i, 1])
+                    eps = r[i] + r[j] - d
+                    if eps > -2e-3 * r.mean():
+                        rows.append((i, j, sx, sy, eps))
+    return rows
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_jammed_rigid_network(packings, case):
+    s = network_stats(packings[case])
+    assert s.volume_fraction >= 0.82
+    assert s.rattler_fraction <= 0.15
+    assert s.min_coordination >= 3
+    assert s.coordination >= 3.8
+    # the contacts exist at F = I under the kernel's rule: a jammed network, not a loose one
+    n_backbone = packings[case].n_particles * (1 - s.rattler_fraction)
+    assert s.n_contacts >= 0.5 * s.coordination * n_backbone
+    assert 0.0 < s.max_overlap <= 1e-9
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_nearly_stress_free_with_positive_definite_tangent(packings, case):
+    rve = TaylorRVE(packings[case], 2.8e7)
+    s0 = np.abs(rve.cauchy(np.eye(2))).max()
+    s1 = np.abs(rve.cauchy(0.99 * np.eye(2))).max()
+    assert s0 < 1e-6 * s1
+    A = rve.evaluate(np.eye(2))[2]
+    assert np.linalg.eigvalsh(mandel(A)).min() > 0.0
+    # stress-free reference: the tangent at I equals the small-strain modulus (eq. 15)
+    C = rve.small_strain_modulus()
+    np.testing.assert_allclose(A, C, rtol=0, atol=1e-6 * np.abs(C).max())
+    # and the modulus is a physical Taylor modulus: isotropic-ish, K ~ k_n phi Z / (2 pi)
+    s = network_stats(packings[case])
+    K = np.einsum("iikk", C) / 4
+    assert 0.7 < K / (2.8e7 * s.volume_fraction * s.coordination / (2 * np.pi)) < 1.3
+
+
+def test_deterministic_and_seed_dependent(packings):
+    again = generate_packing(70, seed=1)
+    ref = packings[(70, 1)]
+    np.testing.assert_array_equal(again.centers, ref.centers)
+    np.testing.assert_array_equal(again.radii, ref.radii)
+    np.testing.assert_array_equal(again.box, ref.box)
+    assert not np.array_equal(packings[(70, 0)].radii, ref.radii)
+
+
+@pytest.mark.parametrize("case", [(70, 2), (350, 1)])
+def test_periodic_overlaps_are_consistent_across_the_boundary(packings, case):
+    p = packings[case]
+    rows = brute_force_overlaps(p)
+    eps = np.array([row[4] for row in rows])
+    # no deep overlap anywhere, across the boundary included
+    assert eps.max() <= 1e-9 * 2 * p.radii.mean()
+    active = sorted((i, j) for i, j, sx, sy, e in rows if e >= 0.0)
+    cs = TaylorRVE(p, 1.0, min_stretch=0.99).contacts(np.eye(2))
+    assert sorted(map(tuple, np.sort(cs.pairs, axis=1).tolist())) == active
+    crossing = [row for row in rows if row[4] >= 0.0 and (row[2] or row[3])]
+    assert crossing, "a periodic jammed packing has contacts across the boundary"
+    # moving the origin of the cell turns boundary contacts into inner ones and vice versa; a
+    # consistent periodic packing has the same contact network and overlaps (to rounding)
+    moved = Packing(p.centers + 0.37 * p.box, p.radii, p.box)
+    rows2 = brute_force_overlaps(moved)
+    act2 = sorted((i, j) for i, j, sx, sy, e in rows2 if e >= 0.0)
+    assert act2 == active
+    e1 = np.sort([e for *_, e in rows if e >= 0.0])
+    e2 = np.sort([e for *_, e in rows2 if e >= 0.0])
+    np.testing.assert_allclose(e1, e2, rtol=0, atol=1e-13 * p.box.max())
+    s1, s2 = network_stats(p), network_stats(moved)
+    assert (s1.n_contacts, s1.coordination) == (s2.n_contacts, s2.coordination)
+
+
+def test_sizes_follow_the_sieve_curve_and_keep_the_span(packings):
+    p = packings[(700, 3)]
+    d = 2 * p.radii
+    assert d.min() >= 0.5 * (1 - 1e-3) and d.max() <= 2.0 * (1 + 1e-3)
+    c = cen_standard_sand()
+    for x in (0.7, 1.0, 1.6):
+        expected = 100 * (c.passing_at(x) - 33) / 67
+        assert SieveCurve.area_passing(d, x) == pytest.approx(expected, abs=3.0)
+
+
+def test_user_curve_and_aspect():
+    p = generate_packing(120, ([0.3, 0.6, 1.18], [0, 50, 100]), seed=4, d_min=None, aspect=2.0)
+    assert p.box[1] / p.box[0] == pytest.approx(2.0)
+    assert 0.3 * (1 - 1e-3) <= 2 * p.radii.min() and 2 * p.radii.max() <= 1.18 * (1 + 1e-3)
+    s = network_stats(p)
+    assert s.volume_fraction >= 0.82 and s.min_coordination >= 3
+
+
+@pytest.mark.slow
+def test_700_particles_within_30_seconds():
+    generate_packing(70, seed=9)  # compilation (cached after the first run) is not counted
+    t0 = time.perf_counter()
+    generate_packing(700, seed=11)
+    assert time.perf_counter() - t0 <= 30.0
+
+
+def test_progress_reports_stages():
+    lines = []
+    generate_packing(70, seed=0, progress=lines.append)
+    assert any("jammed" in s for s in lines) and lines[-1].startswith("done")
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, message",
+    [
+        ((1,), {}, "n_particles"),
+        ((0,), {}, "n_particles"),
+        ((-5,), {}, "n_particles"),
+        ((2.5,), {}, "n_particles"),
+        (("many",), {}, "n_particles"),
+        ((70, ([0.5, 1.0, 2.0], [10, 5, 100])), {}, "must not decrease"),
+        ((70, ([0.5, 1.0, 2.0], [10, 50, 90])), {}, "reach 100"),
+        ((70, ([0.0, 1.0, 2.0], [0, 50, 100])), {}, "must be > 0"),
+        ((70,), {"aspect": 0.0}, "aspect"),
+        ((70,), {"pressure": 0.5}, "pressure"),
+        ((70,), {"contact_overlap": 1e-3}, "contact_overlap"),
+        ((70,), {"d_min": 3.0}, "d_min"),
+        ((2,), {}, "too few"),  # two disks of the CEN sand span most of their cell
+    ],
+)
+def test_bad_input_raises_a_clear_error(args, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        generate_packing(*args, **kwargs)
