@@ -1,0 +1,82 @@
+"""Command line ``python -m dolfinx_granular generate``: output file, one-line errors, --debug."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from dolfinx_granular import Packing, generate_packing
+from dolfinx_granular.__main__ import main
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def run_module(*args, cwd):
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "dolfinx_granular", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_generate_writes_the_packing_of_generate_packing(tmp_path):
+    res = run_module("generate", "70", "--seed", "3", "-o", "packing.npz", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "volume fraction" in res.stdout
+    p = Packing.load(tmp_path / "packing.npz")
+    assert p == generate_packing(70, seed=3)
+
+
+def test_user_errors_are_one_line_exit_2(tmp_path):
+    res = run_module("generate", "1", "-o", "p.npz", cwd=tmp_path)
+    assert res.returncode == 2
+    assert res.stderr.strip().startswith("error: n_particles")
+    assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+    assert not (tmp_path / "p.npz").exists()
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    res = run_module("--debug", "generate", "1", cwd=tmp_path)
+    assert res.returncode != 0 and "Traceback" in res.stderr and "ValueError" in res.stderr
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["generate", "many"], "expected an integer"),
+        (["generate"], "required"),
+        (["generate", "70", "--bogus"], "unrecognized"),
+        (["frobnicate"], "invalid choice"),
+        (["generate", "70", "-o", "packing.txt"], ".npz"),
+        (["generate", "70", "--d-min", "abc"], "size in mm"),
+        (["generate", "70", "--d-min", "5"], "d_min"),
+        (["generate", "70", "--aspect", "0"], "aspect"),
+        (["generate", "70", "--sieve-curve", "missing.csv"], "missing.csv"),
+        (["generate", "70", "--sieve-curve", "bad.csv"], "must not decrease"),
+        (["generate", "70", "-o", "no/such/dir/p.npz"], "no/such/dir"),
+    ],
+)
+def test_bad_arguments(tmp_path, monkeypatch, capsys, argv, message):
+    (tmp_path / "bad.csv").write_text("aperture,passing\n0.3,40\n0.6,20\n1.2,100\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and len(err.splitlines()) == 1
+    assert message in err
+
+
+def test_user_sieve_curve_and_options(tmp_path, monkeypatch, capsys):
+    (tmp_path / "sand.csv").write_text("# test sand\naperture,passing\n0.3,0\n0.6,50\n1.18,100\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["generate", "80", "--seed", "2", "--sieve-curve", "sand.csv", "--aspect", "1.5",
+                 "-o", "s.npz", "--quiet"]) == 0
+    p = Packing.load(tmp_path / "s.npz")
+    assert p == generate_packing(80, ([0.3, 0.6, 1.18], [0, 50, 100]), seed=2, d_min=None,
+                                 aspect=1.5)
+    assert np.isclose(p.box[1] / p.box[0], 1.5)
+    assert "wrote s.npz" in capsys.readouterr().out
+
+
+def test_no_command_prints_help(capsys):
+    assert main([]) == 2
+    assert "generate" in capsys.readouterr().err
