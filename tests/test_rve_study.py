@@ -1,0 +1,98 @@
+"""demos/rve_study.py at reduced size: files, tables, and numbers recomputed independently."""
+
+import csv
+import importlib.util
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+
+from dolfinx_granular import Packing, TaylorRVE
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    spec = importlib.util.spec_from_file_location("rve_study", os.path.join(ROOT, "demos", "rve_study.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path_factory.mktemp("rve_study")
+    t0 = time.perf_counter()
+    assert mod.main(["--out", str(out), "--small"]) == 0
+    return mod, out, time.perf_counter() - t0
+
+
+def read(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_outputs_exist(study):
+    mod, out, runtime = study
+    assert runtime < 60
+    for name in ("fig2_sieve_curve.png", "fig3_packings_densities.png", "fig4_compression.png",
+                 "fig5_shear.png", "speed_error.png"):
+        with open(out / name, "rb") as f:
+            assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    summary = json.loads((out / "summary.json").read_text())
+    assert [row["n"] for row in summary["speed_error"]] == list(mod.SMALL["speed_sizes"])
+
+
+def test_stress_curves_are_mean_and_std_over_the_seeds(study):
+    mod, out, _ = study
+    rows = read(out / "stress_curves.csv")
+    steps = mod.SMALL["steps"]
+    assert {r["path"] for r in rows} == set(mod.PATHS)
+    assert len(rows) == len(mod.PATHS) * len(mod.SMALL["fig_sizes"]) * (steps + 1)
+    assert max(float(r["strain"]) for r in rows) >= 0.10
+    # recompute one point from the cached packings, independently of the demo's code path
+    n = mod.SMALL["fig_sizes"][0]
+    packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz") for s in range(mod.SMALL["seeds"])]
+    F = np.array([[1.0, 0.0], [0.05, 1.0]])
+    sig = np.array([TaylorRVE(p, mod.K_N).cauchy(F) for p in packings])
+    row = next(r for r in rows if r["path"] == "shear_21" and r["n"] == str(n)
+               and float(r["strain"]) == pytest.approx(0.05))
+    for key, (a, b) in (("sigma11", (0, 0)), ("sigma22", (1, 1)), ("sigma12", (0, 1))):
+        assert float(row[f"{key}_mean_Pa"]) == pytest.approx(sig[:, a, b].mean(), rel=1e-6)
+        assert float(row[f"{key}_std_Pa"]) == pytest.approx(sig[:, a, b].std(ddof=1), rel=1e-6, abs=1e-3)
+    # compression loads the compressed direction hardest; unloaded reference is stress-free
+    c11 = [r for r in rows if r["path"] == "compression_11" and r["n"] == str(n)]
+    s11 = [float(r["sigma11_mean_Pa"]) for r in c11]
+    s22 = [float(r["sigma22_mean_Pa"]) for r in c11]
+    assert abs(s11[0]) < 1e-6 * abs(s11[-1])
+    assert all(np.diff(s11) < 0) and s11[-1] < s22[-1] < 0
+
+
+def test_speed_error_table(study):
+    mod, out, _ = study
+    rows = read(out / "speed_error.csv")
+    assert [int(r["n"]) for r in rows] == list(mod.SMALL["speed_sizes"])
+    for r in rows:
+        n = int(r["n"])
+        packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz") for s in range(mod.SMALL["seeds"])]
+        sc = np.array([TaylorRVE(p, mod.K_N).cauchy(np.diag([0.95, 1.0]))[0, 0] for p in packings])
+        assert float(r["cv_compression"]) == pytest.approx(sc.std(ddof=1) / abs(sc.mean()), rel=1e-5)
+        assert 0 < float(r["time_per_point"]) < 1e-3
+        assert float(r["cv_shear"]) > 0
+
+
+def test_packing_table(study):
+    mod, out, _ = study
+    rows = read(out / "packings.csv")
+    assert len(rows) == len(set(mod.SMALL["fig_sizes"]) | set(mod.SMALL["speed_sizes"])) * mod.SMALL["seeds"]
+    for r in rows:
+        assert float(r["volume_fraction"]) >= 0.82
+        assert float(r["prestress_ratio"]) < 1e-6
+        assert float(r["rattler_fraction"]) <= 0.15
+
+
+def test_cache_is_reused(study, tmp_path):
+    mod, out, _ = study
+    cache = mod.PackingCache(str(out / "packings"))
+    t0 = time.perf_counter()
+    p = cache.get(70, 0)
+    assert time.perf_counter() - t0 < 0.5
+    assert p == Packing.load(out / "packings" / "n70_s0.npz")
