@@ -137,10 +137,14 @@ class NewtonSolver:
         self._have_eval = True
 
     def _residual(self, snes, x, b):
+        error = None
         try:
             self._evaluate(x)
-        except ValueError as err:  # UnsupportedDeformationError: NaN residual -> SNES diverges
-            self._error = str(err)
+        except ValueError as err:  # UnsupportedDeformationError
+            error = str(err)
+        errors = [e for e in self.comm.allgather(error) if e]
+        if errors:  # every rank takes this branch: a NaN residual makes SNES stop (or cut back)
+            self._error = errors[0]
             self._have_eval = False
             with b.localForm() as b_local:
                 b_local.set(np.nan)
@@ -220,10 +224,12 @@ class NewtonSolver:
             self.timings["rve"] + self.timings["assembly"] - spent)
         # The material data must belong to the returned u (the last residual was at x if basic).
         if not self._same_as_evaluated(self.x):
+            error = None
             try:
                 self._evaluate(self.x)
             except ValueError as err:
-                self._error = self._error or str(err)
+                error = str(err)
+            self._error = self._error or next((e for e in self.comm.allgather(error) if e), None)
         else:
             self.x.copy(self.u.vector)
             self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
