@@ -1,0 +1,90 @@
+"""The slope demo at reduced size: its files, and serial and ``mpirun -n 2`` runs agreeing."""
+
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("dolfinx")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DEMO = os.path.join(ROOT, "demos", "slope.py")
+
+
+def run_demo(out, *args, ranks=1):
+    cmd = [sys.executable, DEMO, "--particles", "70", "--seed", "1", "--steps", "2", "--out", str(out), *args]
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    if ranks > 1:
+        mpirun = shutil.which("mpirun")
+        if mpirun is None:
+            pytest.skip("mpirun not found")
+        cmd = [mpirun, "-n", str(ranks), "--oversubscribe", *cmd]
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc.stdout
+
+
+def read(out):
+    with open(os.path.join(out, "summary.json")) as f:
+        summary = json.load(f)
+    with open(os.path.join(out, "convergence.csv")) as f:
+        rows = list(csv.DictReader(f))
+    return summary, rows
+
+
+@pytest.mark.slow
+def test_demo_reduced_size_writes_everything(tmp_path):
+    stdout = run_demo(tmp_path)
+    summary, rows = read(tmp_path)
+    assert "step  3/3" in stdout
+    assert summary["ranks"] == 1 and summary["steps"] == 3 and summary["converged"]
+    assert len(summary["iterations"]) == 3 and all(i >= 1 for i in summary["iterations"])
+    for key in ("footing_settlement", "max_von_mises", "min_von_mises", "wall_time", "time_rve",
+                "time_assembly", "time_solve"):
+        assert np.isfinite(summary[key]), key
+    assert len(summary["max_von_mises_location"]) == 2 and len(summary["min_von_mises_location"]) == 2
+    assert summary["footing_settlement"] < 0  # the footing goes down
+    assert 0 <= summary["min_von_mises"] < summary["max_von_mises"]
+    assert summary["min_singular_value_F"] >= 0.5
+    assert list(rows[0]) == ["step", "iteration", "residual_norm", "energy_norm_rel"]
+    assert sorted({int(r["step"]) for r in rows}) == [1, 2, 3]
+    assert sum(summary["iterations"]) == len(rows)
+    with open(tmp_path / "slope.xdmf") as f:
+        xdmf = f.read()
+    for step in (1, 2, 3):
+        assert xdmf.count(f'<Time Value="{step}"') == 2  # displacement and von Mises
+    assert (tmp_path / "slope.h5").stat().st_size > 0
+    png = tmp_path / "slope.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(png)
+    assert img.shape[0] > 400 and img.shape[1] > 800 and img[..., :3].std() > 0.05
+
+
+@pytest.mark.slow
+def test_serial_and_two_ranks_agree(tmp_path):
+    run_demo(tmp_path / "np1", "--no-figure")
+    run_demo(tmp_path / "np2", "--no-figure", ranks=2)
+    s1, r1 = read(tmp_path / "np1")
+    s2, r2 = read(tmp_path / "np2")
+    assert s1["ranks"] == 1 and s2["ranks"] == 2
+    assert s1["converged"] and s2["converged"]
+    assert s1["iterations"] == s2["iterations"]
+    rel = lambda a, b: abs(a - b) / max(abs(a), abs(b))  # noqa: E731
+    for key in ("footing_settlement", "max_von_mises"):
+        assert rel(s1[key], s2[key]) <= 1e-10, (key, s1[key], s2[key])
+    assert abs(s1["min_von_mises"] - s2["min_von_mises"]) <= 1e-10 * s1["max_von_mises"]
+    assert np.allclose(s1["max_von_mises_location"], s2["max_von_mises_location"], rtol=0, atol=1e-12)
+    for lab in s1["probes"]:
+        F1, F2 = np.array(s1["probes"][lab]["F"]), np.array(s2["probes"][lab]["F"])
+        assert np.abs(F1 - F2).max() <= 1e-10, lab
+    # Residual norms above round-off and the energy norms of the first Newton steps agree too.
+    for a, b in zip(r1, r2):
+        if int(a["iteration"]) <= 2:
+            assert rel(float(a["residual_norm"]), float(b["residual_norm"])) <= 1e-10
+            assert rel(float(a["energy_norm_rel"]), float(b["energy_norm_rel"])) <= 1e-8
