@@ -7,12 +7,12 @@
   for angles of influence 10, 20, 30 degrees);
 * uniaxial compression in 11 and 22 and simple shear in 12 and 21 to 10 % (Taylor RVE, paper's
   k_n = 2.8e7 N/m²): figures 4 and 5, mean ± standard deviation (ddof = 1) over the seeds;
-* speed against error: coefficient of variation over the seeds of sigma_11 at 5 % compression and
-  sigma_12 at 5 % shear, and the evaluation time of stress and tangent per quadrature point,
-  for 70 ... 2800 particles.
+* speed against error: coefficient of variation (ddof = 1) over 10 seeds (0-9) of sigma_11 at
+  5 % compression and sigma_12 at 5 % shear, and the evaluation time of stress and tangent per
+  quadrature point, for 70 ... 2800 particles.
 
 Writes PNGs and CSVs to ``--out``; packings are cached in ``OUT/packings`` (``--no-cache``
-regenerates them). ``--small`` is a reduced run for the tests (2 seeds, 70 and 140 particles).
+regenerates them). ``--small`` is a reduced run for the tests (2-3 seeds, 70 and 140 particles).
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 MAX_STRAIN = 0.10
 DPI = 110
 
-FULL = dict(fig_sizes=(70, 350, 700), speed_sizes=(70, 350, 700, 1400, 2800), seeds=5, steps=20)
-SMALL = dict(fig_sizes=(70,), speed_sizes=(70, 140), seeds=2, steps=4)
+FULL = dict(fig_sizes=(70, 350, 700), speed_sizes=(70, 350, 700, 1400, 2800), seeds=5,
+            speed_seeds=10, steps=20)
+SMALL = dict(fig_sizes=(70,), speed_sizes=(70, 140), seeds=2, speed_seeds=3, steps=4)
 
 # name -> (F as a function of the parameter s, axis label); s runs from 0 to MAX_STRAIN
 PATHS = {
@@ -120,13 +121,15 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     cache = PackingCache(os.path.join(out, "packings"), use_cache)
     seeds = list(range(cfg["seeds"]))
     sizes = sorted(set(cfg["fig_sizes"]) | set(cfg["speed_sizes"]))
+    n_seeds = {n: max(cfg["seeds"] if n in cfg["fig_sizes"] else 0,
+                      cfg["speed_seeds"] if n in cfg["speed_sizes"] else 0) for n in sizes}
 
     # -- packings and their networks --------------------------------------------------------------
     packings = {}
     stats_rows = []
     for n in sizes:
-        packings[n] = [cache.get(n, s) for s in seeds]
-        for s, p in zip(seeds, packings[n]):
+        packings[n] = [cache.get(n, s) for s in range(n_seeds[n])]
+        for s, p in enumerate(packings[n]):
             st = network_stats(p)
             rve = TaylorRVE(p, K_N, min_stretch=0.85)
             ratio = np.abs(rve.cauchy(np.eye(2))).max() / np.abs(rve.cauchy(0.99 * np.eye(2))).max()
@@ -136,7 +139,7 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
                                f"{st.coordination:.3f}", st.min_coordination,
                                f"{st.rattler_fraction:.3f}", f"{ratio:.2e}", f"{a:.4f}",
                                f"{density_deviation(ang, np.radians(20.0)):.4f}"])
-        say(f"{n:5d} particles: generated / loaded {len(seeds)} packings "
+        say(f"{n:5d} particles: generated / loaded {n_seeds[n]} packings "
             f"({time.perf_counter() - t_start:.1f} s)")
     write_csv(os.path.join(out, "packings.csv"),
               ["n", "seed", "generation_time_s", "volume_fraction", "coordination_nonrattlers",
@@ -146,15 +149,15 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     # -- figures 2 and 3 ----------------------------------------------------------------------------
     n_show = max(cfg["fig_sizes"])
     fig = plotting.plot_sieve_curve(cen_standard_sand(), packings[n_show][0], d_min=DEFAULT_D_MIN)
+    figure_sets = {n: packings[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}
     fig.savefig(os.path.join(out, "fig2_sieve_curve.png"), dpi=DPI)
-    sets = {n: packings[n] for n in cfg["fig_sizes"]}
-    ratt = {n: [network_stats(p).rattlers for p in packings[n]] for n in cfg["fig_sizes"]}
-    fig = plotting.plot_packings_and_densities(sets, rattlers=ratt)
+    ratt = {n: [network_stats(p).rattlers for p in figure_sets[n]] for n in cfg["fig_sizes"]}
+    fig = plotting.plot_packings_and_densities(figure_sets, rattlers=ratt)
     fig.savefig(os.path.join(out, "fig3_packings_densities.png"), dpi=80)
     say(f"figures 2 and 3 ({time.perf_counter() - t_start:.1f} s)")
 
     # -- figures 4 and 5: stress paths ------------------------------------------------------------
-    curves = {n: stress_paths(packings[n], cfg["steps"]) for n in cfg["fig_sizes"]}
+    curves = {n: stress_paths(figure_sets[n], cfg["steps"]) for n in cfg["fig_sizes"]}
     rows = []
     for name in PATHS:
         for n in cfg["fig_sizes"]:
@@ -198,7 +201,8 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
             "sigma12_shear_mean_Pa": float(ss.mean()),
             "cv_shear": float(ss.std(ddof=ddof) / abs(ss.mean())),
             "time_per_point": float(np.median([time_per_point(r) for r in rves[:2]])),
-            "generation_time_s": float(np.mean([cache.times[f"{n}/{s}"] for s in seeds])),
+            "generation_time_s": float(np.mean([cache.times[f"{n}/{s}"] for s in range(len(rves))])),
+            "seeds": len(rves),
         })
     keys = list(table[0])
     write_csv(os.path.join(out, "speed_error.csv"), keys,
@@ -214,6 +218,7 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     runtime = time.perf_counter() - t_start
     say(f"\nwrote {out}/ in {runtime:.1f} s")
     summary = {"runtime_s": runtime, "speed_error": table, "seeds": seeds,
+               "speed_seeds": cfg["speed_seeds"],
                "fig_sizes": list(cfg["fig_sizes"])}
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)

@@ -72,7 +72,8 @@ def test_speed_error_table(study):
     assert [int(r["n"]) for r in rows] == list(mod.SMALL["speed_sizes"])
     for r in rows:
         n = int(r["n"])
-        packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz") for s in range(mod.SMALL["seeds"])]
+        packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz") for s in range(mod.SMALL["speed_seeds"])]
+        assert int(r["seeds"]) == len(packings)
         sc = np.array([TaylorRVE(p, mod.K_N).cauchy(np.diag([0.95, 1.0]))[0, 0] for p in packings])
         assert float(r["cv_compression"]) == pytest.approx(sc.std(ddof=1) / abs(sc.mean()), rel=1e-5)
         assert 0 < float(r["time_per_point"]) < 1e-3
@@ -82,7 +83,7 @@ def test_speed_error_table(study):
 def test_packing_table(study):
     mod, out, _ = study
     rows = read(out / "packings.csv")
-    assert len(rows) == len(set(mod.SMALL["fig_sizes"]) | set(mod.SMALL["speed_sizes"])) * mod.SMALL["seeds"]
+    assert len(rows) == len(set(mod.SMALL["fig_sizes"]) | set(mod.SMALL["speed_sizes"])) * mod.SMALL["speed_seeds"]
     for r in rows:
         assert float(r["volume_fraction"]) >= 0.82
         assert float(r["prestress_ratio"]) < 1e-6
