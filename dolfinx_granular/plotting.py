@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
-from matplotlib.ticker import FormatStrFormatter
+from matplotlib.ticker import FormatStrFormatter, LogLocator
 
 from .fabric import contact_angles, normal_density
 from .gsd import SieveCurve
@@ -173,6 +173,7 @@ def plot_speed_error(rows) -> Figure:
                         fontsize=8)
     for axis in (ax.xaxis, ax.yaxis):
         axis.set_major_formatter(FormatStrFormatter("%g"))
+        axis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
         axis.set_minor_formatter(FormatStrFormatter("%g"))
     ax.tick_params(which="minor", labelsize=7)
     ax.set_xlabel("evaluation time per quadrature point (stress + tangent) [µs]")
