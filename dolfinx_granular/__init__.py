@@ -10,10 +10,12 @@ from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
 from .gsd import SieveCurve, cen_standard_sand
 from .generation import NetworkStats, generate_packing, network_stats
 from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
+from .levels import AdaptiveRVE, SmallStrainRVE
 
 __all__ = ["Packing", "PackingFileError", "TaylorRVE", "ContactSet", "UnsupportedDeformationError",
            "SieveCurve", "cen_standard_sand", "generate_packing", "network_stats", "NetworkStats",
-           "contact_angles", "normal_density", "fabric_tensor", "anisotropy", "density_deviation"]
+           "contact_angles", "normal_density", "fabric_tensor", "anisotropy", "density_deviation",
+           "SmallStrainRVE", "AdaptiveRVE"]
 __version__ = "0.1.0"
 
 # DOLFINx-side names, imported on first use so that `import dolfinx_granular` stays DOLFINx-free.

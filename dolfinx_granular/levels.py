@@ -1,0 +1,351 @@
+"""Model levels with the :class:`~dolfinx_granular.rve.TaylorRVE` interface: pay only for what a
+scene needs.
+
+* :class:`SmallStrainRVE` -- the linear model of eq. 15: ``P = C : eps`` with
+  ``eps = sym(F - I)`` and ``A = C``; no contact work per evaluation.
+* :class:`AdaptiveRVE` -- per point, the linearisation at the reference where the deformation is
+  small (``||F - I||_2 <= tol``) and the contact set provably equals the reference one, the full
+  Taylor RVE elsewhere.
+
+Both are subclasses of :class:`TaylorRVE` sharing the wrapped RVE's data (no second candidate
+search), so they drop into :class:`~dolfinx_granular.material.GranularMaterial` unchanged.
+
+**The sufficient contact test of AdaptiveRVE.** A candidate contact with reference branch vector
+L and radius sum R is active at F when ``|F L| <= R``, and ``s_min(F) |L| <= |F L| <= s_max(F) |L|``
+with ``s_min``, ``s_max`` the singular values of F. Hence
+
+* every reference contact (``R - |L| >= 0``) stays closed if ``s_max(F) <= min_c R_c / |L_c|``;
+* every reference gap (``R - |L| < 0``) stays open if ``s_min(F) > max_g R_g / |L_g|`` (then
+  ``|F L_g| >= s_min(F) |L_g| > R_g`` for every gap g).
+
+Both bounds are computed once per packing (``reference_stretch_bounds``) and tested with a
+relative safety margin of 1e-12, far above the rounding of the kernel's ``R - |F L|``. For the
+jammed packings of :func:`~dolfinx_granular.generation.generate_packing` the reference contacts
+touch (``R / |L| = 1 + O(1e-11)``) and the nearest gaps are ~1e-6 R wide, so the test passes only
+for F within ~1e-6 of a rotation that does not stretch: a provable linear region is tiny for a
+packing at jamming. ``contact_test=False`` drops the contact test (strain criterion only); this is
+not provable and its error is measured, not bounded.
+
+**Error bound where the linear branch is used.** The linear branch is the exact linearisation of
+the Taylor law at F = I, ``P(I) + A(I) : (F - I)`` (``A(I)`` is the eq. 15 modulus C and ``P(I) =
+0`` for a stress-free reference; with reference overlaps both include the prestress). Over an
+unchanged contact set, contact c contributes ``-K R_c (N(F L_c) - N(L_c) - DN(L_c) H L_c) (x) L_c``
+to ``P_lin - P_Taylor`` with ``N(b) = b / |b|``, ``H = F - I``, ``K = k_n / V``. The remainder of N
+is at most ``(1/sqrt 3) t^2 / (1 - t)^2`` for ``t = |H L| / |L| <= ||H||_2 < 1`` (the constant is
+sharp as t -> 0), so::
+
+    |P_lin - P_Taylor|_F <= (1/sqrt 3) K sum_c R_c |L_c| * t^2 / (1 - t)^2,   t = ||F - I||_2
+
+:meth:`AdaptiveRVE.error_bound` evaluates it; with ``t <= tol`` the error relative to the linear
+stress scale ``K sum R |L| t`` is at most ``tol / (sqrt 3 (1 - tol)^2)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import kernel
+from .rve import TaylorRVE, UnsupportedDeformationError, _as_batch
+
+# relative safety margin of the singular-value contact test (see module docstring)
+_MARGIN = 1e-12
+_REMAINDER_CONSTANT = 1.0 / np.sqrt(3.0)
+
+
+def singular_values_2x2(F):
+    """Singular values ``(s_max, s_min)`` of (n, 2, 2) matrices, accurate to a few ulp absolute.
+
+    Uses ``s = |q| +- |r|`` with ``q = ((F00 + F11) / 2, (F10 - F01) / 2)`` and
+    ``r = ((F00 - F11) / 2, (F10 + F01) / 2)`` (no cancellation in a discriminant).
+    """
+    F = np.asarray(F, dtype=np.float64)
+    q = np.hypot(0.5 * (F[:, 0, 0] + F[:, 1, 1]), 0.5 * (F[:, 1, 0] - F[:, 0, 1]))
+    r = np.hypot(0.5 * (F[:, 0, 0] - F[:, 1, 1]), 0.5 * (F[:, 1, 0] + F[:, 0, 1]))
+    return q + r, np.abs(q - r)
+
+
+def _symmetrise(C):
+    """Average over the 8 major/minor index permutations, then copy one value per orbit so that
+    the symmetries hold exactly in floating point."""
+    perms = ["abcd", "bacd", "abdc", "badc", "cdab", "dcab", "cdba", "dcba"]
+    S = sum(np.einsum(f"{p}->abcd", C) for p in perms) / 8.0
+    out = np.empty_like(S)
+    for idx in np.ndindex(2, 2, 2, 2):
+        a, b, c, d = idx
+        orbit = [(a, b, c, d), (b, a, c, d), (a, b, d, c), (b, a, d, c),
+                 (c, d, a, b), (d, c, a, b), (c, d, b, a), (d, c, b, a)]
+        out[idx] = S[min(orbit)]
+    return out
+
+
+def _share(level, rve):
+    if not isinstance(rve, TaylorRVE):
+        raise TypeError(f"rve must be a dolfinx_granular.TaylorRVE, got {type(rve).__name__}")
+    if isinstance(rve, (SmallStrainRVE, AdaptiveRVE)):
+        rve = rve.taylor  # wrap the full model, never a level of it
+    level.__dict__.update(rve.__dict__)  # packing, stiffness, candidate arrays: shared, read-only
+    level.taylor = rve
+
+
+def _validate_finite(F):
+    """Raise UnsupportedDeformationError for non-finite F (the linear model needs nothing else)."""
+    bad = np.flatnonzero(~np.isfinite(F.reshape(F.shape[0], -1)).all(axis=1))
+    if bad.size:
+        status = np.zeros(F.shape[0], dtype=np.int8)
+        status[bad] = kernel.NOT_FINITE
+        q = int(bad[0])
+        raise UnsupportedDeformationError(
+            f"F at {bad.size} of {F.shape[0]} points is outside the model's range; the first, "
+            f"point {q}, F = {F[q].tolist()}, has a NaN or inf entry",
+            bad, status,
+        )
+
+
+def _outputs(n, tangent, out):
+    if out is None:
+        W, P = np.empty(n), np.empty((n, 2, 2))
+        A = np.empty((n, 2, 2, 2, 2)) if tangent else None
+    else:
+        W, P, A = out
+        if not tangent:
+            A = None
+    return W, P, A
+
+
+def _push_forward(F, P, A):
+    """Cauchy stress and spatial tangent (eqs. 11, 14) from P and A = dP/dF (A may be None)."""
+    J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
+    sigma = np.einsum("qaB,qbB->qab", P, F) / J[:, None, None]
+    if A is None:
+        return sigma, None
+    a = np.einsum("qbB,qdD,qaBcD->qabcd", F, F, A) / J[:, None, None, None, None]
+    return sigma, a
+
+
+class _Level(TaylorRVE):
+    """Shared public interface; subclasses implement ``_material(F, tangent, out)``."""
+
+    def _material(self, F, tangent, out):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def evaluate(self, F, out=None):
+        """Energy W (n,), first Piola stress P (n, 2, 2), A = dP/dF (n, 2, 2, 2, 2), in Pa."""
+        F, single = _as_batch(F)
+        W, P, A = self._material(F, True, out)
+        return (W[0], P[0], A[0]) if single else (W, P, A)
+
+    def stress(self, F, out=None):
+        """Energy and first Piola stress without the tangent: ``(W (n,), P (n, 2, 2))``."""
+        F, single = _as_batch(F)
+        W, P, _ = self._material(F, False, out)
+        return (W[0], P[0]) if single else (W, P)
+
+    def energy(self, F):
+        """Energy density W (n,) per reference area, in Pa."""
+        return self.stress(F)[0]
+
+    def cauchy(self, F):
+        """Cauchy stress (n, 2, 2) in Pa."""
+        F, single = _as_batch(F)
+        _, P, _ = self._material(F, False, None)
+        sigma = self._spatial(F, P, None)[0]
+        return sigma[0] if single else sigma
+
+    def spatial_tangent(self, F):
+        """Spatial tangent (n, 2, 2, 2, 2) in Pa."""
+        F, single = _as_batch(F)
+        _, P, A = self._material(F, True, None)
+        a = self._spatial(F, P, A)[1]
+        return a[0] if single else a
+
+    def _spatial(self, F, P, A):
+        return _push_forward(F, P, A)
+
+    def contacts(self, F):
+        """Active contacts of the full Taylor RVE at one F (2, 2) (force networks for figures)."""
+        return self.taylor.contacts(F)
+
+
+class SmallStrainRVE(_Level):
+    """The small-strain model of eq. 15 as a material level: linear, no contact work.
+
+    ``P = C : eps`` with ``eps = sym(F - I)``, ``W = eps : C : eps / 2``, ``A = dP/dF = C``, where
+    C is :meth:`TaylorRVE.small_strain_modulus` of the wrapped RVE, symmetrised exactly (major and
+    minor symmetry, in floating point too). Linear theory does not distinguish stress measures:
+    :meth:`cauchy` returns ``C : eps`` as well and :meth:`spatial_tangent` returns C. Any finite F
+    is accepted. The reference prestress of an RVE with overlapping reference contacts is not
+    included (for generated, stress-free packings it is zero).
+
+    Args:
+        rve: the full Taylor RVE whose reference contacts define C.
+
+    Attributes:
+        C: (2, 2, 2, 2) modulus in Pa.
+        taylor: the wrapped :class:`TaylorRVE`.
+    """
+
+    def __init__(self, rve: TaylorRVE):
+        _share(self, rve)
+        self.C = _symmetrise(self.taylor.small_strain_modulus())
+        self._C44 = np.ascontiguousarray(self.C.reshape(4, 4))
+
+    def strain(self, F):
+        """Small strain eps = sym(F - I), (n, 2, 2)."""
+        H = F - np.eye(2)
+        return 0.5 * (H + np.swapaxes(H, 1, 2))
+
+    def _material(self, F, tangent, out):
+        _validate_finite(F)
+        n = F.shape[0]
+        W, P, A = _outputs(n, tangent, out)
+        eps = self.strain(F).reshape(n, 4)
+        sig = eps @ self._C44.T  # C is major-symmetric; P_ab = C_abcd eps_cd
+        P[...] = sig.reshape(n, 2, 2)
+        W[...] = 0.5 * np.einsum("qi,qi->q", sig, eps)
+        if tangent:
+            A[...] = self.C
+        return W, P, A
+
+    def _spatial(self, F, P, A):
+        return P, (None if A is None else A)
+
+
+class AdaptiveRVE(_Level):
+    """Per point: the reference linearisation where it is provably accurate, full Taylor elsewhere.
+
+    A point takes the linear branch ``P(I) + A(I) : (F - I)`` (tangent ``A(I)``; ``A(I)`` is the
+    eq. 15 modulus for a stress-free reference) when
+
+    * ``||F - I||_2 <= tol`` (spectral norm, so rotations count), and
+    * (``contact_test=True``) the singular-value test proves that the contact set is the reference
+      one (module docstring).
+
+    Every other point is evaluated by the wrapped Taylor RVE, bit for bit. Where the linear branch
+    is taken the stress error against full Taylor is at most :meth:`error_bound`.
+
+    Args:
+        rve: the full Taylor RVE.
+        tol: strain tolerance, 0 <= tol < 1.
+        contact_test: require the provable contact test (default). ``False`` uses the strain
+            criterion alone: cheaper choices, error not bounded.
+
+    Attributes:
+        counts: ``{"linear": n, "taylor": n}`` of the last evaluation.
+        totals: the same, summed over all evaluations since construction (or ``reset_counts``).
+        linear_mask: (n,) bool, the points of the last evaluation that took the linear branch.
+        stretch_bounds: ``(s_max allowed, s_min required)`` of the contact test, margin included.
+        error_constant: ``K sum_c R_c |L_c|`` over the reference contacts (Pa), the factor of
+            :meth:`error_bound`.
+    """
+
+    def __init__(self, rve: TaylorRVE, tol: float, contact_test: bool = True):
+        _share(self, rve)
+        tol = float(tol)
+        if not (0.0 <= tol < 1.0):
+            raise ValueError(f"tol must lie in [0, 1), got {tol!r}")
+        self.tol = tol
+        self.contact_test = bool(contact_test)
+        self.W0, self.P0, self.A0 = self.taylor.evaluate(np.eye(2))
+        self._A044 = np.ascontiguousarray(self.A0.reshape(4, 4))
+        R, L = self._R, self._L
+        d = np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])  # as the kernel computes |F L| at F = I
+        closed = R - d >= 0.0
+        ratio = R / d  # the contact stays active while the stretch along L is <= R / |L|
+        smax_ok = ratio[closed].min() if closed.any() else np.inf
+        smin_req = ratio[~closed].max() if (~closed).any() else 0.0
+        self.stretch_bounds = (smax_ok * (1.0 - _MARGIN), smin_req * (1.0 + _MARGIN))
+        self.n_reference_contacts = int(closed.sum())
+        self.error_constant = float(self._K * np.sum(R[closed] * d[closed]))
+        self.counts = {"linear": 0, "taylor": 0}
+        self.totals = {"linear": 0, "taylor": 0}
+        self.linear_mask = np.zeros(0, dtype=bool)
+
+    def reset_counts(self):
+        self.totals = {"linear": 0, "taylor": 0}
+
+    def strain_measure(self, F):
+        """``||F - I||_2`` (n,), the largest singular value of F - I."""
+        F, _ = _as_batch(F)
+        return singular_values_2x2(F - np.eye(2))[0]
+
+    def linear_points(self, F):
+        """(n,) bool: points where the linear branch is taken (both criteria of the class doc)."""
+        F, _ = _as_batch(F)
+        with np.errstate(invalid="ignore"):
+            ok = self.strain_measure(F) <= self.tol  # NaN -> False -> Taylor, which rejects it
+            if self.contact_test:
+                smax, smin = singular_values_2x2(F)
+                ok &= (smax <= self.stretch_bounds[0]) & (smin > self.stretch_bounds[1])
+        return ok
+
+    def error_bound(self, F):
+        """Upper bound (n,) of ``|P_linear - P_Taylor|_F`` (Pa) valid wherever the contact set is
+        the reference one: ``(1/sqrt 3) error_constant t^2 / (1 - t)^2``, t = ||F - I||_2 < 1."""
+        t = self.strain_measure(F)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(t < 1.0, _REMAINDER_CONSTANT * self.error_constant * t**2 / (1.0 - t) ** 2,
+                            np.inf)
+
+    def _linear(self, F, tangent):
+        """The linear branch at points F (m, 2, 2): W, P and (if ``tangent``) A."""
+        H = (F - np.eye(2)).reshape(-1, 4)
+        dP = H @ self._A044.T
+        P = self.P0 + dP.reshape(-1, 2, 2)
+        W = self.W0 + H @ self.P0.reshape(4) + 0.5 * np.einsum("qi,qi->q", dP, H)
+        return W, P, (np.broadcast_to(self.A0, (F.shape[0], 2, 2, 2, 2)) if tangent else None)
+
+    def _split(self, F):
+        lin = self.linear_points(F)
+        self.linear_mask = lin
+        idx, full = np.flatnonzero(lin), np.flatnonzero(~lin)
+        self.counts = {"linear": int(idx.size), "taylor": int(full.size)}
+        for k, v in self.counts.items():
+            self.totals[k] += v
+        return idx, full
+
+    def _taylor(self, method, F, full):
+        """``self.taylor.<method>`` at the points ``full``; errors name the points of the batch."""
+        try:
+            return getattr(self.taylor, method)(F if full.size == F.shape[0] else F[full])
+        except UnsupportedDeformationError:
+            getattr(self.taylor, method)(F)  # re-raise with the batch's point numbers
+            raise
+
+    def _material(self, F, tangent, out):
+        W, P, A = _outputs(F.shape[0], tangent, out)
+        idx, full = self._split(F)
+        if full.size:
+            if tangent:
+                W[full], P[full], A[full] = self._taylor("evaluate", F, full)
+            else:
+                W[full], P[full] = self._taylor("stress", F, full)
+        if idx.size:
+            Wl, Pl, Al = self._linear(F[idx], tangent)
+            W[idx], P[idx] = Wl, Pl
+            if tangent:
+                A[idx] = Al
+        return W, P, A
+
+    def cauchy(self, F):
+        """Cauchy stress (n, 2, 2) in Pa: the kernel's (Taylor points) or the push-forward of the
+        linear branch."""
+        F, single = _as_batch(F)
+        sigma = np.empty((F.shape[0], 2, 2))
+        idx, full = self._split(F)
+        if full.size:
+            sigma[full] = self._taylor("cauchy", F, full)
+        if idx.size:
+            sigma[idx] = _push_forward(F[idx], self._linear(F[idx], False)[1], None)[0]
+        return sigma[0] if single else sigma
+
+    def spatial_tangent(self, F):
+        """Spatial tangent (n, 2, 2, 2, 2) in Pa (kernel, or push-forward of the linear branch)."""
+        F, single = _as_batch(F)
+        a = np.empty((F.shape[0], 2, 2, 2, 2))
+        idx, full = self._split(F)
+        if full.size:
+            a[full] = self._taylor("spatial_tangent", F, full)
+        if idx.size:
+            _, Pl, Al = self._linear(F[idx], True)
+            a[idx] = _push_forward(F[idx], Pl, np.ascontiguousarray(Al))[1]
+        return a[0] if single else a
