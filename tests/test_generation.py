@@ -8,7 +8,8 @@ import pytest
 from dolfinx_granular import Packing, TaylorRVE, generate_packing, network_stats
 from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
 
-CASES = [(70, 0), (70, 1), (70, 2), (350, 1), (700, 3)]
+# (70, 68): the first jammed state has 17 % rattlers and is rejected
+CASES = [(70, 0), (70, 1), (70, 2), (70, 68), (350, 1), (700, 3)]
 
 
 @pytest.fixture(scope="module")
@@ -130,6 +131,15 @@ def test_700_particles_within_30_seconds():
     assert time.perf_counter() - t0 <= 30.0
 
 
+def test_rejected_networks_are_jammed_again_and_the_best_attempt_is_returned():
+    lines = []
+    p = generate_packing(70, seed=0, max_rattlers=0.0, max_attempts=3, progress=lines.append)
+    assert sum("attempt" in s for s in lines) == 3
+    assert network_stats(p).rattler_fraction > 0  # no 70-disk network without rattlers here
+    first = generate_packing(70, seed=0, max_attempts=1)
+    assert network_stats(p).rattler_fraction <= network_stats(first).rattler_fraction
+
+
 def test_progress_reports_stages():
     lines = []
     generate_packing(70, seed=0, progress=lines.append)
@@ -151,6 +161,8 @@ def test_progress_reports_stages():
         ((70,), {"pressure": 0.5}, "pressure"),
         ((70,), {"contact_overlap": 1e-3}, "contact_overlap"),
         ((70,), {"d_min": 3.0}, "d_min"),
+        ((70,), {"max_rattlers": -0.1}, "max_rattlers"),
+        ((70,), {"max_attempts": 0}, "max_attempts"),
         ((2,), {}, "too few"),  # two disks of the CEN sand span most of their cell
     ],
 )
