@@ -68,6 +68,10 @@ class NewtonSolver:
         petsc_options: options set under ``prefix`` (defaults: newtonls, ``basic`` line search,
             preonly + LU with MUMPS).
         verbose: print one line per Newton step on rank 0.
+        skip_final_tangent: evaluate only the stress (no tangent) for a residual that ends the
+            solve whatever its value: the energy norm of the step that led to it is already
+            converged, so SNES asks for no Jacobian there. The material's tangent then belongs
+            to the previous iterate.
 
     Attributes:
         timings: seconds spent in ``"rve"`` (material updates), ``"assembly"`` and ``"solve"``
@@ -76,8 +80,10 @@ class NewtonSolver:
 
     def __init__(self, residual, jacobian, u, bcs=(), material=None, *, energy_rtol=1e-20,
                  residual_atol=0.0, roundoff_energy=1e-14, max_it=20, prefix="granular_",
-                 petsc_options=None, verbose=False):
+                 petsc_options=None, verbose=False, skip_final_tangent=False):
         self.u = u
+        self.skip_final_tangent = bool(skip_final_tangent)
+        self._have_tangent = False
         self.bcs = list(bcs)
         self.material = material
         self.energy_rtol = float(energy_rtol)
@@ -123,23 +129,36 @@ class NewtonSolver:
 
     # -- SNES callbacks ----------------------------------------------------------------------------
 
-    def _evaluate(self, x):
+    def _evaluate(self, x, tangent=True):
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         x.copy(self.u.vector)
         self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         if self.material is not None:
             t = time.perf_counter()
             try:
-                self.material.update(tangent=True)
+                self.material.update(tangent=tangent)
             finally:
                 self.timings["rve"] += time.perf_counter() - t
         x.copy(self._x_eval)
         self._have_eval = True
+        self._have_tangent = tangent
+
+    def _tangent_needed(self, x):
+        """False if the energy norm of the step to x (what ``_converged`` will compute) already
+        meets ``energy_rtol``: the solve ends at x and no Jacobian is assembled there."""
+        if not (self.skip_final_tangent and self.history):
+            return True
+        du = x.copy()
+        du.axpy(-1.0, self._x_prev)
+        energy = abs(self._R_prev.dot(du))
+        du.destroy()
+        rel = energy / self._energy0 if self._energy0 > 0 else 0.0
+        return not rel <= self.energy_rtol
 
     def _residual(self, snes, x, b):
         error = None
         try:
-            self._evaluate(x)
+            self._evaluate(x, self._tangent_needed(x))
         except ValueError as err:  # UnsupportedDeformationError
             error = str(err)
         errors = [e for e in self.comm.allgather(error) if e]
@@ -163,7 +182,7 @@ class NewtonSolver:
         return self.comm.allreduce(bool(same), op=_MPI_LAND())
 
     def _jacobian(self, snes, x, A, P):
-        if not self._same_as_evaluated(x):
+        if not (self._same_as_evaluated(x) and self._have_tangent):
             self._evaluate(x)
         t = time.perf_counter()
         A.zeroEntries()

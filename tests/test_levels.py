@@ -240,3 +240,79 @@ def test_singular_values_2x2(rng):
     F = np.array([rotation(1e-9) @ np.diag([1.0 + 1e-13, 1.0])])
     smax, smin = singular_values_2x2(F)
     assert abs(smax[0] - (1.0 + 1e-13)) <= 4e-16 and abs(smin[0] - 1.0) <= 4e-16
+
+
+# -- the levels and the stress-only final residual inside a Newton solve ---------------------------
+
+def column_problem(rve, prefix, skip_final_tangent=False, n=4, pressure=2e5):
+    """A 10 m x 10 m column on rollers, fixed base, non-uniform top pressure (Pa)."""
+    pytest.importorskip("dolfinx")
+    import ufl
+    from dolfinx import fem, mesh
+    from mpi4py import MPI
+
+    from dolfinx_granular.material import GranularMaterial
+    from dolfinx_granular.solver import NewtonSolver
+
+    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [n, n], mesh.CellType.quadrilateral)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
+    material = GranularMaterial(rve, u)
+    top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))
+    bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
+    walls = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 10))
+    ds = ufl.Measure("ds", msh, subdomain_data=mesh.meshtags(msh, 1, top, np.full_like(top, 1)))
+    x = ufl.SpatialCoordinate(msh)
+    residual = material.residual_form(v) + pressure * (1 + 0.05 * x[0]) * v[1] * ds(1)
+    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
+           fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0))]
+    solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material, prefix=prefix,
+                          skip_final_tangent=skip_final_tangent)
+    calls = {True: 0, False: 0}
+    update = material.update
+
+    def counting_update(tangent=True):
+        calls[bool(tangent)] += 1
+        update(tangent=tangent)
+
+    material.update = counting_update
+    return solver, material, u, calls
+
+
+@pytest.mark.mpi
+def test_final_residual_skips_the_tangent(jammed):
+    runs = {}
+    for skip in (False, True):
+        solver, material, u, calls = column_problem(jammed, f"skip{int(skip)}_", skip)
+        result = solver.solve()
+        assert result.converged and result.reason_name == "CONVERGED_SNORM_RELATIVE"
+        runs[skip] = (result, u.x.array.copy(), dict(calls), material.P.x.array.copy())
+        solver.destroy()
+    (r0, u0, c0, P0), (r1, u1, c1, P1) = runs[False], runs[True]
+    # same iterates, same answer: the stress is identical with and without the tangent to round-off
+    assert r1.iterations == r0.iterations
+    assert np.allclose(u1, u0, rtol=0, atol=1e-12 * np.abs(u0).max())
+    # one tangent per Jacobian; the final residual (energy norm already converged) is stress only
+    assert c0 == {True: r0.iterations + 1, False: 0}
+    assert c1 == {True: r1.iterations, False: 1}
+
+
+@pytest.mark.mpi
+def test_levels_drop_into_granular_material(jammed):
+    from dolfinx_granular.material import GranularMaterial  # noqa: F401 (skips without dolfinx)
+
+    results = {}
+    for name, rve in (("taylor", jammed), ("small", SmallStrainRVE(jammed)),
+                      ("adaptive", AdaptiveRVE(jammed, 1e-3))):
+        solver, material, u, calls = column_problem(rve, f"lvl_{name}_")
+        result = solver.solve()
+        assert result.converged, name
+        results[name] = (result, u.x.array.copy())
+        solver.destroy()
+    # linear model: the first Newton step lands on the solution (residual at round-off after it)
+    hist = results["small"][0].history
+    assert len(hist) <= 2 and (len(hist) == 1 or hist[1][1] <= 1e-12 * hist[0][1])
+    u_t, u_s = results["taylor"][1], results["small"][1]
+    assert 0 < np.abs(u_s - u_t).max() < 0.5 * np.abs(u_t).max()
+    # adaptive with a provable test: at this load no point qualifies -> exactly Taylor
+    assert np.array_equal(results["adaptive"][1], u_t)
