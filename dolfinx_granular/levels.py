@@ -78,6 +78,21 @@ def _symmetrise(C):
     return out
 
 
+def isotropic_lame(C):
+    """Lamé constants ``(lam, mu)`` of the isotropic part of a 2-D modulus C (2, 2, 2, 2).
+
+    Orthogonal projection onto ``lam I (x) I + 2 mu I_sym``: it keeps the two isotropic invariants
+    ``a = C_iikk = 4 lam + 4 mu`` and ``b = C_ikik = 2 lam + 6 mu``, so
+    ``lam = (3a - 2b) / 8`` and ``mu = (2b - a) / 8``. For the central-force Taylor modulus of
+    eq. 15, C is fully symmetric (Cauchy relation a = b) and ``lam = mu = C_iikk / 8``; the bulk
+    modulus ``lam + mu = C_iikk / 4`` is exact for any fabric.
+    """
+    C = np.asarray(C, dtype=np.float64)
+    a = np.einsum("iikk->", C)
+    b = np.einsum("ikik->", C)
+    return (3.0 * a - 2.0 * b) / 8.0, (2.0 * b - a) / 8.0
+
+
 def _share(level, rve):
     if not isinstance(rve, TaylorRVE):
         raise TypeError(f"rve must be a dolfinx_granular.TaylorRVE, got {type(rve).__name__}")

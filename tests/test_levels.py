@@ -5,7 +5,7 @@ import pytest
 from packings import random_packing
 
 from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError, generate_packing
-from dolfinx_granular.levels import AdaptiveRVE, SmallStrainRVE, singular_values_2x2
+from dolfinx_granular.levels import AdaptiveRVE, SmallStrainRVE, isotropic_lame, singular_values_2x2
 
 K_N = 2.8e7
 
@@ -229,6 +229,22 @@ def test_levels_wrap_the_full_model_only(jammed):
     a = AdaptiveRVE(SmallStrainRVE(jammed), 0.01)
     assert a.taylor is jammed
     assert SmallStrainRVE(a).taylor is jammed
+
+
+def test_isotropic_lame(jammed):
+    I = np.eye(2)
+    lam, mu = 3.0e6, 5.0e6
+    C_iso = lam * np.einsum("ij,kl->ijkl", I, I) + mu * (np.einsum("ik,jl->ijkl", I, I)
+                                                         + np.einsum("il,jk->ijkl", I, I))
+    assert np.allclose(isotropic_lame(C_iso), (lam, mu), rtol=1e-15)
+    # an anisotropic perturbation orthogonal to the isotropic part does not move the projection
+    D = np.zeros((2, 2, 2, 2))
+    D[0, 0, 0, 0], D[1, 1, 1, 1] = 1e6, -1e6
+    assert np.allclose(isotropic_lame(C_iso + D), (lam, mu), rtol=1e-15)
+    # eq. 15 (central forces): Cauchy relation, lam = mu = C_iikk / 8
+    C = SmallStrainRVE(jammed).C
+    lam, mu = isotropic_lame(C)
+    assert abs(lam / mu - 1) <= 1e-12 and abs(mu - np.einsum("iikk->", C) / 8) <= 1e-12 * mu
 
 
 def test_singular_values_2x2(rng):
