@@ -27,7 +27,7 @@ test-mpi: setup
 	$(MPIRUN) $(PY) -m pytest -q -m mpi -p no:cacheprovider tests
 
 bench: setup
-	$(PY) benchmarks/kernel.py
+	$(PY) benchmarks/report.py
 
 clean:
 	rm -rf .venv results .pytest_cache
