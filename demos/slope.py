@@ -116,10 +116,10 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         f"{comm.allreduce(material.n_points)} RVEs of {packing.n_particles} particles, "
         f"{comm.size} rank(s), {len(schedule)} load steps")
     setup_time = time.perf_counter() - t_start
-    vm_cells = None
     for step, (lam_g, lam_f) in enumerate(schedule, start=1):
         t0 = time.perf_counter()
         gravity.value, footing.value = lam_g, lam_f
+        u_converged = u.x.array.copy()
         result = solver.solve()
         iterations.append(result.iterations)
         rows += [(step, it, rn, en) for it, rn, en in result.history]
@@ -133,15 +133,17 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         if not result.converged:
             # A cut-back would retry here with a smaller increment from the last converged u.
             failed = {"step": step, "reason": result.reason_name, "error": result.error}
+            u.x.array[:] = u_converged  # report the last converged state
+            material.update(tangent=False)
             say(f"slope: load step {step} did not converge ({result.reason_name})"
                 + (f": {result.error}" if result.error else "") + "; stopping.")
             break
-        vm = von_mises(material.cauchy())
-        vm_cells = cell_function(V0, material.cell_average(vm))
+        vm_cells = cell_function(V0, material.cell_average(von_mises(material.cauchy())))
         vm_cells.name = "von_mises"
         xdmf.write_function(u, float(step))
         xdmf.write_function(vm_cells, float(step))
     xdmf.close()
+    done = len(iterations) - (failed is not None)  # converged load steps
 
     # Extremes at the Gauss points of the last converged state (reference coordinates).
     vm = von_mises(material.cauchy())
@@ -161,10 +163,10 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
               ("C", [g.slope_end + 0.5 * g.column_width, 0.9 * g.toe_height], "at the toe"),
               ("D", [0.5 * g.footing_start + 0.5 * g.column_width, 0.1 * g.crest_height], "deep")]
     probe_F = [nearest_point_value(comm, X, material.F, p) for _, p, _ in probes]
+    data = gather_mesh(V, u, material.cell_average(vm)) if figure else None
+    # Collective PETSc clean-up while all ranks are at the same point (rank 0 renders after this).
+    solver.destroy()
     if figure:
-        data = gather_mesh(V, u, vm_cells.x.array[V0.dofmap.list.array.reshape(-1)[
-            :msh.topology.index_map(2).size_local]] if vm_cells is not None else
-            np.zeros(msh.topology.index_map(2).size_local))
         if comm.rank == 0:
             markers = [(lab, xp, txt) for (lab, _, txt), (xp, _) in zip(probes, probe_F)]
             markers.append(("min", xmin, f"{vmin / 1e6:.3f} MPa"))
@@ -172,14 +174,14 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
             insets = [(lab, rve, Fp, f"{txt}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
                       for (lab, _, txt), (xp, Fp) in zip(probes, probe_F)]
             plot_slope(os.path.join(out, "slope.png"), data, markers, insets,
-                       title=f"step {len(iterations)}: settlement {settlement:.3f} m, "
+                       title=f"step {done}/{len(schedule)}: settlement {settlement:.3f} m, "
                              f"{packing.n_particles} particles, deformation x1")
 
     wall = time.perf_counter() - t_start
     summary = {
         "ranks": comm.size,
         "steps": len(schedule),
-        "completed_steps": len(iterations) - (failed is not None),
+        "completed_steps": done,
         "converged": failed is None,
         "failed": failed,
         "iterations": iterations,
@@ -210,7 +212,6 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         say(f"slope: done in {wall:.1f} s (set-up {setup_time:.1f} s, RVE {t['rve']:.1f} s, "
             f"assembly {t['assembly']:.1f} s, solve {t['solve']:.1f} s); settlement "
             f"{settlement:.4f} m; von Mises {vmin:.4g} .. {vmax:.4g} Pa; results in {out}")
-    solver.destroy()
     return summary
 
 
@@ -228,8 +229,15 @@ def main(argv=None):
     comm = MPI.COMM_WORLD
     packing = None
     if comm.rank == 0:
-        packing = make_packing(a.particles, a.seed, a.packing)
+        try:
+            packing = make_packing(a.particles, a.seed, a.packing)
+        except Exception as err:  # let the other ranks stop too instead of waiting in bcast
+            packing = err
     packing = comm.bcast(packing, root=0)  # every rank must use the identical RVE
+    if isinstance(packing, Exception):
+        if comm.rank == 0:
+            raise packing
+        return 1
     summary = run(packing, steps=a.steps, out=a.out, comm=comm, figure=not a.no_figure)
     return 0 if summary["converged"] else 1
 

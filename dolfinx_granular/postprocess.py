@@ -136,6 +136,7 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
         rves: list of ``(label, rve, F (2, 2), text)`` for the insets (same force and length scale).
         deformation_scale: factor on u for the deformed shape.
     """
+    _headless_vtk()
     import pyvista as pv
 
     pv.OFF_SCREEN = True
@@ -189,8 +190,9 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
             qpts = np.c_[quads.reshape(-1, 2), np.zeros(4 * len(quads))]
             plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color="#b2182b")
         c = rve.contacts(F)
-        plotter.add_text(f"{label}: {text}\n{len(c.force)} contacts, max force "
-                         f"{c.force.max(initial=0.0) / 1e6:.2f} MN/m",
+        overlap = c.overlap.max(initial=0.0) / rve.packing.radii.mean()
+        plotter.add_text(f"{label}: {text}\n{len(c.force)} contacts, largest overlap "
+                         f"{100 * overlap:.2f} % of the mean radius",
                          font_size=10, position="upper_left")
         plotter.view_xy()
         plotter.camera.parallel_projection = True
@@ -199,6 +201,15 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
         plotter.camera.parallel_scale = 0.55 * extent
     plotter.screenshot(path)
     plotter.close()
+
+
+def _headless_vtk():
+    # Without a display VTK tries X11 first and logs a warning; render through EGL if present.
+    import ctypes.util
+    import os
+
+    if not os.environ.get("DISPLAY") and ctypes.util.find_library("EGL"):
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 
 def _colorbar(plotter, bounds, clim, title, n_ticks=5):

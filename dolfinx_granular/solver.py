@@ -13,6 +13,7 @@ longer halves.
 
 from __future__ import annotations
 
+import gc
 import time
 from dataclasses import dataclass, field
 
@@ -260,8 +261,17 @@ class NewtonSolver:
         )
 
     def destroy(self):
+        """Free the PETSc objects (collective: call it on every rank at the same point)."""
+        # petsc4py >= 3.18 defers the release of garbage-collected wrappers to a collective
+        # clean-up. Flush that first on every rank, or a rank whose Python GC ran at another
+        # moment destroys the MUMPS factor while the other waits elsewhere: a hang at exit.
+        gc.collect()
+        if hasattr(PETSc, "garbage_cleanup"):
+            PETSc.garbage_cleanup(self.comm)
         for obj in (self.snes, self.A, self.b, self.x, self._x_eval, self._x_prev, self._R_prev):
             obj.destroy()
+        if hasattr(PETSc, "garbage_cleanup"):
+            PETSc.garbage_cleanup(self.comm)
 
 
 def _MPI_LAND():
