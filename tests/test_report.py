@@ -56,7 +56,9 @@ def test_tiny_report(tmp_path):
         parts = b["F"] + b["kernel"] + b["assembly"] + b["linear_solve"] + b["rest"]
         assert parts == pytest.approx(b["newton"], rel=1e-9) and b["newton"] > 0, lv
         assert it[lv]["run"]["converged"], lv
-    assert it["ufl_linear"]["best"]["kernel"] == 0.0 and it["taylor"]["best"]["kernel"] > 0
+    # (its CPU "kernel" is the call of a no-op update: microseconds)
+    assert it["ufl_linear"]["run"]["times"]["kernel"] == 0.0 and it["taylor"]["best"]["kernel"] > 0
+    assert it["ufl_linear"]["best"]["kernel"] < 0.1 * it["taylor"]["best"]["kernel"]
     # the stress-only final residual: one per load step, nothing else changes
     t, s = it["taylor"]["run"], it["taylor_skip"]["run"]
     assert s["calls"]["residual"] - s["calls"]["jacobian"] == s["steps"]
