@@ -83,16 +83,21 @@ class SlopeGeometry:
         return np.interp(x, [0.0, self.slope_start, self.slope_end, self.width],
                          [self.crest_height, self.crest_height, self.toe_height, self.toe_height])
 
-    def footing_pressure(self, x):
-        """Footing pressure q(x) (Pa, signed like ``footing_load``) for x (array) on the footing.
+    def footing_pressure_on_strip(self, x):
+        """Footing pressure q(x) (Pa, signed like ``footing_load``, so negative = downward) for
+        x on the footing; x may be a number, an array or a UFL expression.
 
         Linear in x with resultant ``footing_load`` and moment arm ``eccentricity``:
         q = P/B (1 + 12 e (x - x_c) / B²); for e = B/6 it is 0 at the heel and 2P/B at the edge.
         """
         B = self.footing_width
         xc = 0.5 * (self.footing_start + self.footing_end)
+        return self.footing_load / B * (1.0 + 12.0 * self.eccentricity * (x - xc) / B**2)
+
+    def footing_pressure(self, x):
+        """Footing pressure q(x) (Pa) for x (array) anywhere on the surface (0 off the footing)."""
         x = np.asarray(x, dtype=float)
-        q = self.footing_load / B * (1.0 + 12.0 * self.eccentricity * (x - xc) / B**2)
+        q = self.footing_pressure_on_strip(x)
         return np.where((x >= self.footing_start) & (x <= self.footing_end), q, 0.0)
 
     @property

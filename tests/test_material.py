@@ -84,6 +84,8 @@ def test_update_writes_owned_points_only_and_names_bad_cells():
     material = GranularMaterial(rve, u)
     n_owned = msh.topology.index_map(2).size_local
     assert material.n_points == 4 * n_owned
+    # partitioned with the mesh: every cell's RVEs live on exactly one rank
+    assert msh.comm.allreduce(material.n_points) == 4 * msh.topology.index_map(2).size_global
     material.P.x.array[:] = np.nan
     material.update()
     assert np.isfinite(material.P.x.array[: 4 * material.n_points]).all()

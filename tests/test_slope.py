@@ -15,6 +15,55 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEMO = os.path.join(ROOT, "demos", "slope.py")
 
 
+@pytest.mark.mpi
+def test_mesh_and_footing_load():
+    """380 structured Q1 cells on the reconstructed geometry; the footing pressure has the
+    resultant -4e7 N/m at e = B/6 toward the slope, 0 at the heel and 2P/B at the edge."""
+    import ufl
+    from dolfinx import fem
+    from mpi4py import MPI
+
+    sys.path.insert(0, ROOT)
+    from meshes.slope import BOTTOM, FOOTING, LEFT, RIGHT, SURFACE, SlopeGeometry, create_mesh
+
+    g = SlopeGeometry()
+    msh, _, facets = create_mesh(MPI.COMM_WORLD, g)
+    comm = msh.comm
+    assert msh.topology.index_map(2).size_global == 380 and msh.topology.cell_name() == "quadrilateral"
+    assert msh.geometry.index_map().size_global == 420
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facets)
+    x = ufl.SpatialCoordinate(msh)
+    integral = lambda form: comm.allreduce(fem.assemble_scalar(fem.form(form)), op=MPI.SUM)  # noqa: E731
+    area = 38.75 * 58.125 + 19.375 * (58.125 + 38.75) / 2 + 19.375 * 38.75
+    assert np.isclose(integral(1.0 * ufl.dx(domain=msh)), area, rtol=1e-12)
+    for tag, length in [(BOTTOM, 77.5), (LEFT, 58.125), (RIGHT, 38.75), (FOOTING, 23.25),
+                        (SURFACE, 77.5 - 23.25 - 19.375 + 19.375 * np.sqrt(2))]:
+        assert np.isclose(integral(1.0 * ds(tag)), length, rtol=1e-10), tag
+    q = g.footing_pressure_on_strip(x[0])
+    P = integral(q * ds(FOOTING))
+    assert np.isclose(P, -4.0e7, rtol=1e-12)
+    assert np.isclose(integral(q * x[0] * ds(FOOTING)) / P, 23.25 + 3.875, rtol=1e-12)
+    assert np.isclose(g.footing_pressure(11.625), 0.0, atol=1e-6)
+    assert np.isclose(g.footing_pressure(34.875), -2 * 4.0e7 / 23.25, rtol=1e-12)
+    assert g.footing_pressure(40.0) == 0.0
+    # rows evenly spaced between the bottom and the surface, columns 3.875 m wide
+    X = msh.geometry.x
+    rows = X[:, 1] / g.surface_height(X[:, 0]) * g.rows
+    assert np.abs(rows - np.round(rows)).max() < 1e-9
+    cols = X[:, 0] / g.column_width
+    assert np.abs(cols - np.round(cols)).max() < 1e-9
+
+
+def test_geometry_rejects_off_grid_dimensions():
+    sys.path.insert(0, ROOT)
+    from meshes.slope import SlopeGeometry
+
+    with pytest.raises(ValueError, match="column boundary"):
+        SlopeGeometry(footing_start=12.0)
+    with pytest.raises(ValueError, match="B/6"):
+        SlopeGeometry(eccentricity=5.0)
+
+
 def run_demo(out, *args, ranks=1):
     cmd = [sys.executable, DEMO, "--particles", "70", "--seed", "1", "--steps", "2", "--out", str(out), *args]
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
