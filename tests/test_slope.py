@@ -123,7 +123,8 @@ def test_serial_and_two_ranks_agree(tmp_path):
     s2, r2 = read(tmp_path / "np2")
     assert s1["ranks"] == 1 and s2["ranks"] == 2
     assert s1["converged"] and s2["converged"]
-    assert s1["iterations"] == s2["iterations"]
+    # A step may stop one iteration apart when its last residual sits at the round-off threshold.
+    assert all(abs(a - b) <= 1 for a, b in zip(s1["iterations"], s2["iterations"]))
     rel = lambda a, b: abs(a - b) / max(abs(a), abs(b))  # noqa: E731
     for key in ("footing_settlement", "max_von_mises"):
         assert rel(s1[key], s2[key]) <= 1e-10, (key, s1[key], s2[key])
@@ -133,7 +134,9 @@ def test_serial_and_two_ranks_agree(tmp_path):
         F1, F2 = np.array(s1["probes"][lab]["F"]), np.array(s2["probes"][lab]["F"])
         assert np.abs(F1 - F2).max() <= 1e-10, lab
     # Residual norms above round-off and the energy norms of the first Newton steps agree too.
-    for a, b in zip(r1, r2):
+    rows2 = {(b["step"], b["iteration"]): b for b in r2}
+    for a in r1:
         if int(a["iteration"]) <= 2:
+            b = rows2[(a["step"], a["iteration"])]
             assert rel(float(a["residual_norm"]), float(b["residual_norm"])) <= 1e-10
             assert rel(float(a["energy_norm_rel"]), float(b["energy_norm_rel"])) <= 1e-8
