@@ -107,7 +107,7 @@ def force_network(rve, F, force_scale):
     Args:
         rve: the :class:`~dolfinx_granular.rve.TaylorRVE`.
         F: (2, 2) deformation gradient.
-        force_scale: branch half-width per unit contact force (length / N).
+        force_scale: branch half-width per unit contact force (packing length per force unit).
 
     Returns:
         ``(quads (m, 4, 2), disks (N, 2) centres, radii (N,))`` in the deformed RVE, centred
@@ -143,8 +143,8 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
     points, cells, cell_types, u, vm = mesh_data
     pts = points.copy()
     pts[:, :2] += deformation_scale * u
-    grid = pv.UnstructuredGrid(np.hstack([np.full((cells.shape[0], 1), cells.shape[1]), cells]).ravel(),
-                               cell_types, pts)
+    vtk_cells = np.hstack([np.full((cells.shape[0], 1), cells.shape[1]), cells]).ravel()
+    grid = pv.UnstructuredGrid(vtk_cells, cell_types, pts)
     grid.cell_data["von Mises [MPa]"] = vm / 1e6
     grid = grid.clean().cell_data_to_point_data(pass_cell_data=True)
     plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
@@ -166,30 +166,29 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
     plotter.add_point_labels(np.array([m[1] for m in mk]), [f"{m[0]}: {m[2]}" for m in mk],
                              point_size=14, font_size=14, point_color="black", text_color="black",
                              shape_opacity=0.7, always_visible=True, render_points_as_spheres=True)
-    plotter.add_text(title + "\nbranch width proportional to contact force, same scale in A-D", font_size=11,
-                     position="upper_left")
+    plotter.add_text(title + "\nbranch width proportional to contact force, same scale in A-D",
+                     font_size=11, position="upper_left")
     plotter.view_xy()
     plotter.camera.parallel_projection = True
     plotter.camera.zoom(1.25)
 
-    nets = [force_network(rve, F, 1.0) for _, rve, F, _ in rves]
-    fmax = max((rv.contacts(F).force.max(initial=0.0) for _, rv, F, _ in rves), default=0.0)
-    mean_r = np.mean([rv.packing.radii.mean() for _, rv, _, _ in rves])
+    # One force-width scale and one length scale for all insets, so that they compare.
+    contacts = [rve.contacts(F) for _, rve, F, _ in rves]
+    fmax = max((c.force.max(initial=0.0) for c in contacts), default=0.0)
+    mean_r = np.mean([rve.packing.radii.mean() for _, rve, _, _ in rves]) if rves else 1.0
     scale = 0.3 * mean_r / fmax if fmax > 0 else 0.0
-    extent = max(np.abs(F @ (0.5 * rv.packing.box)).max() + np.abs(F @ (0.5 * rv.packing.box * [1, -1])).max()
-                 for _, rv, F, _ in rves) if rves else 1.0
-    for n, ((label, rve, F, text), _) in enumerate(zip(rves, nets)):
+    corners = np.array([[0.5, 0.5], [0.5, -0.5]])
+    extent = max((np.abs((corners * rve.packing.box) @ np.asarray(F).T).max()
+                  for _, rve, F, _ in rves), default=1.0)
+    for n, ((label, rve, F, text), c) in enumerate(zip(rves, contacts)):
         plotter.subplot(n // 2, 2 + n % 2)
         quads, centers, radii = force_network(rve, F, scale)
-        disks = _circles(centers, radii)
-        plotter.add_mesh(disks, color="#9a9a9a", line_width=1)
-        box = _cell_outline(F, rve.packing.box)
-        plotter.add_mesh(box, color="black", line_width=1)
+        plotter.add_mesh(_circles(centers, radii), color="#9a9a9a", line_width=1)
+        plotter.add_mesh(_cell_outline(F, rve.packing.box), color="black", line_width=1)
         if len(quads):
             faces = np.hstack([np.full((len(quads), 1), 4), np.arange(4 * len(quads)).reshape(-1, 4)])
             qpts = np.c_[quads.reshape(-1, 2), np.zeros(4 * len(quads))]
             plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color="#b2182b")
-        c = rve.contacts(F)
         overlap = c.overlap.max(initial=0.0) / rve.packing.radii.mean()
         plotter.add_text(f"{label}: {text}\n{len(c.force)} contacts, largest overlap "
                          f"{100 * overlap:.2f} % of the mean radius",
@@ -198,7 +197,7 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
         plotter.camera.parallel_projection = True
         plotter.camera.focal_point = (0.0, 0.0, 0.0)
         plotter.camera.position = (0.0, 0.0, 10.0 * extent)
-        plotter.camera.parallel_scale = 0.55 * extent
+        plotter.camera.parallel_scale = 1.1 * extent
     plotter.screenshot(path)
     plotter.close()
 
