@@ -119,6 +119,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         f"{comm.allreduce(material.n_points)} RVEs of {packing.n_particles} particles, "
         f"{comm.size} rank(s), {len(schedule)} load steps")
     setup_time = time.perf_counter() - t_start
+    time_output = 0.0
     for step, (lam_g, lam_f) in enumerate(schedule, start=1):
         t0 = time.perf_counter()
         gravity.value, footing.value = lam_g, lam_f
@@ -141,10 +142,12 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
             say(f"slope: load step {step} did not converge ({result.reason_name})"
                 + (f": {result.error}" if result.error else "") + "; stopping.")
             break
+        t_out = time.perf_counter()
         vm_cells = cell_function(V0, material.cell_average(von_mises(material.cauchy())))
         vm_cells.name = "von_mises"
         xdmf.write_function(u, float(step))
         xdmf.write_function(vm_cells, float(step))
+        time_output += time.perf_counter() - t_out
     xdmf.close()
     done = len(iterations) - (failed is not None)  # converged load steps
 
@@ -169,16 +172,17 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     data = gather_mesh(V, u, material.cell_average(vm)) if figure else None
     # Collective PETSc clean-up while all ranks are at the same point (rank 0 renders after this).
     solver.destroy()
-    if figure:
-        if comm.rank == 0:
-            markers = [(lab, xp, txt) for (lab, _, txt), (xp, _) in zip(probes, probe_F)]
-            markers.append(("min", xmin, f"{vmin / 1e6:.3f} MPa"))
-            markers[0] = ("A", xmax, f"max {vmax / 1e6:.3f} MPa")
-            insets = [(lab, rve, Fp, f"{txt}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
-                      for (lab, _, txt), (xp, Fp) in zip(probes, probe_F)]
-            plot_slope(os.path.join(out, "slope.png"), data, markers, insets,
-                       title=f"step {done}/{len(schedule)}: settlement {settlement:.3f} m, "
-                             f"{packing.n_particles} particles, deformation x1")
+    if figure and comm.rank == 0:
+        t_out = time.perf_counter()
+        markers = [(lab, xp, txt) for (lab, _, txt), (xp, _) in zip(probes, probe_F)]
+        markers.append(("min", xmin, f"{vmin / 1e6:.3f} MPa"))
+        markers[0] = ("A", xmax, f"max {vmax / 1e6:.3f} MPa")
+        insets = [(lab, rve, Fp, f"{txt}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
+                  for (lab, _, txt), (xp, Fp) in zip(probes, probe_F)]
+        plot_slope(os.path.join(out, "slope.png"), data, markers, insets,
+                   title=f"step {done}/{len(schedule)}: settlement {settlement:.3f} m, "
+                         f"{packing.n_particles} particles, deformation x1")
+        time_output += time.perf_counter() - t_out
 
     wall = time.perf_counter() - t_start
     summary = {
@@ -201,6 +205,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         "time_rve_kernel": t_kernel,
         "time_assembly": t["assembly"],
         "time_solve": t["solve"],
+        "time_output": time_output,
         "step_info": step_info,
         "probes": {lab: {"point": xp.tolist(), "F": Fp.tolist()}
                    for (lab, _, _), (xp, Fp) in zip(probes, probe_F)},
@@ -213,7 +218,8 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         with open(os.path.join(out, "summary.json"), "w") as f:
             json.dump(summary, f, indent=1)
         say(f"slope: done in {wall:.1f} s (set-up {setup_time:.1f} s, RVE {t['rve']:.1f} s, "
-            f"assembly {t['assembly']:.1f} s, solve {t['solve']:.1f} s); settlement "
+            f"assembly {t['assembly']:.1f} s, solve {t['solve']:.1f} s, output {time_output:.1f} s); "
+            f"settlement "
             f"{settlement:.4f} m; von Mises {vmin:.4g} .. {vmax:.4g} Pa; results in {out}")
     return summary
 
