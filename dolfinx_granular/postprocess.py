@@ -146,7 +146,9 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
     vtk_cells = np.hstack([np.full((cells.shape[0], 1), cells.shape[1]), cells]).ravel()
     grid = pv.UnstructuredGrid(vtk_cells, cell_types, pts)
     grid.cell_data["von Mises [MPa]"] = vm / 1e6
-    grid = grid.clean().cell_data_to_point_data(pass_cell_data=True)
+    # Nodes on partition boundaries come from every rank, equal only to round-off: merge them.
+    size = float(np.ptp(pts, axis=0).max()) or 1.0
+    grid = grid.clean(tolerance=1e-9 * size).cell_data_to_point_data(pass_cell_data=True)
     plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
                          window_size=(1800, 860), border=False)
     plotter.subplot(0, 0)
