@@ -570,7 +570,15 @@ def _versions():
     import petsc4py
     import ufl
 
-    v = {"python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
+    import dolfinx_granular
+
+    try:
+        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                             text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        sha = ""
+    v = {"dolfinx_granular": dolfinx_granular.__version__ + (f" (git {sha})" if sha else ""),
+         "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
          "petsc4py": petsc4py.__version__, "ufl": ufl.__version__}
     try:
         import dolfinx
@@ -583,7 +591,7 @@ def _versions():
         from mpi4py import MPI
 
         v["mpi4py"] = mpi4py.__version__
-        v["MPI"] = MPI.Get_library_version().splitlines()[0].strip()
+        v["MPI"] = MPI.Get_library_version().replace("\x00", "").split(",")[0].strip()
     except ImportError:  # pragma: no cover
         pass
     return v
@@ -652,15 +660,24 @@ def run_all(cfg, out, log=print):
 
         # -- scaling: ranks, mesh refinement --------------------------------------------------------
         res["ranks"] = {}
+        tries = {1: [], 2: []}
+        errors = {}
+        for rep in range(max(1, min(cfg["repeats"], 3))):
+            for ranks in (1, 2):  # interleaved, so that both see the same load
+                log(f"slope on {ranks} rank(s) (mpirun), repeat {rep + 1} ...")
+                try:
+                    tries[ranks].append(mpi_slope_run(packings.path(n0, 0), ranks, level="taylor",
+                                                      steps=steps, rve_bench=10))
+                except (RuntimeError, subprocess.TimeoutExpired) as err:
+                    errors[ranks] = str(err)[-500:]
         for ranks in (1, 2):
-            log(f"slope on {ranks} rank(s) (mpirun) ...")
-            try:
-                tries = [mpi_slope_run(packings.path(n0, 0), ranks, level="taylor", steps=steps,
-                                       rve_bench=10)
-                         for _ in range(max(1, min(cfg["repeats"], 2)))]
-                res["ranks"][ranks] = min(tries, key=lambda r: r["times"]["kernel"])
-            except (RuntimeError, subprocess.TimeoutExpired) as err:
-                res["ranks"][ranks] = {"error": str(err)[-500:]}
+            if tries[ranks]:
+                best = min(tries[ranks], key=lambda r: r["times"]["kernel"])
+                best["rve_bench"] = min(r["rve_bench"] for r in tries[ranks])
+                best["repeats"] = len(tries[ranks])
+                res["ranks"][ranks] = best
+            else:
+                res["ranks"][ranks] = {"error": errors.get(ranks, "no run")}
         res["refinement"] = []
         for refine in cfg["refinements"]:
             log(f"slope refined x{refine} ...")
@@ -1040,7 +1057,8 @@ def write_markdown(res, out, paths, command, elapsed):
                               rank_speedup_kernel_cpu=s_kc, rank_speedup_newton_cpu=s_nc)
         per = rk[2]["kernel_per_rank"]
         add(f"`mpirun -n 1` and `mpirun -n 2` of the same slope ({cfg['particles']} particles, Taylor), "
-            "times are the maximum over ranks:\n")
+            f"{rk[1].get('repeats', 1)} interleaved repeats each, the run with the fastest RVE kernel "
+            "kept; times are the maximum over ranks:\n")
         add("| | 1 rank | 2 ranks | speed-up |\n|---|---|---|---|")
         add(f"| RVE kernel, wall (s) | {rk[1]['times']['kernel']:.3f} | {rk[2]['times']['kernel']:.3f} | **{s_k:.2f}x** |")
         add(f"| RVE kernel, CPU (s) | {rk[1]['cpu']['kernel']:.3f} | {rk[2]['cpu']['kernel']:.3f} | {s_kc:.2f}x |")
