@@ -21,10 +21,10 @@ demo: setup
 test: setup test-serial test-mpi
 
 test-serial: setup
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --color=no tests
 
 test-mpi: setup
-	$(MPIRUN) $(PY) -m pytest -q -m mpi -p no:cacheprovider tests
+	$(MPIRUN) $(PY) -m pytest -q --color=no -m mpi -p no:cacheprovider tests
 
 bench: setup
 	$(PY) benchmarks/report.py
