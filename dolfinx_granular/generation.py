@@ -56,6 +56,25 @@ _F_ALPHA = 0.99
 
 
 @njit(cache=True)
+def _append_pair(m, pi, pj, sh, i, j, sx, sy):
+    """Store pair number m (i, j, shift (sx, sy)), doubling the buffers when full; returns them."""
+    if m == pi.shape[0]:
+        cap = 2 * m
+        pi2 = np.empty(cap, np.int64)
+        pj2 = np.empty(cap, np.int64)
+        sh2 = np.empty((cap, 2))
+        pi2[:m] = pi
+        pj2[:m] = pj
+        sh2[:m] = sh
+        pi, pj, sh = pi2, pj2, sh2
+    pi[m] = i
+    pj[m] = j
+    sh[m, 0] = sx
+    sh[m, 1] = sy
+    return pi, pj, sh
+
+
+@njit(cache=True)
 def _build_pairs(x, r, box, skin):
     """Pairs (i, j, image shift of j) with |x_j + shift - x_i| < r_i + r_j + skin.
 
@@ -107,19 +126,7 @@ def _build_pairs(x, r, box, skin):
                                     dy += sy
                                     rc = r[i] + r[j] + skin
                                     if dx * dx + dy * dy < rc * rc:
-                                        if m == cap:
-                                            cap *= 2
-                                            pi2 = np.empty(cap, np.int64)
-                                            pj2 = np.empty(cap, np.int64)
-                                            sh2 = np.empty((cap, 2))
-                                            pi2[:m] = pi[:m]
-                                            pj2[:m] = pj[:m]
-                                            sh2[:m] = sh[:m]
-                                            pi, pj, sh = pi2, pj2, sh2
-                                        pi[m] = i
-                                        pj[m] = j
-                                        sh[m, 0] = sx
-                                        sh[m, 1] = sy
+                                        pi, pj, sh = _append_pair(m, pi, pj, sh, i, j, sx, sy)
                                         m += 1
                                 j = nxt[j]
                     i = nxt[i]
@@ -134,19 +141,7 @@ def _build_pairs(x, r, box, skin):
                         dx = x[j, 0] + ix * box[0] - x[i, 0]
                         dy = x[j, 1] + iy * box[1] - x[i, 1]
                         if dx * dx + dy * dy < rc * rc:
-                            if m == cap:
-                                cap *= 2
-                                pi2 = np.empty(cap, np.int64)
-                                pj2 = np.empty(cap, np.int64)
-                                sh2 = np.empty((cap, 2))
-                                pi2[:m] = pi[:m]
-                                pj2[:m] = pj[:m]
-                                sh2[:m] = sh[:m]
-                                pi, pj, sh = pi2, pj2, sh2
-                            pi[m] = i
-                            pj[m] = j
-                            sh[m, 0] = ix * box[0]
-                            sh[m, 1] = iy * box[1]
+                            pi, pj, sh = _append_pair(m, pi, pj, sh, i, j, ix * box[0], iy * box[1])
                             m += 1
     return m, pi, pj, sh
 
