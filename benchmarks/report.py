@@ -865,8 +865,8 @@ def make_figures(res, out):
         ax[0].set_xticks(x)
         ax[0].set_xticklabels([p[0] for p in pairs], fontsize=8)
         ax[0].set_ylabel("speed-up, 1 rank / 2 ranks (max over ranks)")
-        ax[0].set_ylim(0, max(2.3, max(v for v in sp if np.isfinite(v)) * 1.15))
-        ax[0].legend(fontsize=8, loc="center right")
+        ax[0].set_ylim(0, max(2.6, max(v for v in sp if np.isfinite(v)) * 1.3))
+        ax[0].legend(fontsize=8, loc="upper right", ncol=2)
     else:
         ax[0].text(0.5, 0.5, "MPI runs failed (see report)", ha="center", transform=ax[0].transAxes)
     ax[0].set_title(f"1 vs 2 MPI ranks, {res['config']['particles']} particles")
