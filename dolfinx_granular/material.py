@@ -37,6 +37,12 @@ class GranularMaterial:
         u: displacement Function on a 2-D vector Lagrange space (Q1/P1 or higher), in m.
         quadrature_degree: degree k of the "default" quadrature scheme (2: 2x2 Gauss points on
             quadrilaterals, 3 points on triangles).
+        stabilise: alpha >= 0. Where an RVE has lost all its load-carrying contacts (W = 0: every
+            contact open, P = 0 and a zero tangent, so the global matrix can become singular), add
+            the linear stress ``alpha C : (F - I)`` and tangent ``alpha C``, C the packing's eq. 15
+            modulus. Points with a contact under load are untouched; 0 (default) disables it. The
+            stabilising stress is fictitious: W, :meth:`cauchy` and the von Mises output leave it
+            out, and its effect on a result is measured by comparing alpha values.
 
     Attributes:
         P: quadrature Function (2, 2), first Piola stress in Pa (owned cells after ``update``).
@@ -48,9 +54,11 @@ class GranularMaterial:
         points: (n_points, 2) reference coordinates x of the owned quadrature points (m), ordered
             like W and F (point ``cell * n_qp + q``).
         timings: seconds spent in ``"F"`` (evaluating grad u) and ``"rve"`` (the kernel).
+        n_open: number of owned points at the last ``update`` whose RVE had no loaded contact.
     """
 
-    def __init__(self, rve: TaylorRVE, u: fem.Function, quadrature_degree: int = 2):
+    def __init__(self, rve: TaylorRVE, u: fem.Function, quadrature_degree: int = 2,
+                 stabilise: float = 0.0):
         if not isinstance(rve, TaylorRVE):
             raise TypeError(f"rve must be a dolfinx_granular.TaylorRVE, got {type(rve).__name__}")
         V = u.function_space
@@ -100,6 +108,12 @@ class GranularMaterial:
         self._A_view = self.A.x.array[: 16 * n].reshape(n, 2, 2, 2, 2)
         self.timings = {"F": 0.0, "rve": 0.0}
         self.n_updates = 0
+        self.n_open = 0
+        alpha = float(stabilise)
+        if not (np.isfinite(alpha) and alpha >= 0.0):
+            raise ValueError(f"stabilise must be a finite number >= 0, got {stabilise!r}")
+        self.stabilise = alpha
+        self._C_stab = alpha * rve.small_strain_modulus() if alpha > 0.0 else None
 
     @property
     def n_points(self) -> int:
@@ -148,6 +162,13 @@ class GranularMaterial:
             ) from None
         finally:
             self.timings["rve"] += time.perf_counter() - t
+        opened = np.flatnonzero(self.W == 0.0)
+        self.n_open = opened.size
+        if self._C_stab is not None and opened.size:
+            E = F[opened] - np.eye(2)
+            self._P_view[opened] += np.einsum("abcd,qcd->qab", self._C_stab, E)
+            if tangent:
+                self._A_view[opened] += self._C_stab
         self.F[...] = F
         self.n_updates += 1
 

@@ -9,6 +9,12 @@ Convergence follows table 2 of the paper: after Newton step k the relative energ
 applied, 0-based), and the solve stops when it is <= ``energy_rtol``, when the residual norm is <=
 ``residual_atol``, or at round-off: the energy norm is below ``roundoff_energy`` and the residual no
 longer halves.
+
+Failures never raise: an RVE outside its range, a singular Jacobian (zero pivot in LU, e.g. where
+every contact has opened), a PETSc error, the iteration limit or stagnation (the residual has not
+gone below its best value for ``stagnation_it`` Newton steps, typically Newton cycling between
+contact sets) all return ``converged=False`` with a readable :attr:`SolveResult.why`, so that a load
+stepper (:mod:`dolfinx_granular.loading`) can cut the step back.
 """
 
 from __future__ import annotations
@@ -46,8 +52,29 @@ class SolveResult:
     residual_norm: float = float("nan")
     error: str | None = None
 
+    @property
+    def why(self) -> str:
+        """One-line reason of a failure ('' if converged): the error message if there is one,
+        else the SNES reason in words."""
+        if self.converged:
+            return ""
+        words = _FAILURE_WORDS.get(self.reason_name, self.reason_name)
+        return f"{words}: {self.error}" if self.error else words
+
+
+STAGNATION = "DIVERGED_STAGNATION"  # reason_name of a solve stopped by the stagnation test
+_FAILURE_WORDS = {
+    STAGNATION: "stagnation (contact set cycling)",
+    "DIVERGED_LINEAR_SOLVE": "linear solve failed (singular Jacobian or zero pivot)",
+    "DIVERGED_FNORM_NAN": "NaN residual",
+    "DIVERGED_MAX_IT": "no convergence within the Newton iteration limit",
+    "DIVERGED_LINE_SEARCH": "line search failed",
+    "DIVERGED_PETSC_ERROR": "PETSc error",
+}
+
 
 _REASON_NAMES = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if isinstance(v, int)}
+_KSP_REASONS = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if isinstance(v, int)}
 
 
 class NewtonSolver:
@@ -69,6 +96,10 @@ class NewtonSolver:
         petsc_options: options set under ``prefix`` (defaults: newtonls, ``basic`` line search,
             preonly + LU with MUMPS).
         verbose: print one line per Newton step on rank 0.
+        stagnation_it: fail the solve (reason ``DIVERGED_STAGNATION``) when the residual norm has
+            not gone below its smallest value since the first Newton step for this many
+            consecutive Newton steps
+            (Newton cycling between contact sets); 0 disables the test.
         skip_final_tangent: evaluate only the stress (no tangent) for a residual that ends the
             solve whatever its value: the energy norm of the step that led to it is already
             converged, so SNES asks for no Jacobian there. The material's tangent then belongs
@@ -81,8 +112,9 @@ class NewtonSolver:
 
     def __init__(self, residual, jacobian, u, bcs=(), material=None, *, energy_rtol=1e-20,
                  residual_atol=0.0, roundoff_energy=1e-14, max_it=20, prefix="granular_",
-                 petsc_options=None, verbose=False, skip_final_tangent=False):
+                 petsc_options=None, verbose=False, skip_final_tangent=False, stagnation_it=4):
         self.u = u
+        self.stagnation_it = int(stagnation_it)
         self.skip_final_tangent = bool(skip_final_tangent)
         self._have_tangent = False
         self.bcs = list(bcs)
@@ -208,6 +240,11 @@ class NewtonSolver:
                 print(f"    Newton {it:2d}: |R| = {self._rnorm_prev:.3e} N, energy norm (rel) = "
                       f"{rel:.3e}", flush=True)
         stalled = it > 0 and fnorm > 0.5 * self._rnorm_prev
+        # the first Newton step may well overshoot the starting residual: count from iterate 1
+        if it <= 1 or fnorm < self._rnorm_best:
+            self._rnorm_best, self._no_progress = fnorm, 0
+        else:
+            self._no_progress += 1
         x.copy(self._x_prev)
         R.copy(self._R_prev)
         self._rnorm_prev = fnorm
@@ -221,6 +258,9 @@ class NewtonSolver:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
         if it >= self.max_it:
             return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
+        if self.stagnation_it > 0 and self._no_progress >= self.stagnation_it:
+            self._stagnated = True
+            return PETSc.SNES.ConvergedReason.DIVERGED_DTOL
         return PETSc.SNES.ConvergedReason.ITERATING
 
     # -- driver ------------------------------------------------------------------------------------
@@ -233,13 +273,19 @@ class NewtonSolver:
         """
         self.history = []
         self._error = None
+        self._stagnated = False
+        self._rnorm_prev = float("nan")
         self._have_eval = False
         set_bc(self.u.vector, self.bcs)
         self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self.u.vector.copy(self.x)
         t = time.perf_counter()
         spent = self.timings["rve"] + self.timings["assembly"]
-        self.snes.solve(None, self.x)
+        petsc_error = None
+        try:
+            self.snes.solve(None, self.x)
+        except PETSc.Error as err:  # e.g. a factorisation error PETSc raises instead of reporting
+            petsc_error = f"PETSc error {err.ierr} in SNES solve"
         self.timings["solve"] += (time.perf_counter() - t) - (
             self.timings["rve"] + self.timings["assembly"] - spent)
         # The material data must belong to the returned u (the last residual was at x if basic).
@@ -254,8 +300,17 @@ class NewtonSolver:
             self.x.copy(self.u.vector)
             self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         reason = int(self.snes.getConvergedReason())
+        name = _REASON_NAMES.get(reason, str(reason))
+        if self._stagnated:
+            name = STAGNATION
+        elif self.comm.allreduce(petsc_error is not None, op=_MPI_LOR()):
+            reason, name = min(reason, -1), "DIVERGED_PETSC_ERROR"
+            self._error = self._error or petsc_error or "PETSc error on another rank"
+        elif reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
+            ksp = self.snes.getKSP()
+            self._error = self._error or f"KSP reason {_KSP_REASONS.get(ksp.getConvergedReason())}"
         return SolveResult(
-            converged=reason > 0, reason=reason, reason_name=_REASON_NAMES.get(reason, str(reason)),
+            converged=reason > 0, reason=reason, reason_name=name,
             iterations=len(self.history), history=list(self.history),
             residual_norm=float(self._rnorm_prev), error=self._error,
         )
@@ -278,3 +333,9 @@ def _MPI_LAND():
     from mpi4py import MPI
 
     return MPI.LAND
+
+
+def _MPI_LOR():
+    from mpi4py import MPI
+
+    return MPI.LOR

@@ -1,0 +1,135 @@
+"""Adaptive load stepping: cut a failed load increment back and retry, grow it again after easy steps.
+
+A phase drives a load parameter t from its start to 1 (the caller maps t to the loads, e.g. gravity
+or the footing pressure). Each increment is one :meth:`~dolfinx_granular.solver.NewtonSolver.solve`.
+When it fails for any reason (SNES divergence, a singular Jacobian where contacts have opened, an RVE
+outside its range, stagnation), u is restored to the last converged state and the increment halved,
+at most ``max_cutbacks`` times in a row; after a step converging in at most ``easy_iterations``
+Newton steps the increment grows by ``grow`` up to the nominal one; an increment below
+``min_fraction`` of the nominal one ends the phase as failed. Contact opening and closing
+makes the global problem non-smooth (section 6 of Meier, Steinmann & Kuhl): smaller increments keep
+Newton's start inside the basin of the new contact state, they do not change the equilibrium found.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass
+class Cutback:
+    """One failed increment that was cut back (or, if it was the last allowed, ended the phase).
+
+    Attributes:
+        phase: name of the load phase.
+        step: number of the converged increment that was being attempted (1-based, whole run).
+        t_from: load parameter of the last converged state.
+        t_to: load parameter that was attempted.
+        reason: why the solve failed (:attr:`~dolfinx_granular.solver.SolveResult.why`).
+        iterations: Newton steps spent on the failed attempt.
+    """
+
+    phase: str
+    step: int
+    t_from: float
+    t_to: float
+    reason: str
+    iterations: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+class LoadStepper:
+    """Drive a :class:`~dolfinx_granular.solver.NewtonSolver` through load phases adaptively.
+
+    Args:
+        solver: the Newton solver (its ``u`` is restored after a failed attempt; its ``material``,
+            if any, is re-evaluated at the restored state when a phase gives up).
+        max_cutbacks: most consecutive halvings of one increment before the phase fails.
+        min_fraction: smallest increment, relative to the nominal one, before the phase fails.
+        grow: factor applied to the increment after an easy step (capped at the nominal one).
+        easy_iterations: a converged step with at most this many Newton steps is easy.
+        log: callable taking one progress line (e.g. ``print`` on rank 0), or None.
+
+    Attributes:
+        cutbacks: every :class:`Cutback` so far, in order.
+        step: number of converged increments so far (all phases).
+        dt: the increment the next attempt will use (None before the first phase).
+        failed: None, or a dict ``{"phase", "step", "t", "reason"}`` once a phase has given up.
+    """
+
+    def __init__(self, solver, *, max_cutbacks=6, min_fraction=1e-3, grow=1.5, easy_iterations=5,
+                 log=None):
+        if max_cutbacks < 0 or grow < 1.0 or easy_iterations < 0 or not 0 < min_fraction <= 1:
+            raise ValueError("need max_cutbacks >= 0, 0 < min_fraction <= 1, grow >= 1 and "
+                             "easy_iterations >= 0")
+        self.min_fraction = float(min_fraction)
+        self.solver = solver
+        self.max_cutbacks = int(max_cutbacks)
+        self.grow = float(grow)
+        self.easy_iterations = int(easy_iterations)
+        self.log = log or (lambda line: None)
+        self.cutbacks: list[Cutback] = []
+        self.step = 0
+        self.dt = None
+        self.failed = None
+
+    def run(self, phase, set_load, increment, t=0.0, dt=None, on_converged=None) -> bool:
+        """Take t from ``t`` to 1 in increments of at most ``increment``; True if t reached 1.
+
+        Args:
+            phase: name used in the log and in :attr:`cutbacks`.
+            set_load: ``set_load(t)`` sets the loads (constants, boundary values) for parameter t.
+            increment: nominal increment of t, in (0, 1].
+            t: start of the phase (a converged state at this t is in ``solver.u``).
+            dt: first increment to try (default ``increment``), e.g. from a restart.
+            on_converged: ``on_converged(step, t, result)`` after each converged increment, with
+                u and the material data at the converged state.
+        """
+        if not 0.0 < increment <= 1.0:
+            raise ValueError(f"increment must lie in (0, 1], got {increment!r}")
+        u = self.solver.u
+        n_grid = 1.0 / increment
+        dt = increment if dt is None else min(float(dt), increment)
+        cuts = 0
+        while t < 1.0:
+            target = min(t + dt, 1.0)
+            # back on the nominal grid k * increment after growing: no round-off drift in t
+            k = round(target * n_grid)
+            if abs(target * n_grid - k) < 1e-9:
+                target = min(k / n_grid, 1.0)
+            set_load(target)
+            saved = u.x.array.copy()
+            result = self.solver.solve()
+            if result.converged:
+                self.step += 1
+                t, cuts = target, 0
+                if result.iterations <= self.easy_iterations:
+                    dt = min(dt * self.grow, increment)
+                self.dt = dt
+                if on_converged is not None:
+                    on_converged(self.step, t, result)
+                continue
+            u.x.array[:] = saved  # the failed iterate (possibly NaN) never leaves this function
+            cut = Cutback(phase, self.step + 1, float(t), float(target), result.why,
+                          result.iterations)
+            self.cutbacks.append(cut)
+            smallest = (target - t) / 2.0 < self.min_fraction * increment
+            if cuts >= self.max_cutbacks or smallest:
+                self.log(f"{phase}: t = {t:.6g} -> {target:.6g} failed ({cut.reason}); "
+                         + (f"increment {target - t:.3g} cannot be halved further" if smallest
+                            else f"{self.max_cutbacks} cut-backs in a row") + ", giving up")
+                self.failed = {"phase": phase, "step": self.step + 1, "t": float(t),
+                               "reason": cut.reason}
+                set_load(t)
+                if self.solver.material is not None:
+                    self.solver.material.update(tangent=False)  # data of the converged state
+                return False
+            cuts += 1
+            dt = (target - t) / 2.0
+            self.dt = dt
+            self.log(f"{phase}: cut-back {cuts}/{self.max_cutbacks}: t = {t:.6g} -> {target:.6g} "
+                     f"failed after {result.iterations} Newton steps ({cut.reason}); "
+                     f"retrying with increment {dt:.4g}")
+        return True

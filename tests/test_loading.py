@@ -1,0 +1,156 @@
+"""Adaptive load stepping and failure handling: cut-backs on RVE range errors, singular matrices and
+stagnation; a failed step never leaves NaN or an unconverged state behind; the stabiliser."""
+
+import numpy as np
+import pytest
+
+dolfinx = pytest.importorskip("dolfinx")
+import ufl  # noqa: E402
+from dolfinx import fem, mesh  # noqa: E402
+from mpi4py import MPI  # noqa: E402
+
+from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
+from dolfinx_granular.loading import LoadStepper  # noqa: E402
+from dolfinx_granular.material import GranularMaterial  # noqa: E402
+from dolfinx_granular.solver import STAGNATION, NewtonSolver  # noqa: E402
+
+
+def column(prefix, n=4, stabilise=0.0, material_class=GranularMaterial, **solver_kwargs):
+    """10 m x 10 m column, fixed base, rollers on the sides, top pressure ``p`` (a Constant, Pa,
+    positive = downward) varying along the top."""
+    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [n, n], mesh.CellType.quadrilateral)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
+    material = material_class(TaylorRVE(generate_packing(70, seed=4), 2.8e7), u, stabilise=stabilise)
+    top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))
+    bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
+    walls = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 10))
+    ds = ufl.Measure("ds", msh, subdomain_data=mesh.meshtags(msh, 1, top, np.full_like(top, 1)))
+    x = ufl.SpatialCoordinate(msh)
+    p = fem.Constant(msh, 0.0)
+    residual = material.residual_form(v) + p * (1 + 0.05 * x[0]) * v[1] * ds(1)
+    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
+           fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0))]
+    solver_kwargs.setdefault("max_it", 10)
+    solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material, prefix=prefix,
+                          **solver_kwargs)
+    return solver, material, u, p
+
+
+def all_finite(a):
+    return MPI.COMM_WORLD.allreduce(bool(np.isfinite(a).all()), op=MPI.LAND)
+
+
+@pytest.mark.mpi
+def test_cutback_recovers_the_same_answer():
+    """6.5 MPa in one step drives Newton outside the RVE's range; the stepper halves the step and
+    reaches the same state as a run with two nominal steps."""
+    solver, material, u, p = column("cut_")
+    stepper = LoadStepper(solver)
+    assert stepper.run("press", lambda t: setattr(p, "value", 6.5e6 * t), 1.0)
+    assert len(stepper.cutbacks) == 1 and stepper.step == 2 and stepper.failed is None
+    cut = stepper.cutbacks[0]
+    assert (cut.phase, cut.step, cut.t_from, cut.t_to) == ("press", 1, 0.0, 1.0)
+    assert "outside the Taylor RVE's range" in cut.reason
+    ref_solver, _, u_ref, p_ref = column("ref_")
+    ref = LoadStepper(ref_solver)
+    assert ref.run("press", lambda t: setattr(p_ref, "value", 6.5e6 * t), 0.5) and not ref.cutbacks
+    diff = MPI.COMM_WORLD.allreduce(np.abs(u.x.array - u_ref.x.array).max(), op=MPI.MAX)
+    assert diff <= 1e-12 * MPI.COMM_WORLD.allreduce(np.abs(u_ref.x.array).max(), op=MPI.MAX)
+    solver.destroy()
+    ref_solver.destroy()
+
+
+@pytest.mark.mpi
+def test_crushing_load_fails_cleanly_at_the_last_converged_state():
+    """10 MPa crushes the column below min_stretch (and inverts elements in Newton's trial
+    states): the stepper cuts back until it gives up, leaving u and the material data at the
+    last converged state, finite."""
+    solver, material, u, p = column("crush_")
+    converged = {}
+
+    def remember(step, t, result):
+        converged.update(step=step, t=t, u=u.x.array.copy())
+
+    stepper = LoadStepper(solver, max_cutbacks=4)
+    assert not stepper.run("press", lambda t: setattr(p, "value", 1e7 * t), 1.0,
+                           on_converged=remember)
+    assert stepper.failed["step"] == converged["step"] + 1 and stepper.failed["t"] == converged["t"]
+    assert 0.5 < converged["t"] < 1.0
+    reasons = " ".join(c.reason for c in stepper.cutbacks)
+    assert "outside the Taylor RVE's range" in reasons
+    assert all_finite(u.x.array) and np.array_equal(u.x.array, converged["u"])
+    assert p.value == 1e7 * converged["t"]
+    assert np.array_equal(material.F, material.deformation_gradient())  # data belong to u
+    assert all_finite(material.P.x.array[: 4 * material.n_points])
+    solver.destroy()
+
+
+@pytest.mark.mpi
+def test_singular_matrix_is_a_failed_solve():
+    """The column pulled up: the contacts of the upper cells open, the Jacobian has zero rows and
+    LU fails; the solve reports it instead of raising."""
+    solver, material, u, p = column("sing_")
+    p.value = -2e5
+    result = solver.solve()
+    assert not result.converged and result.reason_name == "DIVERGED_LINEAR_SOLVE"
+    assert "singular" in result.why
+    assert MPI.COMM_WORLD.allreduce(material.n_open) > 0
+    solver.destroy()
+
+
+class Cycling(GranularMaterial):
+    """A material whose stress flips by a constant every evaluation: Newton cannot settle."""
+
+    def update(self, tangent=True):
+        super().update(tangent)
+        self._P_view[...] += (-1.0) ** self.n_updates * 1e3
+
+
+@pytest.mark.mpi
+def test_stagnation_is_detected_before_the_iteration_limit():
+    solver, _, _, p = column("stag_", material_class=Cycling, max_it=40)
+    p.value = 2e5
+    result = solver.solve()
+    assert not result.converged and result.reason_name == STAGNATION
+    assert result.why == "stagnation (contact set cycling)"
+    assert 5 <= result.iterations < 15
+    solver.destroy()
+    solver, _, _, p = column("nostag_", material_class=Cycling, max_it=12, stagnation_it=0)
+    p.value = 2e5
+    result = solver.solve()
+    assert result.reason_name == "DIVERGED_MAX_IT" and result.iterations == 12
+    solver.destroy()
+
+
+@pytest.mark.mpi
+def test_stabiliser_acts_only_where_every_contact_is_open():
+    """Stretched half (x > 5: every contact open) gets alpha C : (F - I) and alpha C; the
+    compressed half is bit for bit the plain material."""
+    _, plain, u0, _ = column("plain_")
+    _, stab, u1, _ = column("stab_", stabilise=1e-3)
+    C = 1e-3 * stab.rve.small_strain_modulus()
+
+    def field(x):  # compression for x < 5, a uniform 0.1 % stretch for x > 5
+        s = np.where(x[0] < 5, -0.01, 0.001)
+        return np.stack([s * (x[0] - 5), s * x[1]])
+
+    for u in (u0, u1):
+        u.interpolate(field)
+    plain.update()
+    stab.update()
+    assert np.array_equal(plain.F, stab.F)
+    opened = plain.W == 0.0
+    assert np.array_equal(opened, plain.points[:, 0] > 5)
+    assert stab.n_open == plain.n_open == opened.sum()
+    P0, P1 = plain.P.x.array.reshape(-1, 2, 2), stab.P.x.array.reshape(-1, 2, 2)
+    A0, A1 = plain.A.x.array.reshape(-1, 2, 2, 2, 2), stab.A.x.array.reshape(-1, 2, 2, 2, 2)
+    n = plain.n_points
+    assert np.array_equal(P0[:n][~opened], P1[:n][~opened])
+    assert np.array_equal(A0[:n][~opened], A1[:n][~opened])
+    assert np.all(P0[:n][opened] == 0.0) and np.all(A0[:n][opened] == 0.0)
+    E = stab.F[opened] - np.eye(2)
+    assert np.allclose(P1[:n][opened], np.einsum("abcd,qcd->qab", C, E), rtol=1e-12, atol=0)
+    assert np.allclose(A1[:n][opened], C, rtol=1e-14, atol=0)
+    with pytest.raises(ValueError, match="stabilise"):
+        GranularMaterial(stab.rve, u0, stabilise=-1.0)
