@@ -1,32 +1,24 @@
 """The performance report runs end to end at tiny size, so that it cannot rot."""
 
-import importlib.util
 import json
-import os
 import re
 
 import pytest
 
+from scripts import load_benchmark
+
 pytest.importorskip("dolfinx")
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def load(name):
-    spec = importlib.util.spec_from_file_location(name, os.path.join(ROOT, "benchmarks", f"{name}.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_flops_measures_a_positive_peak():
-    m = load("flops").measure(seconds=0.002, repeats=3)
+    m = load_benchmark("flops").measure(seconds=0.002, repeats=3)
     assert m["gflops_per_core"] > 0.1 and m["cores"] >= 1
     assert m["gflops_machine"] == pytest.approx(m["gflops_per_core"] * m["cores"])
 
 
 @pytest.mark.slow
 def test_tiny_report(tmp_path):
-    report = load("report")
+    report = load_benchmark("report")
     raw = tmp_path / "raw.json"
     assert report.main(["--tiny", "--out", str(tmp_path), "--json", str(raw), "--quiet"]) == 0
     md = (tmp_path / "performance.md").read_text()
