@@ -2,7 +2,15 @@
 flexible strip footing in load steps, with a Taylor RVE of a disk packing at every Gauss point.
 
     python demos/slope.py [--particles 700] [--seed 0] [--packing FILE] [--steps 20] [--out DIR]
+                          [--load-factor 1] [--stabilise 0] [--line-search basic]
     mpirun -n 2 python demos/slope.py
+
+Load steps are adaptive (:class:`dolfinx_granular.loading.LoadStepper`): a step that fails (Newton
+divergence, a singular matrix where contacts have opened, an RVE outside its range, stagnation) is
+cut back and retried from the last converged state; every cut-back is logged and listed in
+summary.json (``cutbacks``). ``--load-factor`` scales the footing load (2: doubled, -0.25: uplift);
+``--stabilise`` adds a small stiffness where an RVE has no loaded contact (see
+:class:`~dolfinx_granular.material.GranularMaterial`).
 
 Writes to DIR: convergence.csv (one row per Newton step: step, iteration, residual norm at the
 iterate the step started from, relative energy norm |R_k . du_k| / |R_0 . du_0|), summary.json
@@ -44,12 +52,16 @@ def make_packing(particles, seed, packing_file=None):
 
 
 def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=None,
-        normal_stiffness=K_N, figure=True, verbose=True, petsc_options=None, started=None):
+        normal_stiffness=K_N, figure=True, verbose=True, petsc_options=None, started=None,
+        load_factor=1.0, stabilise=0.0, max_cutbacks=6):
     """Run the benchmark and write the results to ``out``; returns the summary dict.
 
     Args:
         packing: the RVE microstructure (a Packing; same on every rank).
-        steps: number of equal footing load steps after the gravity step.
+        steps: number of equal (nominal) footing load steps after the gravity step; a step that
+            fails is cut back (at most ``max_cutbacks`` halvings in a row).
+        load_factor: multiplies the footing load of the geometry (negative: uplift).
+        stabilise: stiffness at points without loaded contacts, relative to the eq. 15 modulus.
         geometry: a :class:`meshes.slope.SlopeGeometry` (default: the reconstruction).
         started: ``time.perf_counter()`` at which the run began (for ``wall_time``), default now.
     """
@@ -62,6 +74,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     from dolfinx_granular.material import GranularMaterial
     from dolfinx_granular.postprocess import (cell_function, gather_mesh, global_extremum,
                                               nearest_point_value, plot_slope, von_mises)
+    from dolfinx_granular.loading import LoadStepper
     from dolfinx_granular.solver import NewtonSolver
     from meshes.slope import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
 
@@ -74,7 +87,9 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     u = fem.Function(V, name="displacement")
     v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
     rve = TaylorRVE(packing, normal_stiffness)
-    material = GranularMaterial(rve, u, quadrature_degree=2)
+    # (stabilise only when asked: callers may substitute a material class without it)
+    material = GranularMaterial(rve, u, quadrature_degree=2,
+                                **({"stabilise": stabilise} if stabilise else {}))
 
     # Dead loads on the reference configuration: gravity and the footing pressure (no follower).
     gravity = fem.Constant(msh, PETSc.ScalarType(0.0))
@@ -94,7 +109,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), dofs, V.sub(0)))
 
     # Round-off level of the residual: a small fraction of the full external load.
-    gravity.value, footing.value = 1.0, 1.0
+    gravity.value, footing.value = 1.0, load_factor
     f_full = fem.petsc.assemble_vector(fem.form(f_ext))
     f_full.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     residual_atol = RESIDUAL_RTOL * f_full.norm()
@@ -112,44 +127,55 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     n_owned_dofs = V.dofmap.index_map.size_local
     edge_dofs = np.flatnonzero(np.linalg.norm(dof_x[:n_owned_dofs] - edge, axis=1) < 1e-6 * g.width)
 
-    schedule = [(1.0, 0.0)] + [(1.0, k / steps) for k in range(1, steps + 1)]
+    n_nominal = 1 + steps
     rows, iterations, step_info = [], [], []
-    failed = None
     say(f"slope: {msh.topology.index_map(2).size_global} cells, "
         f"{comm.allreduce(material.n_points)} RVEs of {packing.n_particles} particles, "
-        f"{comm.size} rank(s), {len(schedule)} load steps")
+        f"{comm.size} rank(s), {n_nominal} load steps, footing load x{load_factor:g}"
+        + (f", stabiliser {stabilise:g}" if stabilise else ""))
     setup_time = time.perf_counter() - t_start
     time_output = 0.0
-    for step, (lam_g, lam_f) in enumerate(schedule, start=1):
-        t0 = time.perf_counter()
-        gravity.value, footing.value = lam_g, lam_f
-        u_converged = u.x.array.copy()
-        result = solver.solve()
+    clock = [time.perf_counter()]
+
+    def converged_step(phase, step, t, result):
+        nonlocal time_output
+        lam_g, lam_f = (t, 0.0) if phase == "gravity" else (1.0, load_factor * t)
+        elapsed = time.perf_counter() - clock[0]
         iterations.append(result.iterations)
-        rows += [(step, it, rn, en) for it, rn, en in result.history]
-        step_info.append({"step": step, "gravity": lam_g, "footing_load": lam_f * g.footing_load,
-                          "iterations": result.iterations, "converged": result.converged,
-                          "residual_norm": result.residual_norm,
-                          "reason": result.reason_name, "time": time.perf_counter() - t0})
-        say(f"step {step:2d}/{len(schedule)}: gravity x{lam_g:.2f}, footing {lam_f * g.footing_load:.3e} N/m, "
-            f"{result.iterations} iterations, {time.perf_counter() - t0:.2f} s"
-            + ("" if result.converged else f"  NOT CONVERGED ({result.reason_name})"))
-        if not result.converged:
-            # A cut-back would retry here with a smaller increment from the last converged u.
-            failed = {"step": step, "reason": result.reason_name, "error": result.error}
-            u.x.array[:] = u_converged  # report the last converged state
-            material.update(tangent=False)
-            say(f"slope: load step {step} did not converge ({result.reason_name})"
-                + (f": {result.error}" if result.error else "") + "; stopping.")
-            break
+        rows.extend((step, it, rn, en) for it, rn, en in result.history)
+        step_info.append({"step": step, "phase": phase, "t": t, "gravity": lam_g,
+                          "footing_load": lam_f * g.footing_load,
+                          "iterations": result.iterations, "converged": True,
+                          "residual_norm": result.residual_norm, "reason": result.reason_name,
+                          "open_points": comm.allreduce(getattr(material, "n_open", 0)), "time": elapsed})
+        say(f"step {step:2d}/{n_nominal}: gravity x{lam_g:.2f}, footing {lam_f * g.footing_load:.3e} N/m, "
+            f"{result.iterations} iterations, {elapsed:.2f} s")
         t_out = time.perf_counter()
         vm_cells = cell_function(V0, material.cell_average(von_mises(material.cauchy())))
         vm_cells.name = "von_mises"
         xdmf.write_function(u, float(step))
         xdmf.write_function(vm_cells, float(step))
         time_output += time.perf_counter() - t_out
+        clock[0] = time.perf_counter()
+
+    def set_gravity(t):
+        gravity.value, footing.value = t, 0.0
+
+    def set_footing(t):
+        gravity.value, footing.value = 1.0, load_factor * t
+
+    stepper = LoadStepper(solver, max_cutbacks=max_cutbacks, log=lambda line: say("  " + line))
+    ok = stepper.run("gravity", set_gravity, 1.0,
+                     on_converged=lambda *a: converged_step("gravity", *a))
+    if ok:
+        ok = stepper.run("footing", set_footing, 1.0 / steps,
+                         on_converged=lambda *a: converged_step("footing", *a))
+    failed = stepper.failed
+    if failed is not None:
+        say(f"slope: load step {failed['step']} ({failed['phase']}, t = {failed['t']:.6g} reached) "
+            f"did not converge: {failed['reason']}; stopping.")
     xdmf.close()
-    done = len(iterations) - (failed is not None)  # converged load steps
+    done = stepper.step  # converged load steps
 
     # Extremes at the Gauss points of the last converged state (reference coordinates).
     vm = von_mises(material.cauchy())
@@ -180,17 +206,21 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         insets = [(lab, rve, Fp, f"{txt}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
                   for (lab, _, txt), (xp, Fp) in zip(probes, probe_F)]
         plot_slope(os.path.join(out, "slope.png"), data, markers, insets,
-                   title=f"step {done}/{len(schedule)}: settlement {settlement:.3f} m, "
+                   title=f"step {done}/{n_nominal}: settlement {settlement:.3f} m, "
                          f"{packing.n_particles} particles, deformation x1")
         time_output += time.perf_counter() - t_out
 
     wall = time.perf_counter() - t_start
     summary = {
         "ranks": comm.size,
-        "steps": len(schedule),
+        "steps": n_nominal,
         "completed_steps": done,
         "converged": failed is None,
         "failed": failed,
+        "cutbacks": [c.as_dict() for c in stepper.cutbacks],
+        "load_factor": load_factor,
+        "stabilise": stabilise,
+        "open_points": comm.allreduce(getattr(material, "n_open", 0)),
         "iterations": iterations,
         "footing_settlement": settlement,
         "footing_settlement_point": edge.tolist(),
@@ -232,6 +262,13 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=20, help="footing load steps (default 20)")
     p.add_argument("--out", default="results/slope", help="output folder (default results/slope)")
     p.add_argument("--no-figure", action="store_true", help="skip slope.png")
+    p.add_argument("--load-factor", type=float, default=1.0,
+                   help="multiplies the footing load (2: doubled, -0.25: uplift; default 1)")
+    p.add_argument("--stabilise", type=float, default=0.0,
+                   help="stiffness where an RVE has no loaded contact, relative to the eq. 15 "
+                        "modulus (default 0: off)")
+    p.add_argument("--line-search", choices=["basic", "bt", "l2", "cp"], default="basic",
+                   help="SNES line search (default basic: full Newton steps)")
     a = p.parse_args(argv)
     if a.steps < 1:
         p.error("--steps must be >= 1")
@@ -249,7 +286,8 @@ def main(argv=None):
             raise packing
         return 1
     summary = run(packing, steps=a.steps, out=a.out, comm=comm, figure=not a.no_figure,
-                  started=started)
+                  started=started, load_factor=a.load_factor, stabilise=a.stabilise,
+                  petsc_options={"snes_linesearch_type": a.line_search})
     return 0 if summary["converged"] else 1
 
 

@@ -300,6 +300,10 @@ class NewtonSolver:
             self.x.copy(self.u.vector)
             self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         reason = int(self.snes.getConvergedReason())
+        if reason <= 0 or petsc_error is not None:
+            # A failed factorisation is sticky in PETSc: every later solve would stop at once
+            # with the same error. Drop the factor so that a cut-back starts afresh.
+            self.snes.getKSP().getPC().reset()
         name = _REASON_NAMES.get(reason, str(reason))
         if self._stagnated:
             name = STAGNATION

@@ -1,0 +1,86 @@
+"""The slope demo under hard loads at reduced size (70-particle RVE, 4 footing steps): the doubled
+footing load and an uplift. Failed steps are cut back and logged; a run that cannot go on stops at
+its last converged state with every number finite."""
+
+import csv
+import importlib.util
+import json
+import math
+import os
+
+import pytest
+
+pytest.importorskip("dolfinx")
+from mpi4py import MPI  # noqa: E402
+
+from dolfinx_granular import generate_packing  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def slope_module():
+    spec = importlib.util.spec_from_file_location("slope_demo", os.path.join(ROOT, "demos", "slope.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def run(tmp_path, load_factor, **kwargs):
+    summary = slope_module().run(generate_packing(70, seed=1), steps=4, out=str(tmp_path),
+                                 comm=MPI.COMM_SELF, figure=False, verbose=False,
+                                 load_factor=load_factor, **kwargs)
+    with open(tmp_path / "summary.json") as f:
+        on_disk = json.load(f)
+    with open(tmp_path / "convergence.csv") as f:
+        rows = list(csv.DictReader(f))
+    return summary, on_disk, rows
+
+
+def check_consistent(summary, on_disk, rows):
+    assert on_disk["completed_steps"] == summary["completed_steps"]
+    assert on_disk["cutbacks"] == summary["cutbacks"]
+    n = summary["completed_steps"]
+    assert len(summary["iterations"]) == len(summary["step_info"]) == n
+    # convergence.csv holds the converged steps only, failed attempts are in the cut-backs
+    assert sorted({int(r["step"]) for r in rows}) == list(range(1, n + 1))
+    assert sum(summary["iterations"]) == len(rows)
+    ts = [(s["phase"], s["t"]) for s in summary["step_info"]]
+    assert ts[0] == ("gravity", 1.0)
+    footing_t = [t for phase, t in ts[1:]]
+    assert all(b > a for a, b in zip(footing_t, footing_t[1:]))
+    for cut in summary["cutbacks"]:
+        assert cut["reason"] and cut["t_to"] > cut["t_from"]
+    for key in ("footing_settlement", "max_von_mises", "min_von_mises", "min_singular_value_F"):
+        assert math.isfinite(summary[key]), key
+    for s in summary["step_info"]:
+        assert s["converged"] and math.isfinite(s["residual_norm"])
+    assert all(math.isfinite(float(r["residual_norm"])) for r in rows)
+    return footing_t
+
+
+@pytest.mark.slow
+def test_doubled_footing_load_goes_past_the_nominal_load(tmp_path):
+    summary, on_disk, rows = run(tmp_path, 2.0)
+    footing_t = check_consistent(summary, on_disk, rows)
+    assert summary["load_factor"] == 2.0
+    assert summary["cutbacks"], "the doubled load needs smaller steps"
+    # at least the nominal load (t = 0.5 of twice the load) is reached
+    assert footing_t[-1] >= 0.5
+    if not summary["converged"]:
+        assert summary["failed"]["reason"] and summary["failed"]["t"] == footing_t[-1]
+    lines = [c["reason"] for c in summary["cutbacks"]]
+    assert any("stagnation" in r or "Newton iteration limit" in r or "outside" in r for r in lines)
+
+
+@pytest.mark.slow
+def test_uplift_is_cut_back_and_stops_cleanly(tmp_path):
+    """Pulling the footing up: the soil under it loses its contacts (singular matrix, then no
+    equilibrium once the uplift exceeds what the overburden holds)."""
+    summary, on_disk, rows = run(tmp_path, -0.25)
+    footing_t = check_consistent(summary, on_disk, rows)
+    reasons = " ".join(c["reason"] for c in summary["cutbacks"])
+    assert "singular" in reasons
+    assert not summary["converged"] and summary["failed"]["phase"] == "footing"
+    assert summary["failed"]["t"] == footing_t[-1] > 0
+    # the last converged step carries an upward footing load
+    assert summary["step_info"][-1]["footing_load"] > 0
