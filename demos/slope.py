@@ -254,40 +254,114 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     return summary
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--particles", type=int, default=700, help="particles per RVE (default 700)")
-    p.add_argument("--seed", type=int, default=0, help="packing generator seed (default 0)")
+class UserError(ValueError):
+    """Bad input (options, files): reported as one line ``error: ...`` with exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises :class:`UserError` (one line) instead of printing the usage block."""
+
+    def error(self, message):
+        raise UserError(f"{message} (see '{self.prog} --help')")
+
+
+def _int_at_least(low):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
+        return value
+    return parse
+
+
+def _finite(low=None):
+    def parse(text):
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not np.isfinite(value) or (low is not None and value < low):
+            raise argparse.ArgumentTypeError(
+                f"must be a finite number{f' >= {low}' if low is not None else ''}, got {text!r}")
+        return value
+    return parse
+
+
+def build_parser():
+    p = _Parser(prog="demos/slope.py", description=__doc__.split("\n\n")[0])
+    p.add_argument("--particles", type=_int_at_least(2), default=700,
+                   help="particles per RVE, >= 2 (default 700)")
+    p.add_argument("--seed", type=_int_at_least(0), default=0, help="packing generator seed (default 0)")
     p.add_argument("--packing", help="load the packing from this .npz file instead of generating")
-    p.add_argument("--steps", type=int, default=20, help="footing load steps (default 20)")
+    p.add_argument("--steps", type=_int_at_least(1), default=20, help="footing load steps (default 20)")
     p.add_argument("--out", default="results/slope", help="output folder (default results/slope)")
     p.add_argument("--no-figure", action="store_true", help="skip slope.png")
-    p.add_argument("--load-factor", type=float, default=1.0,
+    p.add_argument("--load-factor", type=_finite(), default=1.0,
                    help="multiplies the footing load (2: doubled, -0.25: uplift; default 1)")
-    p.add_argument("--stabilise", type=float, default=0.0,
+    p.add_argument("--stabilise", type=_finite(0.0), default=0.0,
                    help="stiffness where an RVE has no loaded contact, relative to the eq. 15 "
                         "modulus (default 0: off)")
     p.add_argument("--line-search", choices=["basic", "bt", "l2", "cp"], default="basic",
                    help="SNES line search (default basic: full Newton steps)")
-    a = p.parse_args(argv)
-    if a.steps < 1:
-        p.error("--steps must be >= 1")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an error")
+    return p
+
+
+def _check_out(out):
+    """Create ``out`` and prove that a file can be written there (before any work is done)."""
+    try:
+        os.makedirs(out, exist_ok=True)
+        probe = os.path.join(out, f".write-test-{os.getpid()}")
+        with open(probe, "w"):
+            pass
+        os.remove(probe)
+    except OSError as err:
+        raise UserError(f"--out {out!r} cannot be written ({err.strerror or err}); choose a "
+                        "writable folder") from None
+
+
+def _prepare(a):
+    """Rank 0's part of the set-up: output folder and packing (generated or loaded)."""
+    from dolfinx_granular.packing import PackingFileError
+
+    _check_out(a.out)
+    try:
+        return make_packing(a.particles, a.seed, a.packing)
+    except PackingFileError as err:
+        raise UserError(f"--packing: {err}; give a .npz written by 'python -m dolfinx_granular "
+                        "generate' or Packing.save") from err
+
+
+def main(argv=None):
+    """Command line entry; returns 0 (all steps converged), 1 (stopped at a failed step) or 2
+    (bad input: one line ``error: ...`` on stderr, the traceback only with ``--debug``)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
     comm = MPI.COMM_WORLD
+    debug = "--debug" in argv
     started = time.perf_counter()
-    packing = None
-    if comm.rank == 0:
-        try:
-            packing = make_packing(a.particles, a.seed, a.packing)
-        except Exception as err:  # let the other ranks stop too instead of waiting in bcast
-            packing = err
-    packing = comm.bcast(packing, root=0)  # every rank must use the identical RVE
-    if isinstance(packing, Exception):
+    try:
+        a = build_parser().parse_args(argv)
+        packing = failure = None
         if comm.rank == 0:
-            raise packing
-        return 1
-    summary = run(packing, steps=a.steps, out=a.out, comm=comm, figure=not a.no_figure,
-                  started=started, load_factor=a.load_factor, stabilise=a.stabilise,
-                  petsc_options={"snes_linesearch_type": a.line_search})
+            try:
+                packing = _prepare(a)
+            except Exception as err:  # let the other ranks stop too instead of waiting in bcast
+                packing = failure = err
+        packing = comm.bcast(packing, root=0)  # every rank must use the identical RVE
+        if isinstance(packing, Exception):
+            raise failure or UserError(str(packing))  # rank 0: the original, with its cause
+        summary = run(packing, steps=a.steps, out=a.out, comm=comm, figure=not a.no_figure,
+                      started=started, load_factor=a.load_factor, stabilise=a.stabilise,
+                      petsc_options={"snes_linesearch_type": a.line_search})
+    except (ValueError, OSError) as err:  # user errors: bad options, files, meshes
+        if debug:
+            raise
+        if comm.rank == 0:
+            print(f"error: {err}", file=sys.stderr, flush=True)
+        return 2
     return 0 if summary["converged"] else 1
 
 

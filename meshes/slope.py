@@ -155,6 +155,47 @@ def _group(dim, entities, tag, name):
     gmsh.model.setPhysicalName(dim, tag, name)
 
 
+class MeshError(ValueError):
+    """The mesh lacks what the slope model needs (physical groups)."""
+
+
+REQUIRED_FACETS = {BOTTOM: "bottom", LEFT: "left", RIGHT: "right", FOOTING: "footing"}
+
+
+def check_physical_groups(comm):
+    """Check on rank 0 that the current gmsh model has a 2-D cell group and the facet groups of
+    :data:`REQUIRED_FACETS`; raise :class:`MeshError` naming what is missing on every rank."""
+    import gmsh
+
+    problem = None
+    if comm.rank == 0:
+        groups = gmsh.model.getPhysicalGroups()
+        cells = [tag for dim, tag in groups if dim == 2]
+        facets = {tag for dim, tag in groups if dim == 1}
+        missing = [f"{name} ({tag})" for tag, name in REQUIRED_FACETS.items() if tag not in facets]
+        if not cells:
+            missing.insert(0, "a 2-D cell group (soil)")
+        if missing:
+            problem = (f"the gmsh model lacks the physical groups {', '.join(missing)}; tag the "
+                       "boundary curves and the surfaces with gmsh.model.addPhysicalGroup as "
+                       "meshes/slope.py build_gmsh_model does")
+    problem = comm.bcast(problem, root=0)
+    if problem:
+        raise MeshError(problem)
+
+
+def model_to_mesh(comm):
+    """Distribute the current gmsh model (built on rank 0) over ``comm`` after
+    :func:`check_physical_groups`: ``(mesh, cell_tags, facet_tags)``."""
+    import gmsh
+    from dolfinx.io import gmshio
+
+    check_physical_groups(comm)
+    msh, cell_tags, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
+    msh.name = "slope"
+    return msh, cell_tags, facet_tags
+
+
 def create_mesh(comm, geometry: SlopeGeometry = SlopeGeometry()):
     """Build the slope mesh with gmsh on rank 0 and distribute it over ``comm``.
 
@@ -162,7 +203,6 @@ def create_mesh(comm, geometry: SlopeGeometry = SlopeGeometry()):
         ``(mesh, cell_tags, facet_tags)`` (DOLFINx objects); facet tags as in this module.
     """
     import gmsh
-    from dolfinx.io import gmshio
 
     # gmsh 4.8 has no isInitialized(); then assume nobody else holds a session.
     initialized = getattr(gmsh, "isInitialized", lambda: False)()
@@ -172,12 +212,9 @@ def create_mesh(comm, geometry: SlopeGeometry = SlopeGeometry()):
     try:
         if comm.rank == 0:
             build_gmsh_model(geometry)
-        msh, cell_tags, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
+        return model_to_mesh(comm)
     finally:
         if comm.rank == 0:
             gmsh.model.remove()
         if not initialized:
             gmsh.finalize()
-    msh.name = "slope"
-    return msh, cell_tags, facet_tags
-
