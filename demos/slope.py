@@ -12,6 +12,12 @@ summary.json (``cutbacks``). ``--load-factor`` scales the footing load (2: doubl
 ``--stabilise`` adds a small stiffness where an RVE has no loaded contact (see
 :class:`~dolfinx_granular.material.GranularMaterial`).
 
+Every converged load step is on disk at once (so a failed or killed run loses nothing): slope.xdmf
+gets the step appended, convergence.csv, summary.json (``status`` "running") and restart.npz are
+replaced atomically. ``--resume DIR`` continues a run from DIR/restart.npz with the options stored
+there and gives the same answer as an uninterrupted run; ``--stop-after K`` stops after K
+converged steps (to split a run on purpose).
+
 Writes to DIR: convergence.csv (one row per Newton step: step, iteration, residual norm at the
 iterate the step started from, relative energy norm |R_k . du_k| / |R_0 . du_0|), summary.json
 (iterations per step, footing settlement, von Mises extremes, timings; wall_time counts from the
@@ -23,6 +29,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
+import io as io_module
 import json
 import os
 import sys
@@ -53,7 +61,7 @@ def make_packing(particles, seed, packing_file=None):
 
 def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=None,
         normal_stiffness=K_N, figure=True, verbose=True, petsc_options=None, started=None,
-        load_factor=1.0, stabilise=0.0, max_cutbacks=6):
+        load_factor=1.0, stabilise=0.0, max_cutbacks=6, restart=None, stop_after=None):
     """Run the benchmark and write the results to ``out``; returns the summary dict.
 
     Args:
@@ -64,6 +72,8 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         stabilise: stiffness at points without loaded contacts, relative to the eq. 15 modulus.
         geometry: a :class:`meshes.slope.SlopeGeometry` (default: the reconstruction).
         started: ``time.perf_counter()`` at which the run began (for ``wall_time``), default now.
+        restart: the dict of :func:`load_restart` to continue from (same options as that run).
+        stop_after: stop after this many converged load steps (all phases, counted from 1).
     """
     t_start = time.perf_counter() if started is None else started
     import ufl
@@ -74,7 +84,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     from dolfinx_granular.material import GranularMaterial
     from dolfinx_granular.postprocess import (cell_function, gather_mesh, global_extremum,
                                               nearest_point_value, plot_slope, von_mises)
-    from dolfinx_granular.loading import LoadStepper
+    from dolfinx_granular.loading import Cutback, LoadStepper
     from dolfinx_granular.solver import NewtonSolver
     from meshes.slope import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
 
@@ -119,8 +129,9 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
                           verbose=verbose)
 
     V0 = fem.FunctionSpace(msh, ("DG", 0))
-    xdmf = io.XDMFFile(comm, os.path.join(out, "slope.xdmf"), "w")
-    xdmf.write_mesh(msh)
+    xdmf_path = os.path.join(out, "slope.xdmf")
+    with io.XDMFFile(comm, xdmf_path, "w") as xdmf:
+        xdmf.write_mesh(msh)
     # Settlement under the loaded footing edge: the mesh node there (columns end on it).
     edge = np.array([g.loaded_edge, float(g.surface_height(g.loaded_edge))])
     dof_x = V.tabulate_dof_coordinates()[:, :2]
@@ -133,12 +144,54 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         f"{comm.allreduce(material.n_points)} RVEs of {packing.n_particles} particles, "
         f"{comm.size} rank(s), {n_nominal} load steps, footing load x{load_factor:g}"
         + (f", stabiliser {stabilise:g}" if stabilise else ""))
+    nodes = _NodeOrder(comm, dof_x[:n_owned_dofs], tolerance=1e-9 * g.width)
+    options = {"steps": steps, "load_factor": load_factor, "stabilise": stabilise,
+               "max_cutbacks": max_cutbacks, "petsc_options": petsc_options or {},
+               "normal_stiffness": normal_stiffness, "geometry": dataclasses.asdict(g)}
+    u_history = []  # rank 0: u of every converged step, in node order (restart and XDMF rewrite)
+
+    def write_output(step):
+        """Append u and the cell-mean von Mises stress of the current state to the XDMF file
+        (open and closed per step: the HDF5 file is complete on disk after every step)."""
+        vm_cells = cell_function(V0, material.cell_average(von_mises(material.cauchy())))
+        vm_cells.name = "von_mises"
+        with io.XDMFFile(comm, xdmf_path, "a") as xdmf:
+            xdmf.write_function(u, float(step))
+            xdmf.write_function(vm_cells, float(step))
+
+    stepper = LoadStepper(solver, max_cutbacks=max_cutbacks, log=lambda line: say("  " + line))
+    phases = [("gravity", 1.0), ("footing", 1.0 / steps)]
+    start_phase, start_t, start_dt = 0, 0.0, None
+    resumed_from = None
+    if restart is not None:
+        state = restart["state"]
+        resumed_from = state["step"]
+        rows = [tuple(r) for r in state["rows"]]
+        iterations, step_info = list(state["iterations"]), list(state["step_info"])
+        stepper.step = state["step"]
+        stepper.cutbacks = [Cutback(**c) for c in state["cutbacks"]]
+        # Rewrite the XDMF file from the stored states (valid whatever the partition was).
+        for k, values in enumerate(restart["u_history"], start=1):
+            nodes.scatter(values, u, restart["nodes"])
+            material.update(tangent=False)
+            write_output(k)
+        u_history = list(restart["u_history"]) if comm.rank == 0 else []
+        start_phase, start_t, start_dt = state["phase"], state["t"], state["dt"]
+        if start_t >= 1.0:  # the stored step ended a phase: go on with the next one
+            start_phase, start_t, start_dt = start_phase + 1, 0.0, None
+        say(f"slope: resumed from {restart['path']} after step {resumed_from} "
+            f"({phases[min(start_phase, 1)][0]}, t = {start_t:.6g})")
     setup_time = time.perf_counter() - t_start
     time_output = 0.0
     clock = [time.perf_counter()]
 
-    def converged_step(phase, step, t, result):
+    def settlement_now():
+        local = [float(u.x.array[2 * d + 1]) for d in edge_dofs]
+        return [s for part in comm.allgather(local) for s in part][0]
+
+    def converged_step(phase_index, step, t, result):
         nonlocal time_output
+        phase = phases[phase_index][0]
         lam_g, lam_f = (t, 0.0) if phase == "gravity" else (1.0, load_factor * t)
         elapsed = time.perf_counter() - clock[0]
         iterations.append(result.iterations)
@@ -147,16 +200,29 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
                           "footing_load": lam_f * g.footing_load,
                           "iterations": result.iterations, "converged": True,
                           "residual_norm": result.residual_norm, "reason": result.reason_name,
-                          "open_points": comm.allreduce(getattr(material, "n_open", 0)), "time": elapsed})
+                          "open_points": comm.allreduce(getattr(material, "n_open", 0)),
+                          "settlement": settlement_now(), "time": elapsed})
         say(f"step {step:2d}/{n_nominal}: gravity x{lam_g:.2f}, footing {lam_f * g.footing_load:.3e} N/m, "
             f"{result.iterations} iterations, {elapsed:.2f} s")
         t_out = time.perf_counter()
-        vm_cells = cell_function(V0, material.cell_average(von_mises(material.cauchy())))
-        vm_cells.name = "von_mises"
-        xdmf.write_function(u, float(step))
-        xdmf.write_function(vm_cells, float(step))
+        write_output(step)
+        values = nodes.gather(u)
+        if comm.rank == 0:
+            u_history.append(values)
+            state = {"step": step, "phase": phase_index, "t": t, "dt": stepper.dt,
+                     "iterations": iterations, "step_info": step_info, "rows": rows,
+                     "cutbacks": [c.as_dict() for c in stepper.cutbacks]}
+            _write_convergence(out, rows)
+            _write_restart(out, packing, options, state, nodes.X, u_history)
+            _write_json(out, {"status": "running", "ranks": comm.size, "steps": n_nominal,
+                              "completed_steps": step, "resumed_from": resumed_from,
+                              "cutbacks": state["cutbacks"], "iterations": iterations,
+                              "footing_settlement": step_info[-1]["settlement"],
+                              "load_factor": load_factor, "stabilise": stabilise,
+                              "step_info": step_info})
         time_output += time.perf_counter() - t_out
         clock[0] = time.perf_counter()
+        return not (stop_after is not None and step >= stop_after)
 
     def set_gravity(t):
         gravity.value, footing.value = t, 0.0
@@ -164,17 +230,22 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     def set_footing(t):
         gravity.value, footing.value = 1.0, load_factor * t
 
-    stepper = LoadStepper(solver, max_cutbacks=max_cutbacks, log=lambda line: say("  " + line))
-    ok = stepper.run("gravity", set_gravity, 1.0,
-                     on_converged=lambda *a: converged_step("gravity", *a))
-    if ok:
-        ok = stepper.run("footing", set_footing, 1.0 / steps,
-                         on_converged=lambda *a: converged_step("footing", *a))
+    setters = [set_gravity, set_footing]
+    for i in range(start_phase, len(phases)):
+        name, increment = phases[i]
+        t0 = start_t if i == start_phase else 0.0
+        setters[i](t0)  # the loads of the converged state the phase starts from
+        if not stepper.run(name, setters[i], increment, t=t0,
+                           dt=start_dt if i == start_phase else None,
+                           on_converged=lambda *a, i=i: converged_step(i, *a)):
+            break
     failed = stepper.failed
     if failed is not None:
         say(f"slope: load step {failed['step']} ({failed['phase']}, t = {failed['t']:.6g} reached) "
             f"did not converge: {failed['reason']}; stopping.")
-    xdmf.close()
+    elif stepper.stopped:
+        say(f"slope: stopped after step {stepper.step} as asked (--stop-after); continue with "
+            f"--resume {out}")
     done = stepper.step  # converged load steps
 
     # Extremes at the Gauss points of the last converged state (reference coordinates).
@@ -215,8 +286,10 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         "ranks": comm.size,
         "steps": n_nominal,
         "completed_steps": done,
-        "converged": failed is None,
+        "status": "failed" if failed else ("stopped" if stepper.stopped else "converged"),
+        "converged": failed is None and not stepper.stopped,
         "failed": failed,
+        "resumed_from": resumed_from,
         "cutbacks": [c.as_dict() for c in stepper.cutbacks],
         "load_factor": load_factor,
         "stabilise": stabilise,
@@ -241,17 +314,102 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
                    for (lab, _, _), (xp, Fp) in zip(probes, probe_F)},
     }
     if comm.rank == 0:
-        with open(os.path.join(out, "convergence.csv"), "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["step", "iteration", "residual_norm", "energy_norm_rel"])
-            w.writerows((s, i, f"{r:.16e}", f"{e:.16e}") for s, i, r, e in rows)
-        with open(os.path.join(out, "summary.json"), "w") as f:
-            json.dump(summary, f, indent=1)
+        _write_convergence(out, rows)
+        _write_json(out, summary)
         say(f"slope: done in {wall:.1f} s (set-up {setup_time:.1f} s, RVE {t['rve']:.1f} s, "
             f"assembly {t['assembly']:.1f} s, solve {t['solve']:.1f} s, output {time_output:.1f} s); "
             f"settlement "
             f"{settlement:.4f} m; von Mises {vmin:.4g} .. {vmax:.4g} Pa; results in {out}")
     return summary
+
+
+def _atomic_write(path, data):
+    """Replace ``path`` by ``data`` (bytes or str) atomically: a reader or a killed run sees the
+    old file or the new one, never a partial one."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "wb") as f:
+        f.write(data.encode() if isinstance(data, str) else data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _write_convergence(out, rows):
+    buf = io_module.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["step", "iteration", "residual_norm", "energy_norm_rel"])
+    w.writerows((s, i, f"{r:.16e}", f"{e:.16e}") for s, i, r, e in rows)
+    _atomic_write(os.path.join(out, "convergence.csv"), buf.getvalue())
+
+
+def _write_json(out, summary):
+    _atomic_write(os.path.join(out, "summary.json"), json.dumps(summary, indent=1))
+
+
+RESTART_FORMAT = "dolfinx_granular.slope_restart"
+
+
+def _write_restart(out, packing, options, state, X, u_history):
+    buf = io_module.BytesIO()
+    np.savez(buf, format=np.array(RESTART_FORMAT), version=np.array(1),
+             options=np.array(json.dumps(options)), state=np.array(json.dumps(state)),
+             centers=packing.centers, radii=packing.radii, box=packing.box, nodes=X,
+             u_history=np.asarray(u_history))
+    _atomic_write(os.path.join(out, "restart.npz"), buf.getvalue())
+
+
+def load_restart(folder):
+    """Read ``folder/restart.npz``: a dict with ``options`` and ``state`` (dicts), ``packing``,
+    ``nodes`` (n, 2) and ``u_history`` (steps, n, 2); raises :class:`UserError` if unusable."""
+    from dolfinx_granular import Packing
+
+    path = os.path.join(folder, "restart.npz")
+    if not os.path.isfile(path):
+        raise UserError(f"--resume: {path!r} does not exist; give the --out folder of a run that "
+                        "completed at least one load step")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if str(f["format"]) != RESTART_FORMAT:
+                raise ValueError("not a slope restart file")
+            restart = {"options": json.loads(str(f["options"])), "state": json.loads(str(f["state"])),
+                       "packing": Packing(f["centers"], f["radii"], f["box"]),
+                       "nodes": np.array(f["nodes"]), "u_history": np.array(f["u_history"]),
+                       "path": path}
+    except Exception as err:  # zip, key, JSON or packing errors: all mean an unusable file
+        raise UserError(f"--resume: {path!r} is not a usable restart file ({err}); start the "
+                        "run again without --resume") from err
+    return restart
+
+
+class _NodeOrder:
+    """u's owned values gathered on rank 0 in a partition-independent order (nodes sorted by x,
+    then y), and scattered back to any partition by matching node coordinates."""
+
+    def __init__(self, comm, x_owned, tolerance):
+        self.comm, self.tolerance = comm, tolerance
+        self.n_owned = x_owned.shape[0]
+        parts = comm.gather(np.asarray(x_owned), root=0)
+        self.X = self.order = None
+        if comm.rank == 0:
+            X = np.concatenate(parts)
+            self.order = np.lexsort((X[:, 1], X[:, 0]))
+            self.X = X[self.order]
+
+    def gather(self, u):
+        parts = self.comm.gather(u.x.array[: 2 * self.n_owned].reshape(-1, 2).copy(), root=0)
+        return np.concatenate(parts)[self.order] if self.comm.rank == 0 else None
+
+    def scatter(self, values, u, X):
+        """Set u (owned and ghost dofs) from ``values`` (n, 2) at the nodes ``X`` (n, 2)."""
+        from scipy.spatial import cKDTree
+
+        x = u.function_space.tabulate_dof_coordinates()[:, :2]
+        dist, idx = cKDTree(X).query(x)
+        worst = self.comm.allreduce(float(dist.max()) if dist.size else 0.0, op=MPI.MAX)
+        if worst > self.tolerance:  # decided on every rank alike: no rank is left waiting
+            raise UserError("--resume: the restart file belongs to another mesh; start the run "
+                            "again without --resume")
+        u.x.array[:] = values[idx].ravel()
 
 
 class UserError(ValueError):
@@ -306,6 +464,11 @@ def build_parser():
                         "modulus (default 0: off)")
     p.add_argument("--line-search", choices=["basic", "bt", "l2", "cp"], default="basic",
                    help="SNES line search (default basic: full Newton steps)")
+    p.add_argument("--stop-after", type=_int_at_least(1), metavar="K",
+                   help="stop after K converged load steps (resume later with --resume)")
+    p.add_argument("--resume", metavar="DIR",
+                   help="continue the run in DIR from its restart.npz (its options and packing; "
+                        "the options above are ignored except --no-figure and --stop-after)")
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     return p
 
@@ -324,9 +487,14 @@ def _check_out(out):
 
 
 def _prepare(a):
-    """Rank 0's part of the set-up: output folder and packing (generated or loaded)."""
+    """Rank 0's part of the set-up: output folder and packing (generated or loaded), or the
+    restart dict for ``--resume``."""
     from dolfinx_granular.packing import PackingFileError
 
+    if a.resume:
+        restart = load_restart(a.resume)
+        _check_out(a.resume)
+        return restart
     _check_out(a.out)
     try:
         return make_packing(a.particles, a.seed, a.packing)
@@ -336,8 +504,9 @@ def _prepare(a):
 
 
 def main(argv=None):
-    """Command line entry; returns 0 (all steps converged), 1 (stopped at a failed step) or 2
-    (bad input: one line ``error: ...`` on stderr, the traceback only with ``--debug``)."""
+    """Command line entry; returns 0 (all steps converged, or stopped by ``--stop-after``), 1
+    (stopped at a failed step) or 2 (bad input: one line ``error: ...`` on stderr, the traceback
+    only with ``--debug``)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     comm = MPI.COMM_WORLD
     debug = "--debug" in argv
@@ -353,16 +522,30 @@ def main(argv=None):
         packing = comm.bcast(packing, root=0)  # every rank must use the identical RVE
         if isinstance(packing, Exception):
             raise failure or UserError(str(packing))  # rank 0: the original, with its cause
-        summary = run(packing, steps=a.steps, out=a.out, comm=comm, figure=not a.no_figure,
-                      started=started, load_factor=a.load_factor, stabilise=a.stabilise,
-                      petsc_options={"snes_linesearch_type": a.line_search})
+        if a.resume:
+            restart = packing
+            o = restart["options"]
+            from meshes.slope import SlopeGeometry
+
+            summary = run(restart["packing"], steps=o["steps"], out=a.resume, comm=comm,
+                          geometry=SlopeGeometry(**o["geometry"]),
+                          normal_stiffness=o["normal_stiffness"], figure=not a.no_figure,
+                          petsc_options=o["petsc_options"], started=started,
+                          load_factor=o["load_factor"], stabilise=o["stabilise"],
+                          max_cutbacks=o["max_cutbacks"], restart=restart,
+                          stop_after=a.stop_after)
+        else:
+            summary = run(packing, steps=a.steps, out=a.out, comm=comm, figure=not a.no_figure,
+                          started=started, load_factor=a.load_factor, stabilise=a.stabilise,
+                          petsc_options={"snes_linesearch_type": a.line_search},
+                          stop_after=a.stop_after)
     except (ValueError, OSError) as err:  # user errors: bad options, files, meshes
         if debug:
             raise
         if comm.rank == 0:
             print(f"error: {err}", file=sys.stderr, flush=True)
         return 2
-    return 0 if summary["converged"] else 1
+    return 0 if summary["status"] in ("converged", "stopped") else 1
 
 
 if __name__ == "__main__":

@@ -57,6 +57,10 @@ class LoadStepper:
         step: number of converged increments so far (all phases).
         dt: the increment the next attempt will use (None before the first phase).
         failed: None, or a dict ``{"phase", "step", "t", "reason"}`` once a phase has given up.
+        stopped: True once ``on_converged`` asked to stop.
+
+    A run resumed from a restart sets :attr:`step` and :attr:`cutbacks` and passes ``t`` and
+    ``dt`` to :meth:`run`; it then takes the same increments as the uninterrupted run.
     """
 
     def __init__(self, solver, *, max_cutbacks=6, min_fraction=1e-3, grow=1.5, easy_iterations=5,
@@ -74,6 +78,7 @@ class LoadStepper:
         self.step = 0
         self.dt = None
         self.failed = None
+        self.stopped = False
 
     def run(self, phase, set_load, increment, t=0.0, dt=None, on_converged=None) -> bool:
         """Take t from ``t`` to 1 in increments of at most ``increment``; True if t reached 1.
@@ -85,7 +90,8 @@ class LoadStepper:
             t: start of the phase (a converged state at this t is in ``solver.u``).
             dt: first increment to try (default ``increment``), e.g. from a restart.
             on_converged: ``on_converged(step, t, result)`` after each converged increment, with
-                u and the material data at the converged state.
+                u and the material data at the converged state; returning False stops the run
+                there (:attr:`stopped`, not :attr:`failed`).
         """
         if not 0.0 < increment <= 1.0:
             raise ValueError(f"increment must lie in (0, 1], got {increment!r}")
@@ -108,8 +114,9 @@ class LoadStepper:
                 if result.iterations <= self.easy_iterations:
                     dt = min(dt * self.grow, increment)
                 self.dt = dt
-                if on_converged is not None:
-                    on_converged(self.step, t, result)
+                if on_converged is not None and on_converged(self.step, t, result) is False:
+                    self.stopped = True  # the caller asked to stop here (e.g. --stop-after)
+                    return False
                 continue
             u.x.array[:] = saved  # the failed iterate (possibly NaN) never leaves this function
             cut = Cutback(phase, self.step + 1, float(t), float(target), result.why,
