@@ -128,6 +128,23 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
                           max_it=15, prefix="slope_", petsc_options=petsc_options,
                           verbose=verbose)
 
+    # The stabiliser's share of the internal forces: |f_stab| / |f_ext| on the free dofs.
+    stab_form = (fem.form(ufl.inner(material.P_stab, ufl.grad(v)) * material.dx)
+                 if getattr(material, "P_stab", None) is not None else None)
+    f_ext_form = fem.form(f_ext)
+
+    def stabiliser_share():
+        if stab_form is None:
+            return 0.0
+        norms = []
+        for form in (stab_form, f_ext_form):
+            b = fem.petsc.assemble_vector(form)
+            b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            fem.petsc.set_bc(b, bcs, scale=0.0)  # reactions are not forces on the soil
+            norms.append(b.norm())
+            b.destroy()
+        return norms[0] / norms[1] if norms[1] > 0 else 0.0
+
     V0 = fem.FunctionSpace(msh, ("DG", 0))
     xdmf_path = os.path.join(out, "slope.xdmf")
     with io.XDMFFile(comm, xdmf_path, "w") as xdmf:
@@ -201,7 +218,8 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
                           "iterations": result.iterations, "converged": True,
                           "residual_norm": result.residual_norm, "reason": result.reason_name,
                           "open_points": comm.allreduce(getattr(material, "n_open", 0)),
-                          "settlement": settlement_now(), "time": elapsed})
+                          "settlement": settlement_now(), "stabiliser_force": stabiliser_share(),
+                          "time": elapsed})
         say(f"step {step:2d}/{n_nominal}: gravity x{lam_g:.2f}, footing {lam_f * g.footing_load:.3e} N/m, "
             f"{result.iterations} iterations, {elapsed:.2f} s")
         t_out = time.perf_counter()
@@ -294,6 +312,8 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         "load_factor": load_factor,
         "stabilise": stabilise,
         "open_points": comm.allreduce(getattr(material, "n_open", 0)),
+        # largest |nodal force of the stabilising stress| / |external load| over the steps
+        "stabiliser_force_max": max([s.get("stabiliser_force", 0.0) for s in step_info] or [0.0]),
         "iterations": iterations,
         "footing_settlement": settlement,
         "footing_settlement_point": edge.tolist(),

@@ -42,7 +42,7 @@ class GranularMaterial:
             the linear stress ``alpha C : (F - I)`` and tangent ``alpha C``, C the packing's eq. 15
             modulus. Points with a contact under load are untouched; 0 (default) disables it. The
             stabilising stress is fictitious: W, :meth:`cauchy` and the von Mises output leave it
-            out, and its effect on a result is measured by comparing alpha values.
+            out; :attr:`P_stab` holds it alone, so that its nodal forces can be measured.
 
     Attributes:
         P: quadrature Function (2, 2), first Piola stress in Pa (owned cells after ``update``).
@@ -55,6 +55,8 @@ class GranularMaterial:
             like W and F (point ``cell * n_qp + q``).
         timings: seconds spent in ``"F"`` (evaluating grad u) and ``"rve"`` (the kernel).
         n_open: number of owned points at the last ``update`` whose RVE had no loaded contact.
+        P_stab: quadrature Function with the stabilising stress of the last ``update`` (None
+            without a stabiliser).
     """
 
     def __init__(self, rve: TaylorRVE, u: fem.Function, quadrature_degree: int = 2,
@@ -114,6 +116,10 @@ class GranularMaterial:
             raise ValueError(f"stabilise must be a finite number >= 0, got {stabilise!r}")
         self.stabilise = alpha
         self._C_stab = alpha * rve.small_strain_modulus() if alpha > 0.0 else None
+        self.P_stab = None  # the stabilising part of P alone, to measure its effect
+        if alpha > 0.0:
+            self.P_stab = fem.Function(self.P.function_space, name="P_stab")
+            self._P_stab_view = self.P_stab.x.array[: 4 * n].reshape(n, 2, 2)
 
     @property
     def n_points(self) -> int:
@@ -164,11 +170,14 @@ class GranularMaterial:
             self.timings["rve"] += time.perf_counter() - t
         opened = np.flatnonzero(self.W == 0.0)
         self.n_open = opened.size
-        if self._C_stab is not None and opened.size:
-            E = F[opened] - np.eye(2)
-            self._P_view[opened] += np.einsum("abcd,qcd->qab", self._C_stab, E)
-            if tangent:
-                self._A_view[opened] += self._C_stab
+        if self._C_stab is not None:
+            self._P_stab_view[...] = 0.0
+            if opened.size:
+                E = F[opened] - np.eye(2)
+                self._P_stab_view[opened] = np.einsum("abcd,qcd->qab", self._C_stab, E)
+                self._P_view[opened] += self._P_stab_view[opened]
+                if tangent:
+                    self._A_view[opened] += self._C_stab
         self.F[...] = F
         self.n_updates += 1
 

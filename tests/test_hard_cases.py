@@ -84,3 +84,24 @@ def test_uplift_is_cut_back_and_stops_cleanly(tmp_path):
     assert summary["failed"]["t"] == footing_t[-1] > 0
     # the last converged step carries an upward footing load
     assert summary["step_info"][-1]["footing_load"] > 0
+
+
+@pytest.mark.slow
+def test_stabiliser_effect_is_measured_and_absent_while_contacts_hold(tmp_path):
+    """Uplift with the stabiliser (1e-3 of the eq. 15 modulus): identical steps to the plain run
+    as long as no RVE has lost its contacts; once some have, the stabiliser's share of the nodal
+    forces is reported per step (and its maximum)."""
+    plain, _, _ = run(tmp_path / "plain", -0.25)
+    stab, on_disk, rows = run(tmp_path / "stab", -0.25, stabilise=1e-3)
+    check_consistent(stab, on_disk, rows)
+    assert stab["stabilise"] == 1e-3 and plain["stabiliser_force_max"] == 0.0
+    same = 0
+    for a, b in zip(plain["step_info"], stab["step_info"]):
+        if b["open_points"] or a["t"] != b["t"]:
+            break
+        assert a["settlement"] == b["settlement"] and b["stabiliser_force"] == 0.0
+        same += 1
+    assert same >= 2
+    shares = [s["stabiliser_force"] for s in stab["step_info"] if s["open_points"]]
+    assert shares and all(0.0 < f < 0.1 for f in shares)
+    assert stab["stabiliser_force_max"] == max(shares)
