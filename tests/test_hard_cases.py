@@ -105,3 +105,32 @@ def test_stabiliser_effect_is_measured_and_absent_while_contacts_hold(tmp_path):
     shares = [s["stabiliser_force"] for s in stab["step_info"] if s["open_points"]]
     assert shares and all(0.0 < f < 0.1 for f in shares)
     assert stab["stabiliser_force_max"] == max(shares)
+
+
+@pytest.mark.slow
+def test_uplift_on_two_ranks_matches_serial(tmp_path):
+    """The same cut-backs and the same stopping point under mpirun -n 2: RVE errors and singular
+    factorisations on one rank are failures on all ranks, nobody hangs."""
+    import shutil
+    import subprocess
+    import sys
+
+    mpirun = shutil.which("mpirun")
+    if mpirun is None:
+        pytest.skip("mpirun not found")
+    serial, _, _ = run(tmp_path / "np1", -0.25)
+    out = tmp_path / "np2"
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    proc = subprocess.run([mpirun, "-n", "2", "--oversubscribe", sys.executable,
+                           os.path.join(ROOT, "demos", "slope.py"), "--particles", "70", "--seed",
+                           "1", "--steps", "4", "--no-figure", "--load-factor", "-0.25", "--out",
+                           str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1, proc.stdout[-3000:] + proc.stderr[-3000:]  # stopped, not crashed
+    assert "Traceback" not in proc.stderr
+    with open(out / "summary.json") as f:
+        parallel = json.load(f)
+    assert parallel["ranks"] == 2 and parallel["status"] == serial["status"] == "failed"
+    assert parallel["completed_steps"] == serial["completed_steps"]
+    assert [c["t_to"] for c in parallel["cutbacks"]] == [c["t_to"] for c in serial["cutbacks"]]
+    rel = abs(parallel["footing_settlement"] / serial["footing_settlement"] - 1)
+    assert rel <= 1e-10
