@@ -187,6 +187,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         iterations, step_info = list(state["iterations"]), list(state["step_info"])
         stepper.step = state["step"]
         stepper.cutbacks = [Cutback(**c) for c in state["cutbacks"]]
+        stepper.path = list(state.get("path", []))
         # Rewrite the XDMF file from the stored states (valid whatever the partition was).
         for k, values in enumerate(restart["u_history"], start=1):
             nodes.scatter(values, u, restart["nodes"])
@@ -229,7 +230,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
             u_history.append(values)
             state = {"step": step, "phase": phase_index, "t": t, "dt": stepper.dt,
                      "iterations": iterations, "step_info": step_info, "rows": rows,
-                     "cutbacks": [c.as_dict() for c in stepper.cutbacks]}
+                     "cutbacks": [c.as_dict() for c in stepper.cutbacks], "path": stepper.path}
             _write_convergence(out, rows)
             _write_restart(out, packing, options, state, nodes.X, u_history)
             _write_json(out, {"status": "running", "ranks": comm.size, "steps": n_nominal,
@@ -261,6 +262,16 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     if failed is not None:
         say(f"slope: load step {failed['step']} ({failed['phase']}, t = {failed['t']:.6g} reached) "
             f"did not converge: {failed['reason']}; stopping.")
+        limit = failed["limit_load"]
+        if limit is not None and failed["phase"] == "footing":
+            limit["footing_load"] = load_factor * limit["t_converged"] * g.footing_load  # N/m
+            say(f"slope: limit load: the slope carries at most "
+                f"{abs(limit['footing_load']):.4g} N/m of footing "
+                f"{'uplift' if load_factor < 0 else 'load'} "
+                f"({abs(load_factor) * limit['t_converged']:.4g} x the nominal footing load); "
+                f"the displacement per load increment has grown "
+                f"{1 / limit['stiffness_ratio']:.3g}-fold. Past a limit point load control finds "
+                "no equilibrium.")
     elif stepper.stopped:
         say(f"slope: stopped after step {stepper.step} as asked (--stop-after); continue with "
             f"--resume {out}")

@@ -9,11 +9,18 @@ Newton steps the increment grows by ``grow`` up to the nominal one; an increment
 ``min_fraction`` of the nominal one ends the phase as failed. Contact opening and closing
 makes the global problem non-smooth (section 6 of Meier, Steinmann & Kuhl): smaller increments keep
 Newton's start inside the basin of the new contact state, they do not change the equilibrium found.
+
+No increment, however small, passes a limit point of the load-displacement path (the structure
+collapses, or a cohesionless soil lets go of a pulled footing): past it no equilibrium exists at a
+higher load. A failed phase is therefore checked for one (:func:`limit_point`) and, if the path
+stiffness has collapsed, reported as a limit load rather than a solver failure.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+
+import numpy as np
 
 
 @dataclass
@@ -40,6 +47,41 @@ class Cutback:
         return asdict(self)
 
 
+def limit_point(path, t_failed, stiffness_drop=0.2):
+    """Recognise a limit point (maximum load) of load control from the converged increments.
+
+    The path stiffness of increment k is ``S_k = dt_k / |du_k|`` (load parameter per Euclidean
+    norm of the displacement increment over all dofs). Near a smooth limit point t*, u - u* ~
+    sqrt(t* - t), so S² falls linearly to zero; extrapolating S² through the last two increments
+    (at their midpoints) estimates t*.
+
+    Args:
+        path: the phase's converged increments, dicts with ``t`` (at the end), ``dt`` and
+            ``increment_norm`` (|du|, m), in order.
+        t_failed: smallest load parameter that was attempted and failed.
+        stiffness_drop: S_last / S_first at or below which the path counts as collapsed.
+
+    Returns:
+        None if the path does not point to a limit before ``t_failed``; else a dict with
+        ``t_converged`` (last carried), ``t_failed``, ``t_estimate`` (extrapolated t*) and
+        ``stiffness_ratio`` (S_last / S_first).
+    """
+    S = [p["dt"] / p["increment_norm"] for p in path if p["increment_norm"] > 0.0]
+    if len(S) < 3 or len(S) != len(path):
+        return None
+    ratio = S[-1] / S[0]
+    if not (ratio <= stiffness_drop and S[-1] < S[-2]):
+        return None
+    m1, m2 = (p["t"] - 0.5 * p["dt"] for p in path[-2:])
+    t_star = m2 + S[-1] ** 2 * (m2 - m1) / (S[-2] ** 2 - S[-1] ** 2)
+    t_last = path[-1]["t"]
+    # the extrapolated maximum lies inside (or before) the increment that could not be carried
+    if not np.isfinite(t_star) or t_star > t_last + 2.0 * (t_failed - t_last):
+        return None
+    return {"t_converged": float(t_last), "t_failed": float(t_failed),
+            "t_estimate": float(t_star), "stiffness_ratio": float(ratio)}
+
+
 class LoadStepper:
     """Drive a :class:`~dolfinx_granular.solver.NewtonSolver` through load phases adaptively.
 
@@ -56,11 +98,15 @@ class LoadStepper:
         cutbacks: every :class:`Cutback` so far, in order.
         step: number of converged increments so far (all phases).
         dt: the increment the next attempt will use (None before the first phase).
-        failed: None, or a dict ``{"phase", "step", "t", "reason"}`` once a phase has given up.
+        failed: None, or a dict ``{"phase", "step", "t", "reason", "limit_load"}`` once a phase
+            has given up; ``limit_load`` is the :func:`limit_point` dict when the path stiffness
+            shows a limit point there, else None.
         stopped: True once ``on_converged`` asked to stop.
+        path: one dict per converged increment: ``phase``, ``t``, ``dt`` and ``increment_norm``
+            (Euclidean norm of the displacement increment over all dofs and ranks, m).
 
-    A run resumed from a restart sets :attr:`step` and :attr:`cutbacks` and passes ``t`` and
-    ``dt`` to :meth:`run`; it then takes the same increments as the uninterrupted run.
+    A run resumed from a restart sets :attr:`step`, :attr:`cutbacks` and :attr:`path` and passes
+    ``t`` and ``dt`` to :meth:`run`; it then takes the same increments as the uninterrupted run.
     """
 
     def __init__(self, solver, *, max_cutbacks=6, min_fraction=1e-3, grow=1.5, easy_iterations=5,
@@ -79,6 +125,7 @@ class LoadStepper:
         self.dt = None
         self.failed = None
         self.stopped = False
+        self.path: list[dict] = []
 
     def run(self, phase, set_load, increment, t=0.0, dt=None, on_converged=None) -> bool:
         """Take t from ``t`` to 1 in increments of at most ``increment``; True if t reached 1.
@@ -96,6 +143,9 @@ class LoadStepper:
         if not 0.0 < increment <= 1.0:
             raise ValueError(f"increment must lie in (0, 1], got {increment!r}")
         u = self.solver.u
+        imap = u.function_space.dofmap.index_map
+        n_owned = imap.size_local * u.function_space.dofmap.index_map_bs
+        comm = u.function_space.mesh.comm
         n_grid = 1.0 / increment
         dt = increment if dt is None else min(float(dt), increment)
         cuts = 0
@@ -109,6 +159,9 @@ class LoadStepper:
             saved = u.x.array.copy()
             result = self.solver.solve()
             if result.converged:
+                du = u.x.array[:n_owned] - saved[:n_owned]
+                self.path.append({"phase": phase, "t": float(target), "dt": float(target - t),
+                                  "increment_norm": float(np.sqrt(comm.allreduce(du @ du)))})
                 self.step += 1
                 t, cuts = target, 0
                 if result.iterations <= self.easy_iterations:
@@ -127,8 +180,17 @@ class LoadStepper:
                 self.log(f"{phase}: t = {t:.6g} -> {target:.6g} failed ({cut.reason}); "
                          + (f"increment {target - t:.3g} cannot be halved further" if smallest
                             else f"{self.max_cutbacks} cut-backs in a row") + ", giving up")
+                failed_at = min(c.t_to for c in self.cutbacks
+                                if c.phase == phase and c.t_from == cut.t_from)
+                limit = limit_point([p for p in self.path if p["phase"] == phase], failed_at)
                 self.failed = {"phase": phase, "step": self.step + 1, "t": float(t),
-                               "reason": cut.reason}
+                               "reason": cut.reason, "limit_load": limit}
+                if limit is not None:
+                    self.log(f"{phase}: limit load: the path stiffness fell to "
+                             f"{100 * limit['stiffness_ratio']:.1f} % of its initial value and "
+                             f"extrapolates to zero at t = {limit['t_estimate']:.6g}; no larger "
+                             "load has an equilibrium nearby (load control cannot pass a limit "
+                             "point)")
                 set_load(t)
                 if self.solver.material is not None:
                     self.solver.material.update(tangent=False)  # data of the converged state

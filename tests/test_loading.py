@@ -63,9 +63,10 @@ def test_cutback_recovers_the_same_answer():
 
 @pytest.mark.mpi
 def test_crushing_load_fails_cleanly_at_the_last_converged_state():
-    """10 MPa crushes the column below min_stretch (and inverts elements in Newton's trial
-    states): the stepper cuts back until it gives up, leaving u and the material data at the
-    last converged state, finite."""
+    """10 MPa is beyond what the column carries: Newton's trial states leave the RVE's range
+    (and invert elements), the stepper cuts back until it gives up, leaving u and the material
+    data at the last converged state, finite. The stop is a limit point: near 6.9 MPa the
+    load-settlement path flattens (the strongly compressed RVEs lose their shear stiffness)."""
     solver, material, u, p = column("crush_")
     converged = {}
 
@@ -79,6 +80,9 @@ def test_crushing_load_fails_cleanly_at_the_last_converged_state():
     assert 0.5 < converged["t"] < 1.0
     reasons = " ".join(c.reason for c in stepper.cutbacks)
     assert "outside the Taylor RVE's range" in reasons
+    limit = stepper.failed["limit_load"]
+    assert limit is not None and limit["t_converged"] == converged["t"] and limit["stiffness_ratio"] < 0.2
+    assert converged["t"] - 1e-3 <= limit["t_estimate"] <= limit["t_failed"]
     assert all_finite(u.x.array) and np.array_equal(u.x.array, converged["u"])
     assert p.value == 1e7 * converged["t"]
     assert np.array_equal(material.F, material.deformation_gradient())  # data belong to u
@@ -190,3 +194,43 @@ def test_block_pulled_partly_into_tension():
     assert MPI.COMM_WORLD.allreduce(bool(np.all(opened[:, 0] > 5) and np.all(opened[:, 1] > 5)),
                                     op=MPI.LAND)
     solver.destroy()
+
+
+def smooth_limit_path(n, t_top=1.0, scale=3.0):
+    """Increments along t(u) = t_top (2 s - s²), s = u / scale: a limit point at u = scale,
+    approached with increments that shrink like the cut-back stepper's."""
+    t = t_top * (1 - 0.5 ** np.arange(1, n + 1))  # 0.5, 0.75, ... t_top
+    u = scale * (1 - np.sqrt(1 - t / t_top))
+    t0, u0 = np.concatenate([[0.0], t]), np.concatenate([[0.0], u])
+    return [{"phase": "p", "t": t0[k], "dt": t0[k] - t0[k - 1], "increment_norm": u0[k] - u0[k - 1]}
+            for k in range(1, n + 1)]
+
+
+def test_limit_point_is_recognised_and_located():
+    from dolfinx_granular.loading import limit_point
+
+    path = smooth_limit_path(8, t_top=0.8)
+    t_last = path[-1]["t"]
+    t_failed = t_last + 0.5 * (0.8 - t_last) * 2  # the next increment, beyond the maximum
+    limit = limit_point(path, t_failed)
+    assert limit is not None and limit["t_converged"] == t_last and limit["t_failed"] == t_failed
+    # S² is linear in t along this curve: the extrapolation is exact
+    assert abs(limit["t_estimate"] - 0.8) <= 1e-12
+    S = [p["dt"] / p["increment_norm"] for p in path]
+    assert limit["stiffness_ratio"] == S[-1] / S[0] < 0.2
+    # any scaling of the displacement norm gives the same answer
+    scaled = [dict(p, increment_norm=7.0 * p["increment_norm"]) for p in path]
+    assert limit_point(scaled, t_failed)["t_estimate"] == pytest.approx(0.8, abs=1e-12)
+
+
+def test_limit_point_rejects_other_failures():
+    from dolfinx_granular.loading import limit_point
+
+    linear = [{"phase": "p", "t": 0.1 * k, "dt": 0.1, "increment_norm": 0.02} for k in range(1, 6)]
+    assert limit_point(linear, 0.55) is None  # stiff path: the failure is not a limit point
+    path = smooth_limit_path(4, t_top=1.0)  # still far from the maximum (S at 35 % of S_first)
+    assert limit_point(path, path[-1]["t"] + 1e-3) is None
+    assert limit_point(path[:2], 1.0) is None  # too few increments to tell
+    path = smooth_limit_path(8, t_top=1.0)
+    # a failure just after t_last, far before the extrapolated maximum, is something else
+    assert limit_point(path, path[-1]["t"] + 1e-3 * (1 - path[-1]["t"])) is None
