@@ -1166,7 +1166,7 @@ def write_markdown(res, out, paths, command, elapsed):
         f"state: `cauchy` {1e3 * p['cauchy']:.2f} ms, `stress` {1e3 * p['stress']:.2f} ms, against "
         f"`evaluate` (P and A) {1e3 * p['evaluate']:.2f} ms and `spatial_tangent` "
         f"{1e3 * p['spatial_tangent']:.2f} ms.")
-    ss, ul = it["small_strain"], it["ufl_linear"]
+    ss = it["small_strain"]
     add(f"* **Small-strain level (eq. 15).** `SmallStrainRVE`: P = C : eps, A = C, no contact work: "
         f"{ss['best']['kernel']:.3f} ms per iteration in its material law against "
         f"{tk['best']['kernel']:.3f} ms for Taylor, {ss['run']['iterations']} iterations for the run "

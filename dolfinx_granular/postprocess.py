@@ -7,7 +7,6 @@ Functions that take a communicator gather to rank 0 what they need; pyvista is i
 from __future__ import annotations
 
 import numpy as np
-from mpi4py import MPI
 
 
 def von_mises(sigma) -> np.ndarray:

@@ -2,8 +2,6 @@
 no traceback (unless ``--debug``), also under ``mpirun -n 2``; a gmsh model without the required
 physical groups."""
 
-import os
-import shutil
 import subprocess
 import sys
 
@@ -13,19 +11,12 @@ import pytest
 from dolfinx_granular import Packing
 from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-DEMO = os.path.join(ROOT, "demos", "slope.py")
-ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+from scripts import MPI_ENV, ROOT, slope_command
 
 
 def demo(*args, ranks=1, cwd=ROOT):
-    cmd = [sys.executable, DEMO, *args]
-    if ranks > 1:
-        mpirun = shutil.which("mpirun")
-        if mpirun is None:
-            pytest.skip("mpirun not found")
-        cmd = [mpirun, "-n", str(ranks), "--oversubscribe", *cmd]
-    return subprocess.run(cmd, cwd=cwd, env=ENV, capture_output=True, text=True, timeout=300)
+    return subprocess.run(slope_command(*args, ranks=ranks), cwd=cwd, env=MPI_ENV,
+                          capture_output=True, text=True, timeout=300)
 
 
 def assert_user_error(proc, *words, mpirun=False):

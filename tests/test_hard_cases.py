@@ -3,11 +3,9 @@ footing load and an uplift. Failed steps are cut back and logged; both loads exc
 can carry (a limit point of the load-settlement path), so the run stops at its last converged state
 with every number finite and reports the limit load."""
 
-import csv
-import importlib.util
 import json
 import math
-import os
+import subprocess
 
 import numpy as np
 import pytest
@@ -15,26 +13,20 @@ import pytest
 pytest.importorskip("dolfinx")
 from mpi4py import MPI  # noqa: E402
 
-from dolfinx_granular import generate_packing  # noqa: E402
+from scripts import MPI_ENV, ROOT, load_demo, read_outputs, slope_command  # noqa: E402
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from dolfinx_granular import generate_packing  # noqa: E402
 
 
 def slope_module():
-    spec = importlib.util.spec_from_file_location("slope_demo", os.path.join(ROOT, "demos", "slope.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_demo("slope")
 
 
 def run(tmp_path, load_factor, **kwargs):
     summary = slope_module().run(generate_packing(70, seed=1), steps=4, out=str(tmp_path),
                                  comm=MPI.COMM_SELF, figure=False, verbose=False,
                                  load_factor=load_factor, **kwargs)
-    with open(tmp_path / "summary.json") as f:
-        on_disk = json.load(f)
-    with open(tmp_path / "convergence.csv") as f:
-        rows = list(csv.DictReader(f))
+    on_disk, rows = read_outputs(tmp_path)
     return summary, on_disk, rows
 
 
@@ -137,20 +129,11 @@ def test_stabiliser_effect_is_measured_and_absent_while_contacts_hold(tmp_path):
 def test_uplift_on_two_ranks_matches_serial(tmp_path):
     """The same cut-backs and the same stopping point under mpirun -n 2: RVE errors and singular
     factorisations on one rank are failures on all ranks, nobody hangs."""
-    import shutil
-    import subprocess
-    import sys
-
-    mpirun = shutil.which("mpirun")
-    if mpirun is None:
-        pytest.skip("mpirun not found")
-    serial, _, _ = run(tmp_path / "np1", -0.25)
     out = tmp_path / "np2"
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    proc = subprocess.run([mpirun, "-n", "2", "--oversubscribe", sys.executable,
-                           os.path.join(ROOT, "demos", "slope.py"), "--particles", "70", "--seed",
-                           "1", "--steps", "4", "--no-figure", "--load-factor", "-0.25", "--out",
-                           str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    cmd = slope_command("--particles", "70", "--seed", "1", "--steps", "4", "--no-figure",
+                        "--load-factor", "-0.25", "--out", out, ranks=2)
+    serial, _, _ = run(tmp_path / "np1", -0.25)
+    proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1, proc.stdout[-3000:] + proc.stderr[-3000:]  # stopped, not crashed
     assert "Traceback" not in proc.stderr
     with open(out / "summary.json") as f:

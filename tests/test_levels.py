@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from packings import random_packing
 
-from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError, generate_packing
+from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, generate_packing
 from dolfinx_granular.levels import AdaptiveRVE, SmallStrainRVE, isotropic_lame, singular_values_2x2
 
 K_N = 2.8e7
@@ -261,29 +261,13 @@ def test_singular_values_2x2(rng):
 # -- the levels and the stress-only final residual inside a Newton solve ---------------------------
 
 def column_problem(rve, prefix, skip_final_tangent=False, n=4, pressure=2e5):
-    """A 10 m x 10 m column on rollers, fixed base, non-uniform top pressure (Pa)."""
+    """The shared column (tests/columns.py) under a top pressure (Pa), counting the material's
+    stress-only and tangent updates."""
     pytest.importorskip("dolfinx")
-    import ufl
-    from dolfinx import fem, mesh
-    from mpi4py import MPI
+    from columns import granular_column
 
-    from dolfinx_granular.material import GranularMaterial
-    from dolfinx_granular.solver import NewtonSolver
-
-    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [n, n], mesh.CellType.quadrilateral)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
-    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
-    material = GranularMaterial(rve, u)
-    top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))
-    bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
-    walls = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 10))
-    ds = ufl.Measure("ds", msh, subdomain_data=mesh.meshtags(msh, 1, top, np.full_like(top, 1)))
-    x = ufl.SpatialCoordinate(msh)
-    residual = material.residual_form(v) + pressure * (1 + 0.05 * x[0]) * v[1] * ds(1)
-    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
-           fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0))]
-    solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material, prefix=prefix,
-                          skip_final_tangent=skip_final_tangent)
+    solver, material, u, _ = granular_column(rve, prefix, n=n, pressure=pressure,
+                                             skip_final_tangent=skip_final_tangent)
     calls = {True: 0, False: 0}
     update = material.update
 
@@ -308,6 +292,7 @@ def test_final_residual_skips_the_tangent(jammed):
     # same iterates, same answer: the stress is identical with and without the tangent to round-off
     assert r1.iterations == r0.iterations
     assert np.allclose(u1, u0, rtol=0, atol=1e-12 * np.abs(u0).max())
+    assert np.allclose(P1, P0, rtol=0, atol=1e-10 * np.abs(P0).max())
     # one tangent per Jacobian; the final residual (energy norm already converged) is stress only
     assert c0 == {True: r0.iterations + 1, False: 0}
     assert c1 == {True: r1.iterations, False: 1}

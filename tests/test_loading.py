@@ -9,6 +9,8 @@ import ufl  # noqa: E402
 from dolfinx import fem, mesh  # noqa: E402
 from mpi4py import MPI  # noqa: E402
 
+from columns import granular_column  # noqa: E402
+
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
 from dolfinx_granular.loading import LoadStepper  # noqa: E402
 from dolfinx_granular.material import GranularMaterial  # noqa: E402
@@ -16,25 +18,10 @@ from dolfinx_granular.solver import STAGNATION, NewtonSolver  # noqa: E402
 
 
 def column(prefix, n=4, stabilise=0.0, material_class=GranularMaterial, **solver_kwargs):
-    """10 m x 10 m column, fixed base, rollers on the sides, top pressure ``p`` (a Constant, Pa,
-    positive = downward) varying along the top."""
-    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [n, n], mesh.CellType.quadrilateral)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
-    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
-    material = material_class(TaylorRVE(generate_packing(70, seed=4), 2.8e7), u, stabilise=stabilise)
-    top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))
-    bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
-    walls = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 10))
-    ds = ufl.Measure("ds", msh, subdomain_data=mesh.meshtags(msh, 1, top, np.full_like(top, 1)))
-    x = ufl.SpatialCoordinate(msh)
-    p = fem.Constant(msh, 0.0)
-    residual = material.residual_form(v) + p * (1 + 0.05 * x[0]) * v[1] * ds(1)
-    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
-           fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0))]
+    """The shared column (tests/columns.py) of a 70-particle RVE, top pressure p = 0 to start."""
     solver_kwargs.setdefault("max_it", 10)
-    solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material, prefix=prefix,
-                          **solver_kwargs)
-    return solver, material, u, p
+    return granular_column(TaylorRVE(generate_packing(70, seed=4), 2.8e7), prefix, n=n,
+                           material_class=material_class, stabilise=stabilise, **solver_kwargs)
 
 
 def all_finite(a):

@@ -1,24 +1,20 @@
 """demos/rve_study.py at reduced size: files, tables, and numbers recomputed independently."""
 
 import csv
-import importlib.util
 import json
-import os
 import time
 
 import numpy as np
 import pytest
 
-from dolfinx_granular import Packing, TaylorRVE
+from scripts import load_demo
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from dolfinx_granular import Packing, TaylorRVE
 
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
-    spec = importlib.util.spec_from_file_location("rve_study", os.path.join(ROOT, "demos", "rve_study.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_demo("rve_study")
     out = tmp_path_factory.mktemp("rve_study")
     t0 = time.perf_counter()
     assert mod.main(["--out", str(out), "--small"]) == 0

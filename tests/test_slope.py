@@ -1,9 +1,5 @@
 """The slope demo at reduced size: its files, and serial and ``mpirun -n 2`` runs agreeing."""
 
-import csv
-import json
-import os
-import shutil
 import subprocess
 import sys
 
@@ -11,8 +7,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("dolfinx")
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-DEMO = os.path.join(ROOT, "demos", "slope.py")
+from scripts import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
 
 
 @pytest.mark.mpi
@@ -65,24 +60,14 @@ def test_geometry_rejects_off_grid_dimensions():
 
 
 def run_demo(out, *args, ranks=1):
-    cmd = [sys.executable, DEMO, "--particles", "70", "--seed", "1", "--steps", "2", "--out", str(out), *args]
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    if ranks > 1:
-        mpirun = shutil.which("mpirun")
-        if mpirun is None:
-            pytest.skip("mpirun not found")
-        cmd = [mpirun, "-n", str(ranks), "--oversubscribe", *cmd]
-    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    cmd = slope_command("--particles", "70", "--seed", "1", "--steps", "2", "--out", out, *args,
+                        ranks=ranks)
+    proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout
 
 
-def read(out):
-    with open(os.path.join(out, "summary.json")) as f:
-        summary = json.load(f)
-    with open(os.path.join(out, "convergence.csv")) as f:
-        rows = list(csv.DictReader(f))
-    return summary, rows
+read = read_outputs
 
 
 @pytest.mark.slow

@@ -2,42 +2,23 @@
 failure reporting, and quadratic convergence of a small slope run."""
 
 import csv
-import importlib.util
-import os
 
 import numpy as np
 import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
-import ufl  # noqa: E402
-from dolfinx import fem, mesh  # noqa: E402
 from mpi4py import MPI  # noqa: E402
 
-from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular.material import GranularMaterial  # noqa: E402
-from dolfinx_granular.solver import NewtonSolver  # noqa: E402
+from columns import granular_column  # noqa: E402
+from scripts import load_demo  # noqa: E402
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
 
 
 def column(pressure, petsc_options=None, prefix="col_", n=6):
-    """A 10 m x 10 m column on rollers with a fixed base under a top pressure (Pa)."""
-    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [n, n], mesh.CellType.quadrilateral)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
-    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
-    material = GranularMaterial(TaylorRVE(generate_packing(70, seed=4), 2.8e7), u)
-    top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))
-    bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
-    walls = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 10))
-    ds = ufl.Measure("ds", msh, subdomain_data=mesh.meshtags(msh, 1, top, np.full_like(top, 1)))
-    x = ufl.SpatialCoordinate(msh)
-    # A pressure varying along the top so that the solution is not homogeneous.
-    residual = material.residual_form(v) + pressure * (1 + 0.05 * x[0]) * v[1] * ds(1)
-    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
-           fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0))]
-    solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material,
-                          prefix=prefix, petsc_options=petsc_options)
-    return solver, material, u
+    """The shared column (tests/columns.py) of a 70-particle RVE under a top pressure (Pa)."""
+    return granular_column(TaylorRVE(generate_packing(70, seed=4), 2.8e7), prefix, n=n,
+                           pressure=pressure, petsc_options=petsc_options)[:3]
 
 
 def energies(result):
@@ -98,16 +79,9 @@ def test_failure_is_reported_not_raised():
     solver.destroy()
 
 
-def _slope_module():
-    spec = importlib.util.spec_from_file_location("slope_demo", os.path.join(ROOT, "demos", "slope.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_small_slope_run_converges_quadratically(tmp_path):
     """All 21 load steps of the slope with a 70-particle RVE, no figure."""
-    slope = _slope_module()
+    slope = load_demo("slope")
     summary = slope.run(generate_packing(70, seed=2), steps=20, out=str(tmp_path),
                         comm=MPI.COMM_SELF, figure=False, verbose=False)
     assert summary["converged"], summary["failed"]
