@@ -20,7 +20,9 @@ converged steps (to split a run on purpose).
 
 Writes to DIR: convergence.csv (one row per Newton step: step, iteration, residual norm at the
 iterate the step started from, relative energy norm |R_k . du_k| / |R_0 . du_0|), summary.json
-(iterations per step, footing settlement, von Mises extremes, timings; wall_time counts from the
+(iterations per step, footing settlement, von Mises extremes, timings; per step the RVEs without
+a loaded contact, ``open_points``, and those whose tangent has lost strong ellipticity,
+``non_elliptic_points``; a stop at a limit load in ``failed.limit_load``; wall_time counts from the
 start of main, packing generation and JIT compilation included), slope.xdmf (+ .h5: displacement
 and cell-mean von Mises per step) and slope.png (figure 7).
 """
@@ -83,7 +85,8 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     from dolfinx_granular import TaylorRVE
     from dolfinx_granular.material import GranularMaterial
     from dolfinx_granular.postprocess import (cell_function, gather_mesh, global_extremum,
-                                              nearest_point_value, plot_slope, von_mises)
+                                              min_acoustic_eigenvalue, nearest_point_value,
+                                              plot_slope, von_mises)
     from dolfinx_granular.loading import Cutback, LoadStepper
     from dolfinx_granular.solver import NewtonSolver
     from meshes.slope import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
@@ -203,6 +206,15 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     time_output = 0.0
     clock = [time.perf_counter()]
 
+    def non_elliptic_points():
+        """Points whose tangent has lost strong ellipticity (localisation possible)."""
+        A = getattr(material, "tangent", None)
+        if A is None:
+            return 0
+        lowest = min_acoustic_eigenvalue(A) if len(A) else np.zeros(0)
+        scale = comm.allreduce(float(np.abs(A).max()) if len(A) else 0.0, op=MPI.MAX)
+        return comm.allreduce(int(np.count_nonzero(lowest < -1e-12 * scale)))
+
     def settlement_now():
         local = [float(u.x.array[2 * d + 1]) for d in edge_dofs]
         return [s for part in comm.allgather(local) for s in part][0]
@@ -219,6 +231,9 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
                           "iterations": result.iterations, "converged": True,
                           "residual_norm": result.residual_norm, "reason": result.reason_name,
                           "open_points": comm.allreduce(getattr(material, "n_open", 0)),
+        # at the last converged step: points whose tangent lost strong ellipticity
+        "non_elliptic_points": step_info[-1]["non_elliptic_points"] if step_info else 0,
+                          "non_elliptic_points": non_elliptic_points(),
                           "settlement": settlement_now(), "stabiliser_force": stabiliser_share(),
                           "time": elapsed})
         say(f"step {step:2d}/{n_nominal}: gravity x{lam_g:.2f}, footing {lam_f * g.footing_load:.3e} N/m, "
@@ -323,6 +338,8 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         "load_factor": load_factor,
         "stabilise": stabilise,
         "open_points": comm.allreduce(getattr(material, "n_open", 0)),
+        # at the last converged step: points whose tangent lost strong ellipticity
+        "non_elliptic_points": step_info[-1]["non_elliptic_points"] if step_info else 0,
         # largest |nodal force of the stabilising stress| / |external load| over the steps
         "stabiliser_force_max": max([s.get("stabiliser_force", 0.0) for s in step_info] or [0.0]),
         "iterations": iterations,

@@ -134,6 +134,12 @@ class GranularMaterial:
             self._points = x.reshape(-1, 2)
         return self._points
 
+    @property
+    def tangent(self) -> np.ndarray:
+        """(n_points, 2, 2, 2, 2) view of dP/dF in Pa at the last ``update(tangent=True)``,
+        ``[q, a, b, c, d] = dP_ab / dF_cd`` (stabiliser included)."""
+        return self._A_view
+
     def deformation_gradient(self) -> np.ndarray:
         """F = I + grad u (n_points, 2, 2) at the owned quadrature points for the current u."""
         t = time.perf_counter()

@@ -23,6 +23,29 @@ def von_mises(sigma) -> np.ndarray:
     return np.sqrt(1.5 * np.einsum("qij,qij->q", s, s))
 
 
+def min_acoustic_eigenvalue(A, n_directions=180) -> np.ndarray:
+    """Smallest eigenvalue (n,) in Pa of the acoustic tensor ``Q_ik(N) = A_iJkL N_J N_L`` over
+    ``n_directions`` unit vectors N equally spaced in [0, pi), at each point.
+
+    A is dP/dF (n, 2, 2, 2, 2) with major symmetry (hyperelastic), so Q is symmetric. A negative
+    value means the point has lost strong ellipticity: a band of localised deformation normal to
+    that N can form, and the boundary value problem's solution depends on the mesh size there.
+    """
+    A = np.asarray(A, dtype=float)
+    if A.ndim != 5 or A.shape[1:] != (2, 2, 2, 2):
+        raise ValueError(f"A must have shape (n, 2, 2, 2, 2), got {A.shape}")
+    if int(n_directions) < 1:
+        raise ValueError(f"n_directions must be >= 1, got {n_directions!r}")
+    lowest = np.full(A.shape[0], np.inf)
+    for theta in np.pi * np.arange(int(n_directions)) / int(n_directions):
+        N = np.array([np.cos(theta), np.sin(theta)])
+        Q = np.einsum("qiJkL,J,L->qik", A, N, N)
+        half_trace = 0.5 * (Q[:, 0, 0] + Q[:, 1, 1])
+        radius = np.hypot(0.5 * (Q[:, 0, 0] - Q[:, 1, 1]), 0.5 * (Q[:, 0, 1] + Q[:, 1, 0]))
+        np.minimum(lowest, half_trace - radius, out=lowest)
+    return lowest
+
+
 def global_extremum(comm, values, points, kind="max"):
     """Global max or min of per-rank ``values`` (n,) with the ``points`` (n, d) where it occurs.
 

@@ -85,6 +85,9 @@ def test_doubled_footing_load_reaches_the_limit_load_past_the_nominal_one(tmp_pa
     # well past the nominal load (t = 0.5 of twice the load), short of the doubled one
     limit = check_limit_load(summary, footing_t)
     assert 0.55 <= limit["t_converged"] < 1.0
+    # the soil under the footing has lost strong ellipticity before the limit; not under gravity
+    assert summary["step_info"][0]["non_elliptic_points"] == 0
+    assert summary["non_elliptic_points"] == summary["step_info"][-1]["non_elliptic_points"] > 0
     check_displacement_rate_grows(tmp_path)
 
 
