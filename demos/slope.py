@@ -231,8 +231,6 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
                           "iterations": result.iterations, "converged": True,
                           "residual_norm": result.residual_norm, "reason": result.reason_name,
                           "open_points": comm.allreduce(getattr(material, "n_open", 0)),
-        # at the last converged step: points whose tangent lost strong ellipticity
-        "non_elliptic_points": step_info[-1]["non_elliptic_points"] if step_info else 0,
                           "non_elliptic_points": non_elliptic_points(),
                           "settlement": settlement_now(), "stabiliser_force": stabiliser_share(),
                           "time": elapsed})
@@ -339,7 +337,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         "stabilise": stabilise,
         "open_points": comm.allreduce(getattr(material, "n_open", 0)),
         # at the last converged step: points whose tangent lost strong ellipticity
-        "non_elliptic_points": step_info[-1]["non_elliptic_points"] if step_info else 0,
+        "non_elliptic_points": step_info[-1].get("non_elliptic_points", 0) if step_info else 0,
         # largest |nodal force of the stabilising stress| / |external load| over the steps
         "stabiliser_force_max": max([s.get("stabiliser_force", 0.0) for s in step_info] or [0.0]),
         "iterations": iterations,
