@@ -211,7 +211,7 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         A = getattr(material, "tangent", None)
         if A is None:
             return 0
-        lowest = min_acoustic_eigenvalue(A) if len(A) else np.zeros(0)
+        lowest = min_acoustic_eigenvalue(A)
         scale = comm.allreduce(float(np.abs(A).max()) if len(A) else 0.0, op=MPI.MAX)
         return comm.allreduce(int(np.count_nonzero(lowest < -1e-12 * scale)))
 

@@ -180,9 +180,8 @@ class LoadStepper:
                 self.log(f"{phase}: t = {t:.6g} -> {target:.6g} failed ({cut.reason}); "
                          + (f"increment {target - t:.3g} cannot be halved further" if smallest
                             else f"{self.max_cutbacks} cut-backs in a row") + ", giving up")
-                failed_at = min(c.t_to for c in self.cutbacks
-                                if c.phase == phase and c.t_from == cut.t_from)
-                limit = limit_point([p for p in self.path if p["phase"] == phase], failed_at)
+                # (the last attempt is the smallest: each cut-back halves the increment)
+                limit = limit_point([p for p in self.path if p["phase"] == phase], target)
                 self.failed = {"phase": phase, "step": self.step + 1, "t": float(t),
                                "reason": cut.reason, "limit_load": limit}
                 if limit is not None:
