@@ -56,3 +56,19 @@ def reference_modulus(packing, k_n, images=3):
     L, d = L[on], d[on]
     n = L / d[:, None]
     return np.einsum("m,ma,mb,mc,md->abcd", k_n * d**2, n, n, n, n) / (2.0 * packing.area)
+
+
+def central_differences(model, F, h):
+    """Central differences of ``model.stress`` (any material point with ``stress(F) -> (W, P)``)
+    in each component of F (n, 2, 2): ``(dW/dF (n, 2, 2), dP/dF (n, 2, 2, 2, 2))``, step h."""
+    dW = np.empty(F.shape)
+    dP = np.empty(F.shape + (2, 2))
+    for c in range(2):
+        for d in range(2):
+            dF = np.zeros((2, 2))
+            dF[c, d] = h
+            Wp, Pp = model.stress(F + dF)
+            Wm, Pm = model.stress(F - dF)
+            dW[:, c, d] = (Wp - Wm) / (2 * h)
+            dP[..., c, d] = (Pp - Pm) / (2 * h)
+    return dW, dP
