@@ -24,7 +24,7 @@ from dolfinx_granular import TaylorRVE, generate_packing
 K_N = 2.8e7
 
 
-@njit(cache=True)
+@njit  # no on-disk cache: it breaks when the script is loaded under another module name
 def numba_loop(F, L, R, K, P, A):
     """Straightforward baseline: every candidate, every entry of A per active contact."""
     for q in range(F.shape[0]):

@@ -95,10 +95,9 @@ class UFLLinearMaterial:
     """
 
     def __init__(self, rve, u, quadrature_degree=2):
-        import basix
         import ufl
-        from dolfinx import fem
 
+        from dolfinx_granular import _dolfinx as dfx
         from dolfinx_granular.levels import isotropic_lame
 
         self.rve = rve
@@ -108,12 +107,13 @@ class UFLLinearMaterial:
         k = int(quadrature_degree)
         self.dx = ufl.Measure("dx", domain=msh,
                               metadata={"quadrature_degree": k, "quadrature_scheme": "default"})
-        X, _ = basix.make_quadrature(getattr(basix.CellType, msh.topology.cell_type.name), k)
+        X = dfx.quadrature_points(msh, k)
+        self.mesh = msh
         self.n_qp = X.shape[0]
         self.cells = np.arange(msh.topology.index_map(2).size_local, dtype=np.int32)
-        self._sigma_expr = fem.Expression(self.sigma(u), X)
-        self._F_expr = fem.Expression(ufl.Identity(2) + ufl.grad(u), X)
-        self._x_expr = fem.Expression(ufl.SpatialCoordinate(msh), X)
+        self._sigma_expr = dfx.expression(self.sigma(u), X)
+        self._F_expr = dfx.expression(ufl.Identity(2) + ufl.grad(u), X)
+        self._x_expr = dfx.expression(ufl.SpatialCoordinate(msh), X)
         self.timings = {"F": 0.0, "rve": 0.0}
 
     def sigma(self, w):
@@ -136,9 +136,9 @@ class UFLLinearMaterial:
         return ufl.inner(self.sigma(du), ufl.grad(v)) * self.dx
 
     def _eval(self, expr, size):
-        if not self.cells.size:
-            return np.zeros((0, size))
-        return expr.eval(self.cells).reshape(-1, size)
+        from dolfinx_granular._dolfinx import evaluate
+
+        return evaluate(expr, self.mesh, self.cells).reshape(-1, size)
 
     @property
     def n_points(self):

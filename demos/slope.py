@@ -78,11 +78,8 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         stop_after: stop after this many converged load steps (all phases, counted from 1).
     """
     t_start = time.perf_counter() if started is None else started
-    import ufl
-    from dolfinx import fem, io
-    from petsc4py import PETSc
-
-    from dolfinx_granular import TaylorRVE
+    from dolfinx_granular import TaylorRVE  # first: it loads the MPI of DOLFINx's PyPI wheel
+    from dolfinx_granular._dolfinx import function_space, vector_space
     from dolfinx_granular.material import GranularMaterial
     from dolfinx_granular.postprocess import (cell_function, gather_mesh, global_extremum,
                                               min_acoustic_eigenvalue, nearest_point_value,
@@ -91,12 +88,17 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
     from dolfinx_granular.solver import NewtonSolver
     from meshes.slope import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
 
+    import dolfinx.fem.petsc  # noqa: F401  (fem.petsc below)
+    import ufl
+    from dolfinx import fem, io
+    from petsc4py import PETSc
+
     g = geometry or SlopeGeometry()
     say = (lambda *a: print(*a, flush=True)) if (verbose and comm.rank == 0) else (lambda *a: None)
     if comm.rank == 0:
         os.makedirs(out, exist_ok=True)
     msh, _, facets = create_mesh(comm, g)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    V = vector_space(msh)
     u = fem.Function(V, name="displacement")
     v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
     rve = TaylorRVE(packing, normal_stiffness)
@@ -143,12 +145,12 @@ def run(packing, steps=20, out="results/slope", comm=MPI.COMM_WORLD, geometry=No
         for form in (stab_form, f_ext_form):
             b = fem.petsc.assemble_vector(form)
             b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            fem.petsc.set_bc(b, bcs, scale=0.0)  # reactions are not forces on the soil
+            fem.petsc.set_bc(b, bcs, None, 0.0)  # reactions are not forces on the soil
             norms.append(b.norm())
             b.destroy()
         return norms[0] / norms[1] if norms[1] > 0 else 0.0
 
-    V0 = fem.FunctionSpace(msh, ("DG", 0))
+    V0 = function_space(msh, "DG", 0)
     xdmf_path = os.path.join(out, "slope.xdmf")
     with io.XDMFFile(comm, xdmf_path, "w") as xdmf:
         xdmf.write_mesh(msh)

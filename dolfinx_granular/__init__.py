@@ -5,6 +5,13 @@ The microscale lives in :mod:`~dolfinx_granular.packing` (disk packings) and
 :mod:`~dolfinx_granular.kernel`). DOLFINx is imported only by the modules that need it.
 """
 
+import importlib.util as _importlib_util
+
+# The PyPI wheel of DOLFINx (dolfinx-solver-real) loads its MPI library in `dolfinx_solver`;
+# importing dolfinx or petsc4py before it fails (libmpi.so.12). Do it for the user.
+if _importlib_util.find_spec("dolfinx_solver") is not None:
+    import dolfinx_solver  # noqa: F401
+
 from .packing import Packing, PackingFileError
 from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
 from .gsd import SieveCurve, cen_standard_sand
@@ -21,7 +28,7 @@ __version__ = "0.1.0"
 # DOLFINx-side names, imported on first use so that `import dolfinx_granular` stays DOLFINx-free.
 _LAZY = {
     "GranularMaterial": "material", "NewtonSolver": "solver", "SolveResult": "solver",
-    "von_mises": "postprocess",
+    "von_mises": "postprocess", "vector_space": "_dolfinx",
 }
 __all__ += list(_LAZY)
 

@@ -1,4 +1,4 @@
-"""The Taylor RVE as a DOLFINx user material: quadrature-space stress and tangent (DOLFINx 0.5).
+"""The Taylor RVE as a DOLFINx user material: quadrature-space stress and tangent (any supported DOLFINx).
 
 Every quadrature point of the owned cells carries the same :class:`~dolfinx_granular.rve.TaylorRVE`.
 :meth:`GranularMaterial.update` evaluates F = I + grad u at those points, calls the Numba kernel and
@@ -7,7 +7,7 @@ of :meth:`~GranularMaterial.residual_form` and :meth:`~GranularMaterial.jacobian
 cells are skipped: cell integrals never read their quadrature values, so no RVE is evaluated twice
 across ranks.
 
-Flattening convention (DOLFINx 0.5 cannot hold rank-4 quadrature tensors): F, P and grad v are
+Flattening convention (DOLFINx 0.5 cannot hold rank-4 quadrature tensors; one layout on every release): F, P and grad v are
 flattened row-major, ``[F00, F01, F10, F11]``, and the tangent is the (4, 4) matrix
 ``A[2a+b, 2c+d] = dP_ab / dF_cd``.
 """
@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import time
 
-import basix
 import numpy as np
 import ufl
 from dolfinx import fem
 
+from . import _dolfinx as dfx
 from .rve import TaylorRVE, UnsupportedDeformationError
 
 
@@ -77,16 +77,12 @@ class GranularMaterial:
         self.u = u
         self.mesh = msh
         self.quadrature_degree = k
-        cell = msh.ufl_cell()
-        P_el = ufl.TensorElement("Quadrature", cell, k, shape=(2, 2), quad_scheme="default")
-        A_el = ufl.TensorElement("Quadrature", cell, k, shape=(4, 4), quad_scheme="default")
-        self.P = fem.Function(fem.FunctionSpace(msh, P_el), name="P")
-        self.A = fem.Function(fem.FunctionSpace(msh, A_el), name="A")
+        self.P = fem.Function(dfx.quadrature_space(msh, k, (2, 2)), name="P")
+        self.A = fem.Function(dfx.quadrature_space(msh, k, (4, 4)), name="A")
         self.dx = ufl.Measure(
             "dx", domain=msh, metadata={"quadrature_degree": k, "quadrature_scheme": "default"}
         )
-        celltype = getattr(basix.CellType, msh.topology.cell_type.name)
-        X, _ = basix.make_quadrature(celltype, k)
+        X = dfx.quadrature_points(msh, k)
         self.n_qp = X.shape[0]
         tdim = msh.topology.dim
         imap = msh.topology.index_map(tdim)
@@ -97,13 +93,14 @@ class GranularMaterial:
             Q = f.function_space
             # Writing P and A by position needs dof = cell * n_qp + q with owned cells first.
             if (Q.dofmap.index_map.size_local != n
-                    or not np.array_equal(Q.dofmap.list.array, np.arange(n_all * self.n_qp))):
+                    or not np.array_equal(dfx.cell_dofs(Q.dofmap).ravel(),
+                                          np.arange(n_all * self.n_qp))):
                 raise RuntimeError(
                     "the quadrature dofmap is not cell-major (dof = cell * n_qp + q); this DOLFINx "
-                    "version lays out quadrature spaces differently from 0.5 and is not supported"
+                    "version lays out quadrature spaces differently and is not supported"
                 )
-        self._F_expr = fem.Expression(ufl.Identity(2) + ufl.grad(u), X)
-        self._x_expr = fem.Expression(ufl.SpatialCoordinate(msh), X)
+        self._F_expr = dfx.expression(ufl.Identity(2) + ufl.grad(u), X)
+        self._x_expr = dfx.expression(ufl.SpatialCoordinate(msh), X)
         self.W = np.zeros(n)
         self.F = np.tile(np.eye(2), (n, 1, 1))
         self._P_view = self.P.x.array[: 4 * n].reshape(n, 2, 2)
@@ -130,8 +127,7 @@ class GranularMaterial:
     def points(self) -> np.ndarray:
         """(n_points, 2) reference coordinates of the owned quadrature points (m)."""
         if not hasattr(self, "_points"):
-            x = self._x_expr.eval(self.cells) if self.cells.size else np.zeros((0, 2 * self.n_qp))
-            self._points = x.reshape(-1, 2)
+            self._points = dfx.evaluate(self._x_expr, self.mesh, self.cells).reshape(-1, 2)
         return self._points
 
     @property
@@ -143,10 +139,7 @@ class GranularMaterial:
     def deformation_gradient(self) -> np.ndarray:
         """F = I + grad u (n_points, 2, 2) at the owned quadrature points for the current u."""
         t = time.perf_counter()
-        if self.cells.size:
-            F = self._F_expr.eval(self.cells).reshape(-1, 2, 2)
-        else:
-            F = np.zeros((0, 2, 2))
+        F = dfx.evaluate(self._F_expr, self.mesh, self.cells).reshape(-1, 2, 2)
         self.timings["F"] += time.perf_counter() - t
         return F
 

@@ -86,9 +86,11 @@ def cell_function(V0, owned_values):
     """Fill a DG0 Function on space ``V0`` from (n_owned_cells,) values; ghosts are scattered."""
     from dolfinx import fem
 
+    from ._dolfinx import cell_dofs
+
     f = fem.Function(V0)
     n = owned_values.shape[0]
-    dofs = V0.dofmap.list.array.reshape(-1)[:n]
+    dofs = cell_dofs(V0.dofmap).reshape(-1)[:n]
     f.x.array[dofs] = owned_values
     f.x.scatter_forward()
     return f
@@ -100,11 +102,11 @@ def gather_mesh(V, u, cell_values):
     Returns on rank 0 ``(points (N, 3), cells (M, k), cell_types (M,), u (N, 2), values (M,))``
     (reference coordinates; points on partition boundaries are duplicated), else ``None``.
     """
-    from dolfinx.plot import create_vtk_mesh
+    from ._dolfinx import vtk_mesh
 
     msh = V.mesh
     n_owned = msh.topology.index_map(msh.topology.dim).size_local
-    topology, cell_types, geometry = create_vtk_mesh(V)
+    topology, cell_types, geometry = vtk_mesh(V)
     k = topology[0]
     cells = topology.reshape(-1, k + 1)[:n_owned, 1:]
     uu = u.x.array.reshape(-1, 2)

@@ -1,4 +1,4 @@
-"""Newton solver for a quadrature-point material: petsc4py SNES (newtonls + LU), DOLFINx 0.5.
+"""Newton solver for a quadrature-point material: petsc4py SNES (newtonls + LU).
 
 The material is evaluated at exactly the state SNES hands to the residual callback (line searches
 write trial points there); the Jacobian callback reuses that tangent only if SNES asks for the
@@ -24,9 +24,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from dolfinx import fem, la
+from dolfinx import fem
 from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, create_matrix, set_bc
 from petsc4py import PETSc
+
+from ._dolfinx import SNES_NAN_REASON, petsc_vec
 
 
 @dataclass
@@ -67,6 +69,7 @@ _FAILURE_WORDS = {
     STAGNATION: "stagnation (contact set cycling)",
     "DIVERGED_LINEAR_SOLVE": "linear solve failed (singular Jacobian or zero pivot)",
     "DIVERGED_FNORM_NAN": "NaN residual",
+    "DIVERGED_FUNCTION_NANORINF": "NaN residual",
     "DIVERGED_MAX_IT": "no convergence within the Newton iteration limit",
     "DIVERGED_LINE_SEARCH": "line search failed",
     "DIVERGED_PETSC_ERROR": "PETSc error",
@@ -129,9 +132,10 @@ class NewtonSolver:
         V = u.function_space
         comm = V.mesh.comm
         self.comm = comm
-        self.b = la.create_petsc_vector(V.dofmap.index_map, V.dofmap.index_map_bs)
+        self._u_vec = petsc_vec(u)
+        self.b = self._u_vec.duplicate()
         self.A = create_matrix(self.a)
-        self.x = u.vector.duplicate()  # SNES's own vector: line searches write trial points
+        self.x = self._u_vec.duplicate()  # SNES's own vector: line searches write trial points
         self._x_eval = self.x.duplicate()
         self._have_eval = False
         self._x_prev = self.x.duplicate()
@@ -153,7 +157,10 @@ class NewtonSolver:
         self.snes.setFunction(self._residual, self.b)
         self.snes.setJacobian(self._jacobian, self.A)
         self.snes.setConvergenceTest(self._converged)
-        self.snes.setTolerances(max_it=self.max_it)
+        # Only this solver's test decides convergence: no step-length test of PETSc's, and a failed
+        # line search is judged by that test too (PETSc >= 3.20 would otherwise stop there).
+        self.snes.setTolerances(max_it=self.max_it, stol=0.0)
+        self.snes.setMaxStepFailures(self.max_it)
         self.snes.setFromOptions()
         self.snes.getKSP().setFromOptions()
         for key in opts:
@@ -164,8 +171,8 @@ class NewtonSolver:
 
     def _evaluate(self, x, tangent=True):
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        x.copy(self.u.vector)
-        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        x.copy(self._u_vec)
+        self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         if self.material is not None:
             t = time.perf_counter()
             try:
@@ -224,6 +231,10 @@ class NewtonSolver:
         self.timings["assembly"] += time.perf_counter() - t
 
     def _converged(self, snes, it, norms):
+        self._verdict = int(self._test(snes, it, norms))
+        return self._verdict
+
+    def _test(self, snes, it, norms):
         fnorm = norms[2]
         x = snes.getSolution()
         R = snes.getFunction()[0]
@@ -249,7 +260,7 @@ class NewtonSolver:
         R.copy(self._R_prev)
         self._rnorm_prev = fnorm
         if not np.isfinite(fnorm):
-            return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
+            return SNES_NAN_REASON
         if fnorm <= self.residual_atol or fnorm == 0.0:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
         if it > 0 and self.history[-1][2] <= self.energy_rtol:
@@ -276,9 +287,10 @@ class NewtonSolver:
         self._stagnated = False
         self._rnorm_prev = float("nan")
         self._have_eval = False
-        set_bc(self.u.vector, self.bcs)
-        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        self.u.vector.copy(self.x)
+        self._verdict = 0
+        set_bc(self._u_vec, self.bcs)
+        self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        self._u_vec.copy(self.x)
         t = time.perf_counter()
         spent = self.timings["rve"] + self.timings["assembly"]
         petsc_error = None
@@ -297,9 +309,14 @@ class NewtonSolver:
                 error = str(err)
             self._error = self._error or next((e for e in self.comm.allgather(error) if e), None)
         else:
-            self.x.copy(self.u.vector)
-            self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self.x.copy(self._u_vec)
+            self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         reason = int(self.snes.getConvergedReason())
+        if reason > 0 and self._verdict <= 0 and self._error:
+            # PETSc >= 3.20 ends a Newton step whose line search met a NaN residual (an RVE
+            # outside its range) without asking the convergence test, and may call it
+            # CONVERGED_SNORM_RELATIVE at the unchanged iterate: that is a failure.
+            reason = SNES_NAN_REASON
         if reason <= 0 or petsc_error is not None:
             # A failed factorisation is sticky in PETSc: every later solve would stop at once
             # with the same error. Drop the factor so that a cut-back starts afresh.

@@ -188,10 +188,11 @@ def model_to_mesh(comm):
     """Distribute the current gmsh model (built on rank 0) over ``comm`` after
     :func:`check_physical_groups`: ``(mesh, cell_tags, facet_tags)``."""
     import gmsh
-    from dolfinx.io import gmshio
+
+    from dolfinx_granular._dolfinx import gmsh_model_to_mesh
 
     check_physical_groups(comm)
-    msh, cell_tags, facet_tags = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2)
+    msh, cell_tags, facet_tags = gmsh_model_to_mesh(gmsh.model, comm, 0, gdim=2)
     msh.name = "slope"
     return msh, cell_tags, facet_tags
 

@@ -7,6 +7,7 @@ import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 
+from dolfinx_granular._dolfinx import vector_space
 from dolfinx_granular.material import GranularMaterial
 from dolfinx_granular.solver import NewtonSolver
 
@@ -19,7 +20,7 @@ def granular_column(rve, prefix, n=4, pressure=0.0, material_class=GranularMater
     ``p * (1 + 0.05 x)`` (p a Constant in Pa, positive = downward; the variation makes the
     solution non-homogeneous). Returns ``Column(solver, material, u, p)``."""
     msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [n, n], mesh.CellType.quadrilateral)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    V = vector_space(msh)
     u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
     material = material_class(rve, u, **({"stabilise": stabilise} if stabilise else {}))
     top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))

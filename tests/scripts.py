@@ -5,10 +5,8 @@ import csv
 import importlib.util
 import json
 import os
-import shutil
 import sys
 
-import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SLOPE = os.path.join(ROOT, "demos", "slope.py")
@@ -34,14 +32,15 @@ def load_demo(name):
 
 
 def slope_command(*args, ranks=1):
-    """``python demos/slope.py *args``, under ``mpirun -n ranks`` if ranks > 1 (the test is
-    skipped without mpirun)."""
+    """``python demos/slope.py *args``, under MPI with ``ranks`` processes if ranks > 1 (with the
+    launcher of this Python's MPI; the test fails without one)."""
     cmd = [sys.executable, SLOPE, *map(str, args)]
     if ranks > 1:
-        mpirun = shutil.which("mpirun")
-        if mpirun is None:
-            pytest.skip("mpirun not found")
-        cmd = [mpirun, "-n", str(ranks), "--oversubscribe", *cmd]
+        from dolfinx_granular._dolfinx import mpi_command
+
+        launcher = mpi_command(ranks)
+        assert launcher is not None, "no MPI launcher (mpiexec/mpirun) found"
+        cmd = [*launcher, *cmd]
     return cmd
 
 

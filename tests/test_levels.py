@@ -297,8 +297,9 @@ def test_levels_drop_into_granular_material(jammed):
     from dolfinx_granular.material import GranularMaterial  # noqa: F401 (skips without dolfinx)
 
     results = {}
+    adaptive = AdaptiveRVE(jammed, 1e-3)
     for name, rve in (("taylor", jammed), ("small", SmallStrainRVE(jammed)),
-                      ("adaptive", AdaptiveRVE(jammed, 1e-3))):
+                      ("adaptive", adaptive)):
         solver, material, u, calls = column_problem(rve, f"lvl_{name}_")
         result = solver.solve()
         assert result.converged, name
@@ -309,5 +310,10 @@ def test_levels_drop_into_granular_material(jammed):
     assert len(hist) <= 2 and (len(hist) == 1 or hist[1][1] <= 1e-12 * hist[0][1])
     u_t, u_s = results["taylor"][1], results["small"][1]
     assert 0 < np.abs(u_s - u_t).max() < 0.5 * np.abs(u_t).max()
-    # adaptive with a provable test: at this load no point qualifies -> exactly Taylor
-    assert np.array_equal(results["adaptive"][1], u_t)
+    # adaptive with a provable test: at this load no point qualifies -> the Taylor law everywhere
+    assert adaptive.counts["linear"] == 0 and adaptive.counts["taylor"] > 0  # (at the answer)
+    # ... and the Taylor answer. Not bit for bit: under MPI, MUMPS sums its parallel reductions in
+    # no fixed order, so two factorisations of the same matrix differ by round-off, and so do the
+    # converged solutions, by about eps * cond(K) * |u| (1e-16 * 1e4 here). Measured: 0 or ~1e-15.
+    u_a = results["adaptive"][1]
+    assert np.abs(u_a - u_t).max() <= 1e-12 * np.abs(u_t).max()

@@ -12,6 +12,7 @@ from mpi4py import MPI  # noqa: E402
 from columns import granular_column  # noqa: E402
 
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
+from dolfinx_granular._dolfinx import vector_space  # noqa: E402
 from dolfinx_granular.loading import LoadStepper  # noqa: E402
 from dolfinx_granular.material import GranularMaterial  # noqa: E402
 from dolfinx_granular.solver import STAGNATION, NewtonSolver  # noqa: E402
@@ -154,7 +155,7 @@ def test_block_pulled_partly_into_tension():
     crushes the top cells beyond the RVE's range; two cut-backs later the block is in equilibrium
     with RVEs at the lifted corner that have lost every contact."""
     msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [6, 6], mesh.CellType.quadrilateral)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    V = vector_space(msh)
     u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
     material = GranularMaterial(TaylorRVE(generate_packing(70, seed=4), 2.8e7), u)
     top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))

@@ -14,6 +14,7 @@ from mpi4py import MPI  # noqa: E402
 from petsc4py import PETSc  # noqa: E402
 
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
+from dolfinx_granular._dolfinx import function_space, petsc_vec, vector_space  # noqa: E402
 from dolfinx_granular.material import GranularMaterial  # noqa: E402
 from dolfinx_granular.solver import NewtonSolver  # noqa: E402
 
@@ -41,7 +42,7 @@ def test_homogeneous_square_matches_kernel_and_reactions(cell):
     Gauss point and the reaction on each edge equals P(F0) n x edge length."""
     rve = small_rve()
     msh = unit_square(3, cell)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    V = vector_space(msh)
     u = fem.Function(V)
     material = GranularMaterial(rve, u)
     v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
@@ -79,7 +80,7 @@ def test_homogeneous_square_matches_kernel_and_reactions(cell):
 def test_update_writes_owned_points_only_and_names_bad_cells():
     rve = small_rve()
     msh = unit_square(2)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    V = vector_space(msh)
     u = fem.Function(V)
     material = GranularMaterial(rve, u)
     n_owned = msh.topology.index_map(2).size_local
@@ -98,10 +99,10 @@ def test_update_writes_owned_points_only_and_names_bad_cells():
 
 def test_rejects_bad_input():
     msh = unit_square(1)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    V = vector_space(msh)
     with pytest.raises(TypeError, match="TaylorRVE"):
         GranularMaterial("not an rve", fem.Function(V))
-    S = fem.FunctionSpace(msh, ("Lagrange", 1))
+    S = function_space(msh, "Lagrange", 1)
     with pytest.raises(ValueError, match="vector displacement"):
         GranularMaterial(small_rve(), fem.Function(S))
 
@@ -111,7 +112,7 @@ def test_taylor_jacobian_against_residual():
     """|R(u + h du) - R(u) - h J(u) du| = O(h^2), while dropping J leaves O(h)."""
     rve = small_rve(seed=5)
     msh = unit_square(4)
-    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    V = vector_space(msh)
     u = fem.Function(V)
     u.interpolate(lambda x: np.stack([-0.02 * x[0] + 0.01 * np.sin(3 * x[1]),
                                       -0.03 * x[1] + 0.01 * x[0] * x[1]]))
@@ -132,7 +133,7 @@ def test_taylor_jacobian_against_residual():
     J = assemble_matrix(a)
     J.assemble()
     Jd = J.createVecLeft()
-    J.mult(d.vector, Jd)
+    J.mult(petsc_vec(d), Jd)
     hs = [1e-1 / 2**k for k in range(5)]
     r1, r2 = [], []
     for h in hs:

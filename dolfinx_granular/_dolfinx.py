@@ -1,0 +1,133 @@
+"""Every difference between the supported DOLFINx releases (0.5.2 to 0.11), in one place.
+
+The rest of the package calls these helpers and never tests a version: each helper detects the
+feature it needs (a name, a signature), not a version number. Tested on DOLFINx 0.5.2 (Debian
+bookworm), 0.9.0 (Debian trixie) and 0.11.0 (the ``dolfinx-solver-real`` wheel on PyPI).
+
+The package's ``__init__`` imports ``dolfinx_solver`` first when it is installed (the PyPI wheel
+loads its MPI library there; ``import dolfinx`` fails without it: ``libmpi.so.12``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import shutil
+import sys
+
+import basix
+import numpy as np
+import ufl
+from dolfinx import fem
+from petsc4py import PETSc
+
+# basix.ufl.quadrature_element exists from DOLFINx 0.7; earlier releases use UFL's legacy elements
+try:
+    from basix.ufl import quadrature_element as _quadrature_element
+except ImportError:  # DOLFINx 0.5 / 0.6
+    _quadrature_element = None
+
+#: SNES reason for a NaN residual: DIVERGED_FNORM_NAN up to PETSc 3.19, then renamed
+SNES_NAN_REASON = int(getattr(PETSc.SNES.ConvergedReason, "DIVERGED_FNORM_NAN", None)
+                      or PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF)
+#: ``fem.functionspace`` (0.7+) or the ``fem.FunctionSpace`` constructor (0.5, 0.6)
+_NEW_SPACES = hasattr(fem, "functionspace")
+#: ``Expression.eval(mesh, cells)`` (0.7+) or ``Expression.eval(cells)`` (0.5, 0.6)
+_EVAL_TAKES_MESH = "mesh" in inspect.signature(fem.Expression.eval).parameters
+
+
+def function_space(msh, family: str, degree: int, shape: tuple = ()):
+    """Lagrange/DG space of the given value ``shape`` (``()`` scalar, ``(2,)`` vector)."""
+    if _NEW_SPACES:
+        return fem.functionspace(msh, (family, degree, tuple(shape)) if shape else (family, degree))
+    if shape:
+        return fem.VectorFunctionSpace(msh, (family, degree), dim=shape[0])
+    return fem.FunctionSpace(msh, (family, degree))
+
+
+def vector_space(msh, degree: int = 1, family: str = "Lagrange"):
+    """Vector space with one component per geometric dimension (displacements)."""
+    return function_space(msh, family, degree, (msh.geometry.dim,))
+
+
+def quadrature_space(msh, degree: int, shape: tuple):
+    """Space of values of ``shape`` at the points of the "default" quadrature scheme of
+    ``degree`` (the scheme that a measure with matching metadata integrates with)."""
+    cell = msh.topology.cell_type.name
+    if _quadrature_element is not None:
+        element = _quadrature_element(cell, value_shape=tuple(shape), scheme="default",
+                                      degree=degree)
+        return fem.functionspace(msh, element)
+    element = ufl.TensorElement("Quadrature", msh.ufl_cell(), degree, shape=tuple(shape),
+                                quad_scheme="default")
+    return fem.FunctionSpace(msh, element)
+
+
+def quadrature_points(msh, degree: int) -> np.ndarray:
+    """Reference points (n_qp, tdim) of the "default" scheme of ``degree`` on the mesh's cells."""
+    celltype = getattr(basix.CellType, msh.topology.cell_type.name)
+    X, _ = basix.make_quadrature(celltype, degree)
+    return X
+
+
+def expression(e, X):
+    """A compiled :class:`dolfinx.fem.Expression` of the UFL expression ``e`` at points ``X``."""
+    return fem.Expression(e, X)
+
+
+def evaluate(expr, msh, cells) -> np.ndarray:
+    """Values of ``expr`` on ``cells`` as (n_cells, n_points * value_size), row-major per point."""
+    cells = np.asarray(cells, dtype=np.int32)
+    if cells.size == 0:
+        return np.zeros((0, 0))
+    values = expr.eval(msh, cells) if _EVAL_TAKES_MESH else expr.eval(cells)
+    return np.asarray(values).reshape(cells.size, -1)
+
+
+def petsc_vec(u):
+    """The PETSc vector (ghosted) behind a Function: ``u.x.petsc_vec`` (0.8+) or ``u.vector``."""
+    vec = getattr(u.x, "petsc_vec", None)
+    return vec if vec is not None else u.vector
+
+
+def cell_dofs(dofmap) -> np.ndarray:
+    """The dofmap as (n_cells, dofs per cell) (an AdjacencyList in 0.5/0.6, an array later)."""
+    dofs = dofmap.list
+    return np.asarray(getattr(dofs, "array", dofs)).reshape(-1, dofmap.dof_layout.num_dofs)
+
+
+def vtk_mesh(V):
+    """``(topology, cell_types, geometry)`` of a space for pyvista/VTK."""
+    from dolfinx import plot
+
+    make = getattr(plot, "vtk_mesh", None) or plot.create_vtk_mesh
+    return make(V)
+
+
+def gmsh_model_to_mesh(model, comm, rank: int, gdim: int):
+    """Distribute a gmsh model built on ``rank``: ``(mesh, cell_tags, facet_tags)``."""
+    try:
+        from dolfinx.io import gmsh as gmshio  # 0.10+
+    except ImportError:
+        from dolfinx.io import gmshio
+    data = gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
+    if hasattr(data, "facet_tags"):  # 0.10+: a MeshData record
+        return data.mesh, data.cell_tags, data.facet_tags
+    return tuple(data)
+
+
+def mpi_command(ranks: int) -> list[str] | None:
+    """The command prefix that starts ``ranks`` processes with the MPI library of this Python's
+    mpi4py: the venv's own ``mpiexec`` where the PyPI wheel installed one (MPICH), else
+    ``mpirun`` on PATH (Debian's OpenMPI, with ``--oversubscribe`` for more ranks than cores);
+    None if there is no launcher."""
+    own = os.path.join(sys.prefix, "bin", "mpiexec")
+    if os.access(own, os.X_OK):
+        return [own, "-n", str(ranks)]
+    launcher = shutil.which("mpirun") or shutil.which("mpiexec")
+    if launcher is None:
+        return None
+    from mpi4py import MPI
+
+    extra = ["--oversubscribe"] if "Open MPI" in MPI.Get_library_version() else []
+    return [launcher, "-n", str(ranks), *extra]
