@@ -66,26 +66,27 @@ print(json.dumps({"versions": {"dolfinx": dolfinx.__version__.split(".post")[0],
 """
 
 
+def probe(python, label) -> Stack | None:
+    """The stack of ``python`` if it imports dolfinx_granular and DOLFINx, else None."""
+    if not os.access(python, os.X_OK):
+        return None
+    proc = subprocess.run([python, "-c", _PROBE], capture_output=True, text=True, cwd=ROOT)
+    if proc.returncode != 0:
+        return None
+    info = json.loads(proc.stdout.strip().splitlines()[-1])
+    return Stack(label, python, info["versions"], tuple(info["mpi"] or ()))
+
+
 def installed_stacks(root=ROOT) -> list[Stack]:
-    """The stacks of the checkout at ``root`` whose Python imports dolfinx_granular and DOLFINx."""
-    stacks = []
-    for label, venv in VENVS:
-        python = os.path.join(root, venv, "bin", "python")
-        if not os.access(python, os.X_OK):
-            continue
-        proc = subprocess.run([python, "-c", _PROBE], capture_output=True, text=True, cwd=root)
-        if proc.returncode != 0:
-            continue
-        info = json.loads(proc.stdout.strip().splitlines()[-1])
-        stacks.append(Stack(label, python, info["versions"], tuple(info["mpi"] or ())))
-    return stacks
+    """The stacks of the checkout at ``root`` (``.venv``, ``.venv-current``) that work."""
+    found = (probe(os.path.join(root, venv, "bin", "python"), label) for label, venv in VENVS)
+    return [s for s in found if s is not None]
 
 
-def this_stack(stacks):
-    """The stack of the running Python among ``stacks`` (None if it is none of them)."""
-    here = os.path.realpath(sys.prefix)
-    return next((s for s in stacks
-                 if os.path.realpath(os.path.dirname(os.path.dirname(s.python))) == here), None)
+def is_running(stack) -> bool:
+    """True if ``stack`` is the environment of the running Python."""
+    venv = os.path.dirname(os.path.dirname(stack.python))
+    return os.path.realpath(venv) == os.path.realpath(sys.prefix)
 
 
 def run_slope(stack, out, *args, ranks=1, env=None, timeout=1800):
