@@ -27,6 +27,7 @@ the same function under ``mpirun`` (``--worker``). ``--tiny`` is a reduced run f
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import datetime
 import importlib.util
@@ -85,88 +86,12 @@ def _demo():
 # Slope runs
 # ------------------------------------------------------------------------------------------------
 
-class UFLLinearMaterial:
-    """Small-strain isotropic linear elasticity written in UFL, with the interface of
-    :class:`~dolfinx_granular.material.GranularMaterial` that ``demos/slope.py`` uses.
-
-    ``sigma = lam tr(eps) I + 2 mu eps``, ``eps = sym(grad u)``; lam, mu from
-    :func:`~dolfinx_granular.levels.isotropic_lame` of the RVE's eq. 15 modulus. Nothing is
-    evaluated per quadrature point: ``update`` does nothing, the forms carry the whole law.
-    """
-
-    def __init__(self, rve, u, quadrature_degree=2):
-        import ufl
-
-        from dolfinx_granular import _dolfinx as dfx
-        from dolfinx_granular.levels import isotropic_lame
-
-        self.rve = rve
-        self.u = u
-        msh = u.function_space.mesh
-        self.lam, self.mu = isotropic_lame(rve.small_strain_modulus())
-        k = int(quadrature_degree)
-        self.dx = ufl.Measure("dx", domain=msh,
-                              metadata={"quadrature_degree": k, "quadrature_scheme": "default"})
-        X = dfx.quadrature_points(msh, k)
-        self.mesh = msh
-        self.n_qp = X.shape[0]
-        self.cells = np.arange(msh.topology.index_map(2).size_local, dtype=np.int32)
-        self._sigma_expr = dfx.expression(self.sigma(u), X)
-        self._F_expr = dfx.expression(ufl.Identity(2) + ufl.grad(u), X)
-        self._x_expr = dfx.expression(ufl.SpatialCoordinate(msh), X)
-        self.timings = {"F": 0.0, "rve": 0.0}
-
-    def sigma(self, w):
-        import ufl
-
-        eps = ufl.sym(ufl.grad(w))
-        return self.lam * ufl.tr(eps) * ufl.Identity(2) + 2.0 * self.mu * eps
-
-    def update(self, tangent=True):
-        pass
-
-    def residual_form(self, v):
-        import ufl
-
-        return ufl.inner(self.sigma(self.u), ufl.grad(v)) * self.dx
-
-    def jacobian_form(self, du, v):
-        import ufl
-
-        return ufl.inner(self.sigma(du), ufl.grad(v)) * self.dx
-
-    def _eval(self, expr, size):
-        from dolfinx_granular._dolfinx import evaluate
-
-        return evaluate(expr, self.mesh, self.cells).reshape(-1, size)
-
-    @property
-    def n_points(self):
-        return self.cells.size * self.n_qp
-
-    @property
-    def points(self):
-        return self._eval(self._x_expr, 2)
-
-    @property
-    def F(self):
-        return self._eval(self._F_expr, 4).reshape(-1, 2, 2)
-
-    def cauchy(self):
-        return self._eval(self._sigma_expr, 4).reshape(-1, 2, 2)
-
-    def cell_average(self, values):
-        values = np.asarray(values)
-        return values.reshape(self.cells.size, self.n_qp, *values.shape[1:]).mean(axis=1)
-
-
 class _CPUClock:
     """Process CPU time (``time.process_time``) per category: unlike wall time it does not count
     the time this process waits while other processes use the cores."""
 
     def __init__(self):
-        self.t = {"newton": 0.0, "callbacks": 0.0, "F": 0.0, "update": 0.0, "update_in_callbacks": 0.0,
-                  "residual_assembly": 0.0, "jacobian_assembly": 0.0, "other_assembly": 0.0}
+        self.t = collections.defaultdict(float)
         self.where = None  # "residual" / "jacobian" while inside that callback
 
     def wrap(self, fn, key):
@@ -300,8 +225,12 @@ def slope_run(packing, level="taylor", tol=None, steps=20, refine=1, out=None, c
     clock = _CPUClock()
 
     def material_factory(rve, u, quadrature_degree=2):
-        cls = UFLLinearMaterial if level == "ufl_linear" else real_material_class
-        m = cls(rve, u, quadrature_degree)
+        if level == "ufl_linear":
+            from dolfinx_granular.linear import LinearElasticMaterial
+
+            m = LinearElasticMaterial.isotropic_part(rve, u, quadrature_degree=quadrature_degree)
+        else:
+            m = real_material_class(rve, u, quadrature_degree)
         m.update = clock.wrap(m.update, "update")
         if hasattr(m, "deformation_gradient"):
             m.deformation_gradient = clock.wrap(m.deformation_gradient, "F")

@@ -7,8 +7,9 @@ scene needs.
   small (``||F - I||_2 <= tol``) and the contact set provably equals the reference one, the full
   Taylor RVE elsewhere.
 
-Both are subclasses of :class:`TaylorRVE` sharing the wrapped RVE's data (no second candidate
-search), so they drop into :class:`~dolfinx_granular.material.GranularMaterial` unchanged.
+Both wrap a :class:`TaylorRVE` (its packing and candidate arrays are shared, not copied: no second
+candidate search) and are :class:`~dolfinx_granular.law.MaterialLaw` s, so they drop into
+:class:`~dolfinx_granular.material.GranularMaterial` unchanged.
 
 **The sufficient contact test of AdaptiveRVE.** A candidate contact with reference branch vector
 L and radius sum R is active at F when ``|F L| <= R``, and ``s_min(F) |L| <= |F L| <= s_max(F) |L|``
@@ -93,13 +94,13 @@ def isotropic_lame(C):
     return (3.0 * a - 2.0 * b) / 8.0, (2.0 * b - a) / 8.0
 
 
-def _share(level, rve):
+def _full_model(rve):
+    """The TaylorRVE behind ``rve`` (a level wraps the full model, never another level)."""
+    if isinstance(rve, _Level):
+        return rve.taylor
     if not isinstance(rve, TaylorRVE):
         raise TypeError(f"rve must be a dolfinx_granular.TaylorRVE, got {type(rve).__name__}")
-    if isinstance(rve, (SmallStrainRVE, AdaptiveRVE)):
-        rve = rve.taylor  # wrap the full model, never a level of it
-    level.__dict__.update(rve.__dict__)  # packing, stiffness, candidate arrays: shared, read-only
-    level.taylor = rve
+    return rve
 
 
 def _validate_finite(F):
@@ -137,8 +138,29 @@ def _push_forward(F, P, A):
     return sigma, a
 
 
-class _Level(TaylorRVE):
-    """Shared public interface; subclasses implement ``_material(F, tangent, out)``."""
+class _Level:
+    """Shared public interface of a level wrapping the TaylorRVE ``taylor``; subclasses implement
+    ``_material(F, tangent, out)``."""
+
+    def __init__(self, rve: TaylorRVE):
+        self.taylor = _full_model(rve)
+
+    @property
+    def packing(self):
+        """The wrapped RVE's packing."""
+        return self.taylor.packing
+
+    @property
+    def normal_stiffness(self) -> float:
+        return self.taylor.normal_stiffness
+
+    @property
+    def min_stretch(self) -> float:
+        return self.taylor.min_stretch
+
+    def small_strain_modulus(self):
+        """The wrapped RVE's eq. 15 modulus C (2, 2, 2, 2), in Pa."""
+        return self.taylor.small_strain_modulus()
 
     def _material(self, F, tangent, out):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -200,7 +222,7 @@ class SmallStrainRVE(_Level):
     """
 
     def __init__(self, rve: TaylorRVE):
-        _share(self, rve)
+        super().__init__(rve)
         self.C = _symmetrise(self.taylor.small_strain_modulus())
         self._C44 = np.ascontiguousarray(self.C.reshape(4, 4))
 
@@ -254,7 +276,7 @@ class AdaptiveRVE(_Level):
     """
 
     def __init__(self, rve: TaylorRVE, tol: float, contact_test: bool = True):
-        _share(self, rve)
+        super().__init__(rve)
         tol = float(tol)
         if not (0.0 <= tol < 1.0):
             raise ValueError(f"tol must lie in [0, 1), got {tol!r}")
@@ -262,7 +284,7 @@ class AdaptiveRVE(_Level):
         self.contact_test = bool(contact_test)
         self.W0, self.P0, self.A0 = self.taylor.evaluate(np.eye(2))
         self._A044 = np.ascontiguousarray(self.A0.reshape(4, 4))
-        R, L = self._R, self._L
+        R, L = self.taylor._R, self.taylor._L
         d = np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])  # as the kernel computes |F L| at F = I
         closed = R - d >= 0.0
         ratio = R / d  # the contact stays active while the stretch along L is <= R / |L|
@@ -270,7 +292,7 @@ class AdaptiveRVE(_Level):
         smin_req = ratio[~closed].max() if (~closed).any() else 0.0
         self.stretch_bounds = (smax_ok * (1.0 - _MARGIN), smin_req * (1.0 + _MARGIN))
         self.n_reference_contacts = int(closed.sum())
-        self.error_constant = float(self._K * np.sum(R[closed] * d[closed]))
+        self.error_constant = float(self.taylor._K * np.sum(R[closed] * d[closed]))
         self.counts = {"linear": 0, "taylor": 0}
         self.totals = {"linear": 0, "taylor": 0}
         self.linear_mask = np.zeros(0, dtype=bool)

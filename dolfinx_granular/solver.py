@@ -1,34 +1,55 @@
-"""Newton solver for a quadrature-point material: petsc4py SNES (newtonls + LU).
+"""Newton solver for quadrature-point materials: petsc4py SNES (newtonls + LU).
 
-The material is evaluated at exactly the state SNES hands to the residual callback (line searches
-write trial points there); the Jacobian callback reuses that tangent only if SNES asks for the
-Jacobian at the same x and re-evaluates otherwise, so the tangent is always consistent.
+The materials are evaluated at exactly the state SNES hands to the residual callback (line
+searches write trial points there); the Jacobian callback reuses that tangent only if SNES asks
+for the Jacobian at the same x and re-evaluates otherwise, so the tangent is always consistent.
 
 Convergence follows table 2 of the paper: after Newton step k the relative energy norm
 ``|R_k . du_k| / |R_0 . du_0|`` is logged (R_k residual at iterate k, du_k the increment actually
-applied, 0-based), and the solve stops when it is <= ``energy_rtol``, when the residual norm is <=
-``residual_atol``, or at round-off: the energy norm is below ``roundoff_energy`` and the residual no
-longer halves.
+applied, 0-based), and the solve stops when it is <= ``energy_rtol``. It also stops, at any
+iterate including the first, when the residual is at round-off: ``|R| <= residual_rtol * scale``
+with scale the larger of the internal and the external force norms (the materials' ``∫ P : grad v``
+and ``f_int - R``, Dirichlet rows left out), or ``|R| <= residual_atol``, or the energy norm is
+below ``roundoff_energy`` while the residual no longer halves. A solve that starts converged (the
+same load twice) returns at once with 0 iterations.
 
-Failures never raise: an RVE outside its range, a singular Jacobian (zero pivot in LU, e.g. where
-every contact has opened), a PETSc error, the iteration limit or stagnation (the residual has not
-gone below its best value for ``stagnation_it`` Newton steps, typically Newton cycling between
-contact sets) all return ``converged=False`` with a readable :attr:`SolveResult.why`, so that a load
-stepper (:mod:`dolfinx_granular.loading`) can cut the step back.
+A solve is a transaction. Converged: the materials commit their history (laws with history).
+Failed: u and the material data return to the state the solve started from, and the result says
+why (an RVE outside its range, a singular Jacobian where every contact has opened, a PETSc error,
+the iteration limit, or stagnation: the residual has not gone below its best value for
+``stagnation_it`` Newton steps, typically Newton cycling between contact sets); nothing raises, so
+that a load stepper (:mod:`dolfinx_granular.loading`) can cut the step back.
 """
 
 from __future__ import annotations
 
 import gc
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, create_matrix, set_bc
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from ._dolfinx import SNES_NAN_REASON, petsc_vec
+from .quadrature import derivative
+from .timing import Stopwatch
+
+_CR = PETSc.SNES.ConvergedReason
+STAGNATION = "DIVERGED_STAGNATION"  # reason_name of a solve stopped by the stagnation test
+_FAILURE_WORDS = {
+    STAGNATION: "stagnation",
+    "DIVERGED_LINEAR_SOLVE": "linear solve failed (singular Jacobian or zero pivot)",
+    "DIVERGED_FNORM_NAN": "NaN residual",
+    "DIVERGED_FUNCTION_NANORINF": "NaN residual",
+    "DIVERGED_MAX_IT": "no convergence within the Newton iteration limit",
+    "DIVERGED_LINE_SEARCH": "line search failed",
+    "DIVERGED_PETSC_ERROR": "PETSc error",
+}
+_REASON_NAMES = {v: k for k, v in vars(_CR).items() if isinstance(v, int)}
+_KSP_REASONS = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if isinstance(v, int)}
 
 
 @dataclass
@@ -36,14 +57,17 @@ class SolveResult:
     """Outcome of one :meth:`NewtonSolver.solve`.
 
     Attributes:
-        converged: SNES converged.
+        converged: the solve converged (the materials have committed their history).
         reason: SNES converged reason (> 0 converged, < 0 diverged) and its name.
-        iterations: Newton steps taken.
+        iterations: Newton steps taken (0: the start state was converged already).
         history: one ``(iteration, residual_norm, energy_norm_rel)`` per Newton step, iteration
             1-based; residual_norm is ||R|| (N) at the iterate the step started from.
-        residual_norm: ||R|| at the final iterate (N).
-        error: message of an exception raised while evaluating the material (e.g. F outside the
-            RVE's range), else None.
+        residual_norm: ||R|| at the final iterate (N) (of a failed solve: where it stopped).
+        force_scale: the force norm (N) the round-off test compared it with.
+        error: message of an exception raised while evaluating a material (e.g. F outside the
+            RVE's range), or what the stagnation test measured; else None.
+        stopped_by: the test that ended a converged solve: ``energy norm``, ``round-off`` or
+            ``residual_atol`` ('' for a failed one).
     """
 
     converged: bool
@@ -52,46 +76,36 @@ class SolveResult:
     iterations: int
     history: list = field(default_factory=list)
     residual_norm: float = float("nan")
+    force_scale: float = float("nan")
     error: str | None = None
+    stopped_by: str = ""
 
     @property
     def why(self) -> str:
-        """One-line reason of a failure ('' if converged): the error message if there is one,
-        else the SNES reason in words."""
+        """One-line reason of a failure ('' if converged)."""
         if self.converged:
             return ""
         words = _FAILURE_WORDS.get(self.reason_name, self.reason_name)
         return f"{words}: {self.error}" if self.error else words
 
 
-STAGNATION = "DIVERGED_STAGNATION"  # reason_name of a solve stopped by the stagnation test
-_FAILURE_WORDS = {
-    STAGNATION: "stagnation (contact set cycling)",
-    "DIVERGED_LINEAR_SOLVE": "linear solve failed (singular Jacobian or zero pivot)",
-    "DIVERGED_FNORM_NAN": "NaN residual",
-    "DIVERGED_FUNCTION_NANORINF": "NaN residual",
-    "DIVERGED_MAX_IT": "no convergence within the Newton iteration limit",
-    "DIVERGED_LINE_SEARCH": "line search failed",
-    "DIVERGED_PETSC_ERROR": "PETSc error",
-}
-
-
-_REASON_NAMES = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if isinstance(v, int)}
-_KSP_REASONS = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if isinstance(v, int)}
-
-
 class NewtonSolver:
-    """Solve R(u) = 0 with SNES; R and its Jacobian read quadrature data written by ``material``.
+    """Solve R(u) = 0 with SNES; R and its Jacobian read quadrature data written by materials.
 
     Args:
         residual: UFL linear form R(u; v) (e.g. ``material.residual_form(v) - f_ext``).
-        jacobian: UFL bilinear form dR/du (e.g. ``material.jacobian_form(du, v)``).
+        jacobian: UFL bilinear form dR/du, or None: the consistent Jacobian
+            :func:`~dolfinx_granular.quadrature.derivative` of ``residual`` and the materials.
         u: the displacement Function; holds the initial guess and receives the solution.
         bcs: Dirichlet conditions (values are imposed on the first iterate).
-        material: object with ``update(tangent=True)`` that refreshes the quadrature data from
-            ``u`` (a :class:`~dolfinx_granular.material.GranularMaterial`).
+        materials: one material or a sequence of them (objects with ``update(tangent)`` that
+            refresh their data from ``u``, ``commit()`` and ``residual_form(v)``: a
+            :class:`~dolfinx_granular.material.GranularMaterial`, a
+            :class:`~dolfinx_granular.linear.LinearElasticMaterial`, ...).
         energy_rtol: relative energy norm that counts as converged.
-        residual_atol: residual norm (N) that counts as converged (round-off level); 0 disables.
+        residual_rtol: residual norm relative to the force scale that counts as converged
+            (round-off); 0 disables.
+        residual_atol: residual norm (N) that counts as converged; 0 disables.
         roundoff_energy: below this relative energy norm a residual that fails to halve in one
             Newton step is taken as round-off (converged).
         max_it: most Newton steps per solve.
@@ -101,71 +115,95 @@ class NewtonSolver:
         verbose: print one line per Newton step on rank 0.
         stagnation_it: fail the solve (reason ``DIVERGED_STAGNATION``) when the residual norm has
             not gone below its smallest value since the first Newton step for this many
-            consecutive Newton steps
-            (Newton cycling between contact sets); 0 disables the test.
+            consecutive Newton steps (Newton cycling between contact sets); 0 disables the test.
         skip_final_tangent: evaluate only the stress (no tangent) for a residual that ends the
             solve whatever its value: the energy norm of the step that led to it is already
-            converged, so SNES asks for no Jacobian there. The material's tangent then belongs
-            to the previous iterate.
+            converged, so SNES asks for no Jacobian there.
 
     Attributes:
-        timings: seconds spent in ``"rve"`` (material updates), ``"assembly"`` and ``"solve"``
-            (everything else in SNES: essentially the LU factorisation and solve).
+        materials: the materials, a tuple.
+        clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"snes"`` (whole SNES solves),
+            ``"callbacks"`` (this solver's callbacks inside them), ``"after"`` (its work after
+            them: the final evaluation, a restore), ``"rve"`` (material updates),
+            ``"residual"``, ``"jacobian"`` and ``"scale"`` (assembly: residuals, Jacobians, the
+            internal forces of the round-off test); ``clock.calls`` counts them.
     """
 
-    def __init__(self, residual, jacobian, u, bcs=(), material=None, *, energy_rtol=1e-20,
-                 residual_atol=0.0, roundoff_energy=1e-14, max_it=20, prefix="granular_",
-                 petsc_options=None, verbose=False, skip_final_tangent=False, stagnation_it=4):
+    def __init__(self, residual, jacobian, u, bcs=(), materials=(), *, energy_rtol=1e-20,
+                 residual_rtol=1e-12, residual_atol=0.0, roundoff_energy=1e-14, max_it=20,
+                 prefix="granular_", petsc_options=None, verbose=False, skip_final_tangent=False,
+                 stagnation_it=4):
         self.u = u
-        self.stagnation_it = int(stagnation_it)
-        self.skip_final_tangent = bool(skip_final_tangent)
-        self._have_tangent = False
         self.bcs = list(bcs)
-        self.material = material
+        self.materials = _as_tuple(materials)
         self.energy_rtol = float(energy_rtol)
+        self.residual_rtol = float(residual_rtol)
         self.residual_atol = float(residual_atol)
         self.roundoff_energy = float(roundoff_energy)
         self.max_it = int(max_it)
+        self.stagnation_it = int(stagnation_it)
+        self.skip_final_tangent = bool(skip_final_tangent)
         self.verbose = verbose
+        if jacobian is None:
+            jacobian = derivative(residual, u, ufl.TrialFunction(u.function_space), self.materials)
         self.L = fem.form(residual)
         self.a = fem.form(jacobian)
-        V = u.function_space
-        comm = V.mesh.comm
-        self.comm = comm
+        self._f_int = None  # the materials' internal forces, for the round-off scale
+        if self.materials and self.residual_rtol > 0.0:
+            v = residual.arguments()[0]
+            self._f_int = fem.form(sum(m.residual_form(v) for m in self.materials))
+        self.comm = u.function_space.mesh.comm
         self._u_vec = petsc_vec(u)
-        self.b = self._u_vec.duplicate()
         self.A = create_matrix(self.a)
-        self.x = self._u_vec.duplicate()  # SNES's own vector: line searches write trial points
-        self._x_eval = self.x.duplicate()
-        self._have_eval = False
-        self._x_prev = self.x.duplicate()
-        self._R_prev = self.x.duplicate()
-        opts = {
-            "snes_type": "newtonls",
-            "snes_linesearch_type": "basic",
-            "ksp_type": "preonly",
-            "pc_type": "lu",
-        }
+        # SNES's own vector x (line searches write trial points there) and work vectors
+        self.b, self.x, self._x_eval, self._x_prev, self._R_prev, self._f = (
+            self._u_vec.duplicate() for _ in range(6))
+        self._have_eval = self._have_tangent = False
+        self.snes = self._create_snes(prefix, petsc_options)
+        self.clock = Stopwatch()
+
+    @property
+    def timings(self) -> dict:
+        """Wall seconds in ``"rve"`` (material updates), ``"assembly"`` (residual and Jacobian)
+        and ``"solve"`` (SNES outside the callbacks: the LU factorisation and solve)."""
+        return self.time_split(self.clock.wall)
+
+    @property
+    def cpu_timings(self) -> dict:
+        """The same split in process CPU seconds, and ``"rest"`` (the callbacks' own work:
+        vector copies, ghost updates, the convergence test)."""
+        return self.time_split(self.clock.cpu)
+
+    @staticmethod
+    def time_split(t) -> dict:
+        """``rve``, ``assembly``, ``solve`` and ``rest`` seconds of a Stopwatch table ``t``."""
+        assembly = t["residual"] + t["jacobian"] + t["scale"]
+        return {"rve": t["rve"], "assembly": assembly, "solve": t["snes"] - t["callbacks"],
+                "rest": t["callbacks"] + t["after"] - t["rve"] - assembly}
+
+    def _create_snes(self, prefix, petsc_options):
+        opts = {"snes_type": "newtonls", "snes_linesearch_type": "basic", "ksp_type": "preonly",
+                "pc_type": "lu"}
         if PETSc.Sys.hasExternalPackage("mumps"):
             opts["pc_factor_mat_solver_type"] = "mumps"  # PETSc's own LU is serial only
         opts.update(petsc_options or {})
-        self.snes = PETSc.SNES().create(comm)
-        self.snes.setOptionsPrefix(prefix)
+        snes = PETSc.SNES().create(self.comm)
+        snes.setOptionsPrefix(prefix)
         db = PETSc.Options()
         for key, val in opts.items():
             db[prefix + key] = val
-        self.snes.setFunction(self._residual, self.b)
-        self.snes.setJacobian(self._jacobian, self.A)
-        self.snes.setConvergenceTest(self._converged)
+        snes.setFunction(self._residual, self.b)
+        snes.setJacobian(self._jacobian, self.A)
+        snes.setConvergenceTest(self._converged)
         # Only this solver's test decides convergence: no step-length test of PETSc's, and a failed
         # line search is judged by that test too (PETSc >= 3.20 would otherwise stop there).
-        self.snes.setTolerances(max_it=self.max_it, stol=0.0)
-        self.snes.setMaxStepFailures(self.max_it)
-        self.snes.setFromOptions()
-        self.snes.getKSP().setFromOptions()
+        snes.setTolerances(max_it=self.max_it, stol=0.0)
+        snes.setMaxStepFailures(self.max_it)
+        snes.setFromOptions()
+        snes.getKSP().setFromOptions()
         for key in opts:
             db.delValue(prefix + key)
-        self.timings = {"rve": 0.0, "assembly": 0.0, "solve": 0.0}
+        return snes
 
     # -- SNES callbacks ----------------------------------------------------------------------------
 
@@ -173,79 +211,96 @@ class NewtonSolver:
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         x.copy(self._u_vec)
         self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        if self.material is not None:
-            t = time.perf_counter()
-            try:
-                self.material.update(tangent=tangent)
-            finally:
-                self.timings["rve"] += time.perf_counter() - t
+        with self.clock("rve"):
+            for m in self.materials:
+                m.update(tangent=tangent)
         x.copy(self._x_eval)
         self._have_eval = True
         self._have_tangent = tangent
+
+    def _energy_rel(self, x):
+        """|R_prev . (x - x_prev)| relative to the first Newton step's."""
+        du = x.copy()
+        du.axpy(-1.0, self._x_prev)
+        energy = abs(self._R_prev.dot(du))
+        du.destroy()
+        if not self.history:
+            self._energy0 = energy
+        return energy / self._energy0 if self._energy0 > 0 else 0.0
 
     def _tangent_needed(self, x):
         """False if the energy norm of the step to x (what ``_converged`` will compute) already
         meets ``energy_rtol``: the solve ends at x and no Jacobian is assembled there."""
         if not (self.skip_final_tangent and self.history):
             return True
-        du = x.copy()
-        du.axpy(-1.0, self._x_prev)
-        energy = abs(self._R_prev.dot(du))
-        du.destroy()
-        rel = energy / self._energy0 if self._energy0 > 0 else 0.0
-        return not rel <= self.energy_rtol
+        return not self._energy_rel(x) <= self.energy_rtol
 
     def _residual(self, snes, x, b):
+        with self.clock("callbacks"):
+            self._residual_at(x, b)
+
+    def _residual_at(self, x, b):
         error = None
         try:
             self._evaluate(x, self._tangent_needed(x))
         except ValueError as err:  # UnsupportedDeformationError
             error = str(err)
         errors = [e for e in self.comm.allgather(error) if e]
-        if errors:  # every rank takes this branch: a NaN residual makes SNES stop (or cut back)
+        if errors:  # every rank takes this branch: a NaN residual makes SNES stop
             self._error = errors[0]
             self._have_eval = False
             with b.localForm() as b_local:
                 b_local.set(np.nan)
             return
-        t = time.perf_counter()
+        with self.clock("residual"):
+            self._assemble(b, self.L)
+            apply_lifting(b, [self.a], [self.bcs], [x], -1.0)
+            b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            set_bc(b, self.bcs, x, -1.0)
+
+    @staticmethod
+    def _assemble(b, form):
         with b.localForm() as b_local:
             b_local.set(0.0)
-        assemble_vector(b, self.L)
-        apply_lifting(b, [self.a], [self.bcs], [x], -1.0)
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        set_bc(b, self.bcs, x, -1.0)
-        self.timings["assembly"] += time.perf_counter() - t
+        assemble_vector(b, form)
 
     def _same_as_evaluated(self, x):
         same = self._have_eval and np.array_equal(x.array_r, self._x_eval.array_r)
-        return self.comm.allreduce(bool(same), op=_MPI_LAND())
+        return self.comm.allreduce(bool(same), op=MPI.LAND)
 
     def _jacobian(self, snes, x, A, P):
-        if not (self._same_as_evaluated(x) and self._have_tangent):
-            self._evaluate(x)
-        t = time.perf_counter()
-        A.zeroEntries()
-        assemble_matrix(A, self.a, self.bcs)
-        A.assemble()
-        self.timings["assembly"] += time.perf_counter() - t
+        with self.clock("callbacks"):
+            if not (self._same_as_evaluated(x) and self._have_tangent):
+                self._evaluate(x)
+            with self.clock("jacobian"):
+                A.zeroEntries()
+                assemble_matrix(A, self.a, self.bcs)
+                A.assemble()
+
+    def _force_scale(self, R):
+        """The magnitude of the forces in balance (N): max(|f_int|, |f_ext|) at the current
+        iterate, f_int the materials' internal forces (reactions included), f_ext = f_int - R on
+        the free dofs. Round-off in R is a small multiple of eps times it."""
+        if self._f_int is None:
+            return 0.0
+        f = self._f
+        with self.clock("scale"):
+            self._assemble(f, self._f_int)
+            f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        internal = f.norm()
+        f.axpy(-1.0, R)
+        set_bc(f, self.bcs, None, 0.0)
+        return max(internal, f.norm())
 
     def _converged(self, snes, it, norms):
-        self._verdict = int(self._test(snes, it, norms))
+        with self.clock("callbacks"):
+            self._verdict = int(self._test(snes, it, norms[2]))
         return self._verdict
 
-    def _test(self, snes, it, norms):
-        fnorm = norms[2]
-        x = snes.getSolution()
-        R = snes.getFunction()[0]
+    def _test(self, snes, it, fnorm):
+        x, R = snes.getSolution(), snes.getFunction()[0]
         if it > 0:
-            du = x.copy()
-            du.axpy(-1.0, self._x_prev)
-            energy = abs(self._R_prev.dot(du))
-            du.destroy()
-            if it == 1:
-                self._energy0 = energy
-            rel = energy / self._energy0 if self._energy0 > 0 else 0.0
+            rel = self._energy_rel(x)
             self.history.append((it, self._rnorm_prev, rel))
             if self.verbose and self.comm.rank == 0:
                 print(f"    Newton {it:2d}: |R| = {self._rnorm_prev:.3e} N, energy norm (rel) = "
@@ -261,80 +316,118 @@ class NewtonSolver:
         self._rnorm_prev = fnorm
         if not np.isfinite(fnorm):
             return SNES_NAN_REASON
-        if fnorm <= self.residual_atol or fnorm == 0.0:
-            return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
+        if it == 0 or stalled:  # (dead loads: |f_ext| is that of the start; once is enough)
+            self._scale = self._force_scale(R)
+        if fnorm == 0.0 or fnorm <= self.residual_atol:
+            return self._stop_as("residual_atol", _CR.CONVERGED_FNORM_ABS)
+        if fnorm <= self.residual_rtol * self._scale:
+            return self._stop_as("round-off", _CR.CONVERGED_FNORM_ABS)
         if it > 0 and self.history[-1][2] <= self.energy_rtol:
-            return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
+            return self._stop_as("energy norm", _CR.CONVERGED_SNORM_RELATIVE)
         if stalled and self.history[-1][2] <= self.roundoff_energy:
-            return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
+            return self._stop_as("round-off", _CR.CONVERGED_FNORM_ABS)
         if it >= self.max_it:
-            return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
+            return _CR.DIVERGED_MAX_IT
         if self.stagnation_it > 0 and self._no_progress >= self.stagnation_it:
+            self._error = (f"|R| = {fnorm:.3e} N has not gone below its best value "
+                           f"{self._rnorm_best:.3e} N for {self._no_progress} Newton steps")
             self._stagnated = True
-            return PETSc.SNES.ConvergedReason.DIVERGED_DTOL
-        return PETSc.SNES.ConvergedReason.ITERATING
+            return _CR.DIVERGED_DTOL
+        return _CR.ITERATING
+
+    def _stop_as(self, test, reason):
+        self._stop = test
+        return reason
 
     # -- driver ------------------------------------------------------------------------------------
 
     def solve(self) -> SolveResult:
-        """Newton solve from the current u (Dirichlet values imposed first); u gets the result.
+        """Newton solve from the current u (Dirichlet values imposed first).
 
-        A failed solve leaves u at the last iterate and returns ``converged=False``; it does not
-        raise, so a load-step driver can cut back.
+        Converged: u holds the solution, the material data belong to it and the materials'
+        history is committed. Failed: u and the material data are those the solve started from;
+        the result says why.
         """
-        self.history = []
-        self._error = None
-        self._stagnated = False
-        self._rnorm_prev = float("nan")
-        self._have_eval = False
-        self._verdict = 0
+        self.history, self._error, self._stagnated, self._stop = [], None, False, ""
+        self._rnorm_prev = self._scale = float("nan")
+        self._have_eval, self._verdict = False, 0
+        start = self.u.x.array.copy()
         set_bc(self._u_vec, self.bcs)
         self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self._u_vec.copy(self.x)
-        t = time.perf_counter()
-        spent = self.timings["rve"] + self.timings["assembly"]
-        petsc_error = None
+        petsc_error = self._run_snes()
+        with self.clock("after"):
+            self._error = self._error or self._final_evaluation()
+        reason, name = self._outcome(petsc_error)
+        result = SolveResult(
+            converged=reason > 0, reason=reason, reason_name=name,
+            iterations=len(self.history), history=list(self.history),
+            residual_norm=float(self._rnorm_prev), force_scale=float(self._scale),
+            error=self._error, stopped_by=self._stop if reason > 0 else "")
+        with self.clock("after"):
+            if result.converged:
+                for m in self.materials:
+                    m.commit()
+            else:
+                self._restore(start)
+        return result
+
+    def _run_snes(self):
+        """``snes.solve``; a PETSc error message or None."""
         try:
-            self.snes.solve(None, self.x)
+            with self.clock("snes"):
+                self.snes.solve(None, self.x)
         except PETSc.Error as err:  # e.g. a factorisation error PETSc raises instead of reporting
-            petsc_error = f"PETSc error {err.ierr} in SNES solve"
-        self.timings["solve"] += (time.perf_counter() - t) - (
-            self.timings["rve"] + self.timings["assembly"] - spent)
-        # The material data must belong to the returned u (the last residual was at x if basic).
-        if not self._same_as_evaluated(self.x):
-            error = None
-            try:
-                self._evaluate(self.x)
-            except ValueError as err:
-                error = str(err)
-            self._error = self._error or next((e for e in self.comm.allgather(error) if e), None)
-        else:
+            return f"PETSc error {err.ierr} in SNES solve"
+        return None
+
+    def _final_evaluation(self):
+        """Make u and the material data those of SNES's x (the last residual was at x with
+        full Newton steps); an evaluation error message or None."""
+        if self._same_as_evaluated(self.x):
             self.x.copy(self._u_vec)
             self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            return None
+        error = None
+        try:
+            self._evaluate(self.x)
+        except ValueError as err:
+            error = str(err)
+        return next((e for e in self.comm.allgather(error) if e), None)
+
+    def _outcome(self, petsc_error):
+        """The SNES reason and its name, corrected for what SNES does not see."""
         reason = int(self.snes.getConvergedReason())
         if reason > 0 and self._verdict <= 0 and self._error:
             # PETSc >= 3.20 ends a Newton step whose line search met a NaN residual (an RVE
             # outside its range) without asking the convergence test, and may call it
             # CONVERGED_SNORM_RELATIVE at the unchanged iterate: that is a failure.
             reason = SNES_NAN_REASON
-        if reason <= 0 or petsc_error is not None:
+        any_petsc_error = self.comm.allreduce(petsc_error is not None, op=MPI.LOR)
+        if reason <= 0 or any_petsc_error:
             # A failed factorisation is sticky in PETSc: every later solve would stop at once
             # with the same error. Drop the factor so that a cut-back starts afresh.
             self.snes.getKSP().getPC().reset()
         name = _REASON_NAMES.get(reason, str(reason))
         if self._stagnated:
             name = STAGNATION
-        elif self.comm.allreduce(petsc_error is not None, op=_MPI_LOR()):
+        elif any_petsc_error:
             reason, name = min(reason, -1), "DIVERGED_PETSC_ERROR"
             self._error = self._error or petsc_error or "PETSc error on another rank"
-        elif reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
+        elif reason == _CR.DIVERGED_LINEAR_SOLVE:
             ksp = self.snes.getKSP()
             self._error = self._error or f"KSP reason {_KSP_REASONS.get(ksp.getConvergedReason())}"
-        return SolveResult(
-            converged=reason > 0, reason=reason, reason_name=name,
-            iterations=len(self.history), history=list(self.history),
-            residual_norm=float(self._rnorm_prev), error=self._error,
-        )
+        return reason, name
+
+    def _restore(self, start):
+        """u and the material data back at the start of a failed solve."""
+        self.u.x.array[:] = start
+        self._have_eval = False
+        try:
+            for m in self.materials:
+                m.update(tangent=False)
+        except ValueError:
+            pass  # the start state itself was outside a law's range: nothing to restore to
 
     def destroy(self):
         """Free the PETSc objects (collective: call it on every rank at the same point)."""
@@ -344,19 +437,16 @@ class NewtonSolver:
         gc.collect()
         if hasattr(PETSc, "garbage_cleanup"):
             PETSc.garbage_cleanup(self.comm)
-        for obj in (self.snes, self.A, self.b, self.x, self._x_eval, self._x_prev, self._R_prev):
+        for obj in (self.snes, self.A, self.b, self.x, self._x_eval, self._x_prev, self._R_prev,
+                    self._f):
             obj.destroy()
         if hasattr(PETSc, "garbage_cleanup"):
             PETSc.garbage_cleanup(self.comm)
 
 
-def _MPI_LAND():
-    from mpi4py import MPI
-
-    return MPI.LAND
-
-
-def _MPI_LOR():
-    from mpi4py import MPI
-
-    return MPI.LOR
+def _as_tuple(materials):
+    if materials is None:
+        return ()
+    if isinstance(materials, (list, tuple)):
+        return tuple(materials)
+    return (materials,)

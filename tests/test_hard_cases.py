@@ -60,9 +60,11 @@ def check_limit_load(summary, footing_t):
     limit = failed["limit_load"]
     assert limit is not None, "the stop should be recognised as a limit load"
     assert limit["t_converged"] == footing_t[-1] < limit["t_failed"]
-    assert 0 < limit["stiffness_ratio"] <= 0.2
-    # the extrapolated maximum lies within a few failed increments of the last converged state
+    assert 0 < limit["stiffness_ratio"] <= 0.5
+    # the extrapolated maximum lies within a few failed increments of the last converged state,
+    # inside the failed one where the stiffness has fallen less than to 20 %
     assert abs(limit["t_estimate"] - footing_t[-1]) <= 2 * (limit["t_failed"] - footing_t[-1])
+    assert limit["stiffness_ratio"] <= 0.2 or limit["t_estimate"] <= limit["t_failed"]
     return limit
 
 

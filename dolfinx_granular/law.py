@@ -1,0 +1,79 @@
+"""What a material-point law provides: the protocols that quadrature materials accept.
+
+Every law maps deformation gradients F (n, 2, 2) to the energy density W (n,), the first Piola
+stress P (n, 2, 2) and its tangent A = dP/dF (n, 2, 2, 2, 2), all in Pa.
+
+* :class:`MaterialLaw`: no history (hyperelastic): :class:`~dolfinx_granular.rve.TaylorRVE`,
+  :class:`~dolfinx_granular.levels.SmallStrainRVE`, :class:`~dolfinx_granular.levels.AdaptiveRVE`.
+* :class:`HistoryLaw`: the answer also depends on a committed state (e.g. the tangential contact
+  forces of :class:`~dolfinx_granular.friction.FrictionalRVE`). ``evaluate`` returns the trial
+  state at F beside W, P and A and never changes its input; the caller commits the trial state
+  once a load step has converged and otherwise keeps evaluating from the committed one.
+
+The checks are structural (``isinstance(law, MaterialLaw)``): any class with these methods is a
+law, without subclassing.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class MaterialLaw(Protocol):
+    """A hyperelastic material point: W, P, A of F alone."""
+
+    def evaluate(self, F: np.ndarray, out: tuple | None = None) -> tuple:
+        """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2))``; writes into ``out`` if given."""
+
+    def stress(self, F: np.ndarray, out: tuple | None = None) -> tuple:
+        """``(W, P)`` without the tangent; ``out`` may be ``(W, P, None)``."""
+
+    def cauchy(self, F: np.ndarray) -> np.ndarray:
+        """Cauchy stress (n, 2, 2)."""
+
+    def spatial_tangent(self, F: np.ndarray) -> np.ndarray:
+        """Spatial tangent (n, 2, 2, 2, 2), ``a_abcd = F_bB F_dD A_aBcD / J``."""
+
+    def small_strain_modulus(self) -> np.ndarray:
+        """Linear modulus C (2, 2, 2, 2) at F = I."""
+
+
+@runtime_checkable
+class HistoryLaw(Protocol):
+    """A material point whose answer depends on a committed state as well as on F."""
+
+    def initial_state(self, n: int) -> Any:
+        """The committed state of n points at F = I (supports ``take``, ``concatenate``,
+        ``to_arrays`` / ``from_arrays`` and ``n_points``)."""
+
+    def evaluate(self, F: np.ndarray, state: Any, out: tuple | None = None) -> tuple:
+        """``(W, P, A, trial_state)`` at F from the committed ``state`` (left untouched)."""
+
+    def stress(self, F: np.ndarray, state: Any, out: tuple | None = None) -> tuple:
+        """``(W, P, trial_state)`` without the tangent."""
+
+    def cauchy(self, F: np.ndarray, state: Any) -> np.ndarray:
+        """Cauchy stress (n, 2, 2) at F from ``state``."""
+
+    def spatial_tangent(self, F: np.ndarray, state: Any) -> np.ndarray:
+        """Spatial tangent (n, 2, 2, 2, 2) at F from ``state``."""
+
+    def small_strain_modulus(self) -> np.ndarray:
+        """Linear modulus C (2, 2, 2, 2) at F = I from the initial state."""
+
+
+def has_history(law) -> bool:
+    """True for a :class:`HistoryLaw`; raises TypeError for an object that is no law at all."""
+    if isinstance(law, HistoryLaw):
+        return True
+    if isinstance(law, MaterialLaw):
+        return False
+    missing = [m for m in ("evaluate", "stress", "cauchy", "spatial_tangent",
+                           "small_strain_modulus") if not callable(getattr(law, m, None))]
+    raise TypeError(
+        f"{type(law).__name__} is not a material law: it lacks {', '.join(missing)} (see "
+        "dolfinx_granular.law.MaterialLaw; TaylorRVE, SmallStrainRVE, AdaptiveRVE and "
+        "FrictionalRVE are laws)")

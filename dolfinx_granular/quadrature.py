@@ -1,0 +1,196 @@
+"""What every quadrature-point material shares: points, F, forms, the consistent Jacobian.
+
+A quadrature material lives on the Gauss points of the owned cells of a 2-D mesh (or of a subset
+of them, ``cells=``) and provides the UFL terms of its internal virtual work. Subclasses are
+:class:`~dolfinx_granular.material.GranularMaterial` (a material-point law evaluated pointwise into
+quadrature Functions) and :class:`~dolfinx_granular.linear.LinearElasticMaterial` (a law written
+in UFL). :func:`derivative` gives the consistent Jacobian of any residual built from them.
+
+Flattening convention (DOLFINx 0.5 cannot hold rank-4 quadrature tensors; one layout on every
+release): F, P and grad v are flattened row-major, ``[F00, F01, F10, F11]``, and a tangent is the
+(4, 4) matrix ``A[2a+b, 2c+d] = dP_ab / dF_cd``.
+
+A material on a subdomain (``cells=``) contributes nothing on the other cells: its stress and
+tangent are zero there (quadrature data, or a cell indicator for UFL laws), so several materials
+add up in one residual with the one measure ``dx`` and no subdomain data.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+import ufl
+from dolfinx import fem
+
+from . import _dolfinx as dfx
+from .timing import Stopwatch
+
+
+def flatten(T):
+    """Row-major flattening of a 2x2 UFL tensor to a 4-vector ``[T00, T01, T10, T11]``."""
+    return ufl.as_vector([T[0, 0], T[0, 1], T[1, 0], T[1, 1]])
+
+
+def unflatten(t):
+    """The 2x2 UFL tensor of a row-major 4-vector (inverse of :func:`flatten`)."""
+    return ufl.as_matrix([[t[0], t[1]], [t[2], t[3]]])
+
+
+def check_quadrature_degree(value) -> int:
+    """``value`` as a quadrature degree: an integer >= 1 (2.0 is accepted, 2.7 is not)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or value != int(value) \
+            or value < 1:
+        raise ValueError(f"quadrature_degree must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def derivative(residual, u, du, materials=()):
+    """The consistent Jacobian of ``residual`` (a UFL linear form in v) with respect to u.
+
+    ``ufl.derivative`` sees the explicit u-dependence (UFL laws, follower loads, any term of the
+    user's); the first Piola stress P of each quadrature material is data, and its dependence on
+    u enters through its tangent: ``dP[du] = A : grad du``. Works for any residual that contains
+    the materials' P (scaled, on subdomains, with extra u-dependent terms).
+
+    Args:
+        residual: UFL form, linear in a test function.
+        u: the displacement Function.
+        du: trial function (direction).
+        materials: the quadrature materials whose P appears in ``residual``.
+    """
+    J = ufl.derivative(residual, u, du)
+    for m in materials:
+        term = m.stress_derivative(residual, du)
+        if term is not None:
+            J += term
+    return J
+
+
+class QuadratureMaterial:
+    """Base of the materials on the quadrature points of the owned cells.
+
+    Args:
+        u: displacement Function on a 2-D vector Lagrange space (Q1/P1 or higher), in m.
+        quadrature_degree: degree k of the "default" scheme (2: 2x2 Gauss points on
+            quadrilaterals, 3 points on triangles); an integer >= 1.
+        cells: local indices of the cells the material occupies (ghosts allowed, ignored for
+            evaluation); None: every cell.
+
+    Attributes:
+        u, mesh, quadrature_degree: as given.
+        dx: cell measure with the quadrature metadata; use it for every form that reads the
+            material's quadrature data.
+        cells: (n_cells,) the owned cells the material evaluates.
+        n_qp: quadrature points per cell.
+        F: (n_points, 2, 2) deformation gradient at the last ``update`` (point ``cell*n_qp+q``
+            of ``cells``), set by the subclasses.
+        clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"F"`` (evaluating grad u) and
+            ``"rve"`` (the law); ``timings`` is its wall-time table.
+    """
+
+    def __init__(self, u, quadrature_degree=2, cells=None):
+        V = u.function_space
+        msh = V.mesh
+        if msh.geometry.dim != 2 or u.ufl_shape != (2,):
+            raise ValueError(
+                f"{type(self).__name__} needs a 2-D mesh and a vector displacement with 2 "
+                f"components; got geometric dimension {msh.geometry.dim} and value shape "
+                f"{u.ufl_shape}")
+        self.u = u
+        self.mesh = msh
+        self.quadrature_degree = k = check_quadrature_degree(quadrature_degree)
+        self.dx = ufl.Measure("dx", domain=msh,
+                              metadata={"quadrature_degree": k, "quadrature_scheme": "default"})
+        X = dfx.quadrature_points(msh, k)
+        self.n_qp = X.shape[0]
+        self.cells, self.indicator = _material_cells(msh, cells)
+        self._F_expr = dfx.expression(ufl.Identity(2) + ufl.grad(u), X)
+        self._x_expr = dfx.expression(ufl.SpatialCoordinate(msh), X)
+        self.clock = Stopwatch()
+
+    # -- points --------------------------------------------------------------------------------
+
+    @property
+    def n_points(self) -> int:
+        """Number of quadrature points on this rank's cells of the material."""
+        return self.cells.size * self.n_qp
+
+    @property
+    def points(self) -> np.ndarray:
+        """(n_points, 2) reference coordinates of the points (m), ordered like F."""
+        if not hasattr(self, "_points"):
+            self._points = dfx.evaluate(self._x_expr, self.mesh, self.cells).reshape(-1, 2)
+        return self._points
+
+    @property
+    def timings(self) -> dict:
+        """Wall seconds spent in ``"F"`` (evaluating grad u) and ``"rve"`` (the law)."""
+        return {"F": self.clock.wall["F"], "rve": self.clock.wall["rve"]}
+
+    def deformation_gradient(self) -> np.ndarray:
+        """F = I + grad u (n_points, 2, 2) at the points for the current u."""
+        with self.clock("F"):
+            return dfx.evaluate(self._F_expr, self.mesh, self.cells).reshape(-1, 2, 2)
+
+    def cell_average(self, values) -> np.ndarray:
+        """Mean of a per-point array (n_points, ...) over each cell's quadrature points
+        -> (n_cells, ...) (unweighted: a display value, not an integral)."""
+        values = np.asarray(values)
+        return values.reshape(self.cells.size, self.n_qp, *values.shape[1:]).mean(axis=1)
+
+    # -- state (no history here; see GranularMaterial) -----------------------------------------
+
+    def update(self, tangent: bool = True) -> None:
+        """Evaluate the law at the current u (and the tangent if ``tangent``)."""
+        raise NotImplementedError
+
+    def commit(self) -> None:
+        """Accept the state of the last ``update`` as converged (laws with history)."""
+
+    # -- forms ---------------------------------------------------------------------------------
+
+    def stress(self):
+        """P as UFL (2x2): the quadrature Function, or the UFL law."""
+        raise NotImplementedError
+
+    def residual_form(self, v):
+        """Internal virtual work ``∫ P : grad v dx`` over the material's cells (UFL, N·m per
+        unit thickness)."""
+        return ufl.inner(self.stress(), ufl.grad(v)) * self.dx
+
+    def stress_derivative(self, residual, du):
+        """The part of d(residual)/du that ``ufl.derivative`` does not see (P held as data), or
+        None (a law written in UFL: ``ufl.derivative`` sees it all)."""
+        return None
+
+    def jacobian_form(self, du, v):
+        """The linearisation of :meth:`residual_form` (UFL bilinear form)."""
+        return derivative(self.residual_form(v), self.u, du, [self])
+
+    def derivative(self, residual, u, du):
+        """The consistent Jacobian of ``residual`` (which may contain this material's P) with
+        respect to u: :func:`derivative` with this material."""
+        return derivative(residual, u, du, [self])
+
+
+def _material_cells(msh, cells):
+    """The owned cells of the material (int32, ascending) and, on a subdomain, a DG0 indicator
+    Function of its cells (1 on them, 0 elsewhere; None for the whole mesh)."""
+    tdim = msh.topology.dim
+    imap = msh.topology.index_map(tdim)
+    n_owned, n_all = imap.size_local, imap.size_local + imap.num_ghosts
+    if cells is None:
+        return np.arange(n_owned, dtype=np.int32), None
+    cells = np.asarray(cells)
+    if cells.ndim != 1 or not np.issubdtype(cells.dtype, np.integer) and cells.size:
+        raise ValueError("cells must be a 1-D array of local cell indices (e.g. from "
+                         "dolfinx.mesh.locate_entities(mesh, 2, marker))")
+    cells = np.unique(cells.astype(np.int32))
+    if cells.size and (cells[0] < 0 or cells[-1] >= n_all):
+        raise ValueError(f"cells must be local cell indices in [0, {n_all}), got "
+                         f"{cells[0]} .. {cells[-1]}")
+    chi = fem.Function(dfx.function_space(msh, "DG", 0), name="indicator")
+    chi.x.array[dfx.cell_dofs(chi.function_space.dofmap)[cells].ravel()] = 1.0
+    chi.x.scatter_forward()
+    return cells[cells < n_owned], chi

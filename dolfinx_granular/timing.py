@@ -1,0 +1,54 @@
+"""Where the time goes: wall and CPU seconds per category, and kernel time per point.
+
+The solver and the materials keep a :class:`Stopwatch` each, so that benchmarks read the split of
+a Newton iteration (material, assembly, linear solve) from the objects themselves. CPU time
+(``time.process_time``) is what a benchmark on a shared machine should compare: it does not count
+the time the process waits for a core.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from contextlib import contextmanager
+
+import numpy as np
+
+
+class Stopwatch:
+    """Accumulated wall and CPU seconds and the number of timed calls, per category.
+
+    ``with clock("assembly"): ...`` adds to ``clock.wall["assembly"]``, ``clock.cpu["assembly"]``
+    and ``clock.calls["assembly"]``; categories may nest (each counts its own span).
+    """
+
+    def __init__(self):
+        self.wall = defaultdict(float)
+        self.cpu = defaultdict(float)
+        self.calls = defaultdict(int)
+
+    @contextmanager
+    def __call__(self, key):
+        wall, cpu = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            self.wall[key] += time.perf_counter() - wall
+            self.cpu[key] += time.process_time() - cpu
+            self.calls[key] += 1
+
+    def reset(self):
+        self.wall.clear()
+        self.cpu.clear()
+        self.calls.clear()
+
+
+def time_per_point(fn, F, repeats=5):
+    """Best wall time per point (s) of ``fn(F)`` over ``repeats`` runs, F of shape (n, 2, 2)
+    (the first run also compiles or loads a Numba kernel, so at least 2 runs are made)."""
+    best = np.inf
+    for _ in range(max(int(repeats), 2)):
+        t = time.perf_counter()
+        fn(F)
+        best = min(best, time.perf_counter() - t)
+    return best / len(F)
