@@ -236,6 +236,7 @@ class FrictionalRVE:
         self._L, self._R, self._rho, self._ij, self._shift = t._L, t._R, t._rho, t._ij, t._shift
         self._X, self._Y = t._X, t._Y
         self._inv_area = 1.0 / packing.area
+        self._lmax2 = float(np.max(self._X**2 + self._Y**2)) if self._R.size else 1.0
 
     @property
     def n_candidates(self) -> int:
@@ -287,7 +288,7 @@ class FrictionalRVE:
         f = np.empty(off[-1])
         D = np.empty(n)
         fk.evaluate_batch(
-            F, self._X, self._Y, self._R, self._rho, self.normal_stiffness,
+            F, self._X, self._Y, self._R, self._rho, self._lmax2, self.normal_stiffness,
             self.tangential_stiffness, self.friction, self._inv_area, self.min_stretch, tangent,
             state.F, state.offsets, state.force, state.dissipation, off, f, W, P,
             A if tangent else np.empty((0, 2, 2, 2, 2)), D, status,
@@ -370,7 +371,8 @@ class FrictionalRVE:
         stored = state.forces(0)[:m]
         buf[:stored.size] = stored
         eps, stick = np.empty(m), np.empty(m, np.int8)
-        fk.contact_step(F, np.ascontiguousarray(state.F[0]), self._X, self._Y, self._R, m, buf,
+        fk.contact_step(F, np.ascontiguousarray(state.F[0]), self._X, self._Y, self._R, m,
+                        self._lmax2, buf,
                         self.normal_stiffness, self.tangential_stiffness, self.friction, eps, stick)
         on = np.flatnonzero(eps >= 0.0)
         L = self._L[on]

@@ -63,11 +63,14 @@ N_ACC = 37
 
 
 @njit(cache=True, inline="always")
-def atan2(y, x):
-    """atan2(y, x) in (-pi, pi] without a libm call (selects only, so loops vectorise).
+def _atan2_unit(y, x):
+    """atan2(y, x) in (-pi, pi] for max(|x|, |y|) of order 1 (not tiny, not huge), with selects
+    only and one division, so that loops over it vectorise.
 
-    Reduction to t = min(|x|, |y|) / max(|x|, |y|) in [0, 1]; t > 0.66 uses
-    atan(t) = pi/4 + atan((t - 1) / (t + 1)). Not defined for x = y = 0.
+    Reduction to t = mn / mx = min(|x|, |y|) / max(|x|, |y|) in [0, 1] (t > 0.66:
+    atan(t) = pi/4 + atan((mn - mx) / (mn + mx))), then Cephes' atan(z) = z + z z² P(z²) / Q(z²)
+    written homogeneously in (num, den), z = num / den: num (Q^ + num² P^) / (den Q^) with
+    P^ = den^8 P(z²), Q^ = den^10 Q(z²); all terms of P^ and of Q^ have one sign (no cancellation).
     """
     ax = abs(x)
     ay = abs(y)
@@ -77,22 +80,33 @@ def atan2(y, x):
     big = mn > 0.66 * mx
     num = mn - mx if big else mn
     den = mn + mx if big else mx
-    z = num / den
-    zz = z * z
-    p = (((_P0 * zz + _P1) * zz + _P2) * zz + _P3) * zz + _P4
-    qq = ((((zz + _Q0) * zz + _Q1) * zz + _Q2) * zz + _Q3) * zz + _Q4
-    r = z * (zz * p / qq) + z
+    n2 = num * num
+    d2 = den * den
+    d4 = d2 * d2
+    d6 = d4 * d2
+    d8 = d4 * d4
+    p = (((_P0 * n2 + _P1 * d2) * n2 + _P2 * d4) * n2 + _P3 * d6) * n2 + _P4 * d8
+    qq = ((((n2 + _Q0 * d2) * n2 + _Q1 * d4) * n2 + _Q2 * d6) * n2 + _Q3 * d8) * n2 + _Q4 * (d8 * d2)
+    r = num * (qq + n2 * p) / (den * qq)
     r = r + (_PIO4 + 0.5 * _MOREBITS) if big else r
     r = (_PIO2 - r) + _MOREBITS if swap else r
     r = (_PI - r) + 2.0 * _MOREBITS if x < 0.0 else r
     return -r if y < 0.0 else r
 
 
+@njit(cache=True, inline="always")
+def atan2(y, x):
+    """atan2(y, x) in (-pi, pi] for any finite (x, y) != (0, 0), to ~1 ulp (tests: <= 4 ulp)."""
+    m = max(abs(x), abs(y))
+    return _atan2_unit(y / m, x / m)
+
+
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def atan2_array(y, x, out):
-    """:func:`atan2` elementwise over arrays of equal shape (n,), compiled with the kernel's flags."""
+def atan2_array(y, x, out, unit):
+    """:func:`atan2` (``unit`` False) or :func:`_atan2_unit` (True) elementwise over (n,) arrays,
+    compiled with the contact loop's flags (for tests)."""
     for i in range(y.shape[0]):
-        out[i] = atan2(y[i], x[i])
+        out[i] = _atan2_unit(y[i], x[i]) if unit else atan2(y[i], x[i])
 
 
 @njit(cache=True)
@@ -108,15 +122,18 @@ def prefix_lengths(F, rho, min_stretch, status, lengths):
 
 
 @njit(cache=True, inline="always")
-def _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11):
-    """Coefficients of cross(G L, F L) and dot(G L, F L) as quadratic forms in (xx, xy, yy)."""
+def _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2):
+    """Coefficients of cross(G L, F L) and dot(G L, F L) as quadratic forms in (xx, xy, yy),
+    scaled so that both are at most ~1 for |L|² <= lmax2 (the angle does not change)."""
     cxx = G00 * F10 - G10 * F00
     cxy = G00 * F11 + G01 * F10 - G10 * F01 - G11 * F00
     cyy = G01 * F11 - G11 * F01
     dxx = G00 * F00 + G10 * F10
     dxy = G00 * F01 + G01 * F00 + G10 * F11 + G11 * F10
     dyy = G01 * F01 + G11 * F11
-    return cxx, cxy, cyy, dxx, dxy, dyy
+    big = max(abs(cxx), abs(cxy), abs(cyy), abs(dxx), abs(dxy), abs(dyy))
+    s = 1.0 / (big * lmax2)
+    return cxx * s, cxy * s, cyy * s, dxx * s, dxy * s, dyy * s
 
 
 @njit(cache=True, inline="always")
@@ -130,22 +147,27 @@ def _contact_law(ftn, ds, ee, kt, mukn):
 
 
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def _friction_sums(F00, F01, F10, F11, G00, G01, G10, G11, dth, X, Y, R, n_visit, buf,
-                   kn, kt, mu, tangent, acc):
-    """Accumulate the moment sums of one point into ``acc`` (N_ACC,).
+def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, tangent, work,
+                  acc):
+    """Contact law and the stress sums of one point: e2, S, ft2, dis, sR, U into ``acc``.
 
-    ``buf[c]`` holds f_t,n of candidate c on entry and the new f_t on exit, c < n_visit (a
-    contiguous view: an offset index would stop LLVM from vectorising); G = F_n. See the module
-    docstring for the sums."""
-    cxx, cxy, cyy, dxx, dxy, dyy = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11)
+    ``work`` (2, >= n_visit): row 0 holds f_t,n on entry and the new f_t on exit; row 1 gets 1/d
+    (0 if open), negated unless the contact sticks, for :func:`_tangent_pass` (two short loops
+    vectorise better than one with 37 running sums). Only these two rows are written: with more
+    output arrays LLVM needs more runtime alias checks than it allows and leaves the loop scalar.
+    ``tangent`` is unused (a branch in the loop would stop it vectorising too)."""
+    cxx, cxy, cyy, dxx, dxy, dyy = cq
     mukn = mu * kn
-    e2 = s0 = s1 = s2 = 0.0
-    n0 = n1 = n2 = n3 = n4 = 0.0
-    ft2 = dis = sr = u0 = u1 = u2 = 0.0
-    h0 = h1 = h2 = h3 = h4 = 0.0
-    k0 = k1 = k2 = k3 = k4 = 0.0
-    p0 = p1 = p2 = p3 = p4 = 0.0
-    z0 = z1 = z2 = w0 = w1 = w2 = skr = 0.0
+    e2 = 0.0
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    ft2 = 0.0
+    dis = 0.0
+    sr = 0.0
+    u0 = 0.0
+    u1 = 0.0
+    u2 = 0.0
     for c in range(n_visit):
         x = X[c]
         y = Y[c]
@@ -166,66 +188,103 @@ def _friction_sums(F00, F01, F10, F11, G00, G01, G10, G11, dth, X, Y, R, n_visit
         s1 += b * xy
         s2 += b * yy
         # sliding since F_n: branch rotation minus particle spin, both wrapped to (-pi, pi]
-        ds = r * (atan2(cxx * xx + cxy * xy + cyy * yy, dxx * xx + dxy * xy + dyy * yy) - dth)
-        fstar, stick, ft = _contact_law(buf[c], ds, ee, kt, mukn)
-        buf[c] = ft
+        dphi = _atan2_unit(cxx * xx + cxy * xy + cyy * yy, dxx * xx + dxy * xy + dyy * yy)
+        fstar, stick, ft = _contact_law(work[0, c], r * (dphi - dth), ee, kt, mukn)
+        work[0, c] = ft
         ft2 += ft * ft
         dis += abs(ft) * abs(fstar - ft)  # 0 in stick and for open contacts
         ftr = ft * r
-        inv2 = inv * inv
-        u = ftr * inv2
+        u = ftr * inv * inv
         sr += ftr
         u0 += u * xx
         u1 += u * xy
         u2 += u * yy
-        if tangent:
-            q0 = xx * xx
-            q1 = xx * xy
-            q2 = xx * yy
-            q3 = xy * yy
-            q4 = yy * yy
-            g = r * inv * inv * inv
-            n0 += g * q0
-            n1 += g * q1
-            n2 += g * q2
-            n3 += g * q3
-            n4 += g * q4
-            gp = -u * inv2
-            h0 += gp * q0
-            h1 += gp * q1
-            h2 += gp * q2
-            h3 += gp * q3
-            h4 += gp * q4
-            kr2 = kt * r * r if stick else 0.0
-            wst = kr2 * inv2
-            skr += kr2
-            z0 += wst * xx
-            z1 += wst * xy
-            z2 += wst * yy
-            gs = wst * inv2
-            k0 += gs * q0
-            k1 += gs * q1
-            k2 += gs * q2
-            k3 += gs * q3
-            k4 += gs * q4
-            slip = (ee > 0.0) & (mukn > 0.0) & (not stick)
-            wsl = ((mukn if fstar >= 0.0 else -mukn) * r * inv) if slip else 0.0
-            w0 += wsl * xx
-            w1 += wsl * xy
-            w2 += wsl * yy
-            gl = -wsl * inv2
-            p0 += gl * q0
-            p1 += gl * q1
-            p2 += gl * q2
-            p3 += gl * q3
-            p4 += gl * q4
+        work[1, c] = inv if stick else -inv
     acc[_E2] = e2
-    acc[_S], acc[_S + 1], acc[_S + 2] = s0, s1, s2
-    acc[_TN], acc[_TN + 1], acc[_TN + 2], acc[_TN + 3], acc[_TN + 4] = n0, n1, n2, n3, n4
+    acc[_S] = s0
+    acc[_S + 1] = s1
+    acc[_S + 2] = s2
     acc[_FT2] = ft2
     acc[_DIS] = dis
     acc[_SR] = sr
-    acc[_U], acc[_U + 1], acc[_U + 2] = u0, u1, u2
+    acc[_U] = u0
+    acc[_U + 1] = u1
+    acc[_U + 2] = u2
+
+
+# The tangent sums decide nothing (no active set), so they may use fused multiply-adds.
+_FASTMATH_SUMS = _FASTMATH | {"contract"}
+
+
+@njit(cache=True, fastmath=_FASTMATH_SUMS, error_model="numpy")
+def _tangent_pass(X, Y, R, n_visit, work, kt, mukn, acc):
+    """The tangent's moment sums TN, Tph, Tst, Tsl, Z1, Z2, skr of one point into ``acc``, from
+    the new forces and the signed 1/d in ``work`` (see :func:`_contact_pass`).
+
+    Stick: work[1] > 0, weight k_t R². Slip (sliding sign s = sign f_t, f_t = s mu k_n eps):
+    work[1] < 0, weight s mu k_n R; f_t = 0 (open, eps = 0 or mu = 0) gives no slip weight."""
+    n0 = n1 = n2 = n3 = n4 = 0.0
+    h0 = h1 = h2 = h3 = h4 = 0.0
+    k0 = k1 = k2 = k3 = k4 = 0.0
+    p0 = p1 = p2 = p3 = p4 = 0.0
+    z0 = z1 = z2 = 0.0
+    w0 = w1 = w2 = 0.0
+    skr = 0.0
+    for c in range(n_visit):
+        x = X[c]
+        y = Y[c]
+        r = R[c]
+        ft = work[0, c]
+        w = work[1, c]
+        inv = abs(w)
+        ws = kt * r * r if w > 0.0 else 0.0
+        wl = mukn * r if ft > 0.0 else -mukn * r
+        wl = wl if (w < 0.0) & (ft != 0.0) else 0.0
+        xx = x * x
+        xy = x * y
+        yy = y * y
+        q0 = xx * xx
+        q1 = xx * xy
+        q2 = xx * yy
+        q3 = xy * yy
+        q4 = yy * yy
+        inv2 = inv * inv
+        inv3 = inv2 * inv
+        inv4 = inv2 * inv2
+        g = r * inv3
+        n0 += g * q0
+        n1 += g * q1
+        n2 += g * q2
+        n3 += g * q3
+        n4 += g * q4
+        g = -ft * r * inv4
+        h0 += g * q0
+        h1 += g * q1
+        h2 += g * q2
+        h3 += g * q3
+        h4 += g * q4
+        g = ws * inv4
+        k0 += g * q0
+        k1 += g * q1
+        k2 += g * q2
+        k3 += g * q3
+        k4 += g * q4
+        g = -wl * inv3
+        p0 += g * q0
+        p1 += g * q1
+        p2 += g * q2
+        p3 += g * q3
+        p4 += g * q4
+        g = ws * inv2
+        z0 += g * xx
+        z1 += g * xy
+        z2 += g * yy
+        g = wl * inv
+        w0 += g * xx
+        w1 += g * xy
+        w2 += g * yy
+        skr += ws
+    acc[_TN], acc[_TN + 1], acc[_TN + 2], acc[_TN + 3], acc[_TN + 4] = n0, n1, n2, n3, n4
     acc[_TPH], acc[_TPH + 1], acc[_TPH + 2], acc[_TPH + 3], acc[_TPH + 4] = h0, h1, h2, h3, h4
     acc[_TST], acc[_TST + 1], acc[_TST + 2], acc[_TST + 3], acc[_TST + 4] = k0, k1, k2, k3, k4
     acc[_TSL], acc[_TSL + 1], acc[_TSL + 2], acc[_TSL + 3], acc[_TSL + 4] = p0, p1, p2, p3, p4
@@ -307,13 +366,14 @@ def _finish_point(q, Fq, acc, dth_data, K, inv_area, kt, tangent, W, P, A):
 
 
 @njit(cache=True)
-def evaluate_batch(F, X, Y, R, rho, kn, kt, mu, inv_area, min_stretch, tangent,
+def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, tangent,
                    Fn, off_n, f_n, D_n, off, f, W, P, A, D, status):
     """Energy, stress, tangent and the new history at n points, from their committed history.
 
     Args:
         F: (n, 2, 2) deformation gradients.
         X, Y, R, rho: (M,) candidate arrays of :func:`kernel.candidate_pairs` (L = (X, Y)).
+        lmax2: max |L|² over the candidates (scales the angle computation).
         kn, kt, mu: normal stiffness, tangential stiffness (N/m²), friction coefficient.
         inv_area: 1 / V_rve.
         min_stretch: smallest supported singular value of F.
@@ -328,7 +388,8 @@ def evaluate_batch(F, X, Y, R, rho, kn, kt, mu, inv_area, min_stretch, tangent,
         status: (n,) int8 out: OK or the reason F was rejected (outputs then zero).
     """
     K = kn * inv_area
-    acc = np.empty(N_ACC)
+    acc = np.zeros(N_ACC)
+    work = np.empty((2, R.shape[0]))
     for q in range(F.shape[0]):
         F00, F01, F10, F11 = F[q, 0, 0], F[q, 0, 1], F[q, 1, 0], F[q, 1, 1]
         code, _ = _check_F(F00, F01, F10, F11, min_stretch)
@@ -343,28 +404,31 @@ def evaluate_batch(F, X, Y, R, rho, kn, kt, mu, inv_area, min_stretch, tangent,
         o = off[q]
         n_visit = off[q + 1] - o
         m = min(n_visit, off_n[q + 1] - off_n[q])
-        for c in range(m):
-            f[o + c] = f_n[off_n[q] + c]
-        for c in range(m, n_visit):
-            f[o + c] = 0.0  # not stored: not active at F_n
+        work[0, :m] = f_n[off_n[q]:off_n[q] + m]
+        work[0, m:n_visit] = 0.0  # not stored: not active at F_n
         G00, G01, G10, G11 = Fn[q, 0, 0], Fn[q, 0, 1], Fn[q, 1, 0], Fn[q, 1, 1]
         dth, th, alpha, beta = _rotation(F00, F01, F10, F11, G00, G01, G10, G11)
-        _friction_sums(F00, F01, F10, F11, G00, G01, G10, G11, dth, X, Y, R, n_visit,
-                       f[o:o + n_visit], kn, kt, mu, tangent, acc)
+        cq = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2)
+        _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, tangent, work,
+                      acc)
+        f[o:o + n_visit] = work[0, :n_visit]
+        if tangent:
+            _tangent_pass(X, Y, R, n_visit, work, kt, mu * kn, acc)
         D[q] = D_n[q] + (acc[_DIS] / kt * inv_area if kt > 0.0 else 0.0)
         _finish_point(q, F[q], acc, (th, alpha, beta), K, inv_area, kt, tangent, W, P, A)
 
 
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def contact_step(F, Fn, X, Y, R, n_visit, buf, kn, kt, mu, eps_out, stick_out):
-    """Per-candidate step of one point (same arithmetic as the batch kernel), for diagnostics.
+def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick_out):
+    """Per-candidate step of one point (same arithmetic as :func:`_contact_pass`), for diagnostics.
 
     ``buf`` (n_visit,) holds f_t,n on entry and f_t on exit; ``eps_out`` gets the overlaps and
     ``stick_out`` 1 for a sticking contact, 0 otherwise."""
     F00, F01, F10, F11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
     G00, G01, G10, G11 = Fn[0, 0], Fn[0, 1], Fn[1, 0], Fn[1, 1]
     dth = _rotation(F00, F01, F10, F11, G00, G01, G10, G11)[0]
-    cxx, cxy, cyy, dxx, dxy, dyy = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11)
+    cxx, cxy, cyy, dxx, dxy, dyy = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11,
+                                                    lmax2)
     for c in range(n_visit):
         x = X[c]
         y = Y[c]
@@ -376,8 +440,8 @@ def contact_step(F, Fn, X, Y, R, n_visit, buf, kn, kt, mu, eps_out, stick_out):
         xx = x * x
         xy = x * y
         yy = y * y
-        ds = r * (atan2(cxx * xx + cxy * xy + cyy * yy, dxx * xx + dxy * xy + dyy * yy) - dth)
-        _, stick, ft = _contact_law(buf[c], ds, ee, kt, mu * kn)
+        dphi = _atan2_unit(cxx * xx + cxy * xy + cyy * yy, dxx * xx + dxy * xy + dyy * yy)
+        _, stick, ft = _contact_law(buf[c], r * (dphi - dth), ee, kt, mu * kn)
         buf[c] = ft
         eps_out[c] = eps
         stick_out[c] = 1 if stick else 0

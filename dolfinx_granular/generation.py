@@ -26,12 +26,20 @@ Algorithm (:func:`generate_packing`):
    coordination of the non-rattlers below 3.8 is rejected and the same disks are jammed again
    from new random centres (a few percent of 70-disk cells need this).
 
+Cost. Every neighbour search is a cell list (:func:`_find_pairs`), so one FIRE step, one
+stress-free round and :func:`network_stats` cost O(N); the sparse normal equations of the Newton
+correction are factorised with a symmetric fill-reducing order. What stays super-linear is the
+number of FIRE steps a minimisation needs, which grows roughly like N^0.5 (the slowest elastic
+mode of the cell relaxes on a time ~ its width): ``benchmarks/generation.py`` measures the total.
+
 Everything is deterministic for a given ``seed`` (one ``numpy.random.Generator``; the Numba
-kernels are serial).
+kernels are serial; FIRE runs in chunks of steps whose length depends on the wall clock, but the
+whole state is carried from chunk to chunk, so the trajectory does not).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -40,7 +48,6 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba import njit
 
-from . import kernel
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
 from .packing import Packing
 
@@ -51,154 +58,191 @@ _F_DEC = 0.5
 _ALPHA0 = 0.1
 _F_ALPHA = 0.99
 
+# Progress: the shortest time between two intermediate progress lines (s), and the wall time
+# one chunk of FIRE steps aims at between two looks at the clock (s).
+PROGRESS_INTERVAL = 1.0
+_CHUNK_SECONDS = 0.1
 
-# -- neighbour list ---------------------------------------------------------------------------------
 
-
-@njit(cache=True)
-def _append_pair(m, pi, pj, sh, i, j, sx, sy):
-    """Store pair number m (i, j, shift (sx, sy)), doubling the buffers when full; returns them."""
-    if m == pi.shape[0]:
-        cap = 2 * m
-        pi2 = np.empty(cap, np.int64)
-        pj2 = np.empty(cap, np.int64)
-        sh2 = np.empty((cap, 2))
-        pi2[:m] = pi
-        pj2[:m] = pj
-        sh2[:m] = sh
-        pi, pj, sh = pi2, pj2, sh2
-    pi[m] = i
-    pj[m] = j
-    sh[m, 0] = sx
-    sh[m, 1] = sy
-    return pi, pj, sh
+# -- neighbour search --------------------------------------------------------------------------------
 
 
 @njit(cache=True)
-def _build_pairs(x, r, box, skin):
-    """Pairs (i, j, image shift of j) with |x_j + shift - x_i| < r_i + r_j + skin.
-
-    Wraps ``x`` into the cell in place first. Uses a cell list with the minimum image when the
-    cell holds at least 3 cells per side, else all pairs and images (tiny cells).
-
-    Returns:
-        ``(m, pi, pj, sh)``: count and arrays of capacity >= m; sh (cap, 2) shift in length units.
-    """
-    n = r.shape[0]
-    for i in range(n):
+def _wrap(x, box):
+    """Wrap the centres x (N, 2) into the cell [0, box) in place."""
+    for i in range(x.shape[0]):
         for a in range(2):
             x[i, a] -= np.floor(x[i, a] / box[a]) * box[a]
             if x[i, a] >= box[a]:
                 x[i, a] -= box[a]
-    rmax = r.max()
-    cut = 2.0 * rmax + skin
-    ncx = int(box[0] / cut)
-    ncy = int(box[1] / cut)
-    cap = 16 * n + 16
-    pi = np.empty(cap, np.int64)
-    pj = np.empty(cap, np.int64)
-    sh = np.empty((cap, 2))
-    m = 0
-    if ncx >= 3 and ncy >= 3:
-        head = -np.ones(ncx * ncy, np.int64)
-        nxt = np.empty(n, np.int64)
-        for i in range(n):
-            cx = min(int(x[i, 0] / box[0] * ncx), ncx - 1)
-            cy = min(int(x[i, 1] / box[1] * ncy), ncy - 1)
-            c = cx * ncy + cy
-            nxt[i] = head[c]
-            head[c] = i
-        for cx in range(ncx):
-            for cy in range(ncy):
-                i = head[cx * ncy + cy]
-                while i >= 0:
-                    for ox in range(-1, 2):
-                        for oy in range(-1, 2):
-                            c2 = ((cx + ox) % ncx) * ncy + (cy + oy) % ncy
-                            j = head[c2]
-                            while j >= 0:
-                                if j > i:
-                                    dx = x[j, 0] - x[i, 0]
-                                    dy = x[j, 1] - x[i, 1]
-                                    sx = -np.round(dx / box[0]) * box[0]
-                                    sy = -np.round(dy / box[1]) * box[1]
-                                    dx += sx
-                                    dy += sy
-                                    rc = r[i] + r[j] + skin
-                                    if dx * dx + dy * dy < rc * rc:
-                                        pi, pj, sh = _append_pair(m, pi, pj, sh, i, j, sx, sy)
-                                        m += 1
-                                j = nxt[j]
-                    i = nxt[i]
-    else:
-        kx = int(np.ceil(cut / box[0]))
-        ky = int(np.ceil(cut / box[1]))
-        for i in range(n):
-            for j in range(i + 1, n):
-                rc = r[i] + r[j] + skin
-                for ix in range(-kx, kx + 1):
-                    for iy in range(-ky, ky + 1):
-                        dx = x[j, 0] + ix * box[0] - x[i, 0]
-                        dy = x[j, 1] + iy * box[1] - x[i, 1]
-                        if dx * dx + dy * dy < rc * rc:
-                            pi, pj, sh = _append_pair(m, pi, pj, sh, i, j, ix * box[0], iy * box[1])
-                            m += 1
-    return m, pi, pj, sh
 
 
 @njit(cache=True)
-def _forces(x, r, m, pi, pj, sh, f):
-    """Harmonic overlap forces (k = 1) into f (N, 2); returns (energy, virial sum f·l, max overlap)."""
+def _append_pair(m, pi, pj, ps, i, j, sx, sy):
+    """Store pair number m (i, j, shift (sx, sy)), doubling the buffers when full; returns them."""
+    if m == pi.shape[0]:
+        pi2 = np.empty(2 * m, np.int32)
+        pj2 = np.empty(2 * m, np.int32)
+        ps2 = np.empty((2 * m, 2), np.int32)
+        pi2[:m] = pi
+        pj2[:m] = pj
+        ps2[:m] = ps
+        pi, pj, ps = pi2, pj2, ps2
+    pi[m] = i
+    pj[m] = j
+    ps[m, 0] = sx
+    ps[m, 1] = sy
+    return pi, pj, ps
+
+
+@njit(cache=True)
+def _cell_list(x, box, cut):
+    """Bin the centres x (N, 2), inside [0, box), into a grid of cells at least ``cut`` wide
+    (one cell per side where the box is narrower than that).
+
+    Returns:
+        ``(ncx, ncy, head, nxt)``: grid size, first disk of cell cx * ncy + cy (-1: empty) and
+        the next disk of the same cell (-1: last); a cell lists its disks by descending index.
+    """
+    ncx = max(int(box[0] / cut), 1)
+    ncy = max(int(box[1] / cut), 1)
+    head = -np.ones(ncx * ncy, np.int64)
+    nxt = np.empty(x.shape[0], np.int64)
+    for i in range(x.shape[0]):
+        cx = min(max(int(x[i, 0] / box[0] * ncx), 0), ncx - 1)
+        cy = min(max(int(x[i, 1] / box[1] * ncy), 0), ncy - 1)
+        c = cx * ncy + cy
+        nxt[i] = head[c]
+        head[c] = i
+    return ncx, ncy, head, nxt
+
+
+@njit(cache=True)
+def _find_pairs(x, r, box, ratio, skin, with_self):
+    """All pairs (i, j, image shift s) with |x_j + s * box - x_i| < ratio (r_i + r_j) + skin.
+
+    A cell list: O(N) for cells wider than a few diameters, and exact for any cell (narrow cells
+    scan more neighbour cells, so every periodic image within reach is found once).
+
+    Args:
+        x: (N, 2) centres inside [0, box) (mm); r: (N,) radii (mm); box: (2,) cell lengths (mm).
+        ratio, skin: reach factor (>= 0) and added distance (mm, >= 0).
+        with_self: also list a disk and its own images (j == i, one of each +-s).
+
+    Returns:
+        ``(m, pi, pj, ps)``: the count and int32 arrays of capacity >= m: pi, pj (cap,) with
+        j > i (or j == i), ps (cap, 2) integer shifts in cells.
+    """
+    cut = ratio * 2.0 * r.max() + skin
+    ncx, ncy, head, nxt = _cell_list(x, box, cut)
+    kx = int(np.ceil(cut * ncx / box[0]))  # neighbour cells to scan on each side (1 normally)
+    ky = int(np.ceil(cut * ncy / box[1]))
+    cap = 16 * r.shape[0] + 16
+    pi = np.empty(cap, np.int32)
+    pj = np.empty(cap, np.int32)
+    ps = np.empty((cap, 2), np.int32)
+    m = 0
+    for cx in range(ncx):
+        for cy in range(ncy):
+            i = head[cx * ncy + cy]
+            while i >= 0:
+                for ux in range(cx - kx, cx + kx + 1):
+                    sx = ux // ncx  # floor: image of the unwrapped cell ux
+                    for uy in range(cy - ky, cy + ky + 1):
+                        sy = uy // ncy
+                        j = head[(ux - sx * ncx) * ncy + uy - sy * ncy]
+                        while j >= 0:
+                            if j > i or (with_self and j == i and (sx > 0 or (sx == 0 and sy > 0))):
+                                dx = x[j, 0] - x[i, 0] + sx * box[0]
+                                dy = x[j, 1] - x[i, 1] + sy * box[1]
+                                rc = ratio * (r[i] + r[j]) + skin
+                                if dx * dx + dy * dy < rc * rc:
+                                    pi, pj, ps = _append_pair(m, pi, pj, ps, i, j, sx, sy)
+                                    m += 1
+                            j = nxt[j]
+                i = nxt[i]
+    return m, pi, pj, ps
+
+
+def _candidates(centers, radii, box, max_ratio):
+    """Pairs with |L| <= max_ratio (r_i + r_j) and their overlap at F = I, in linear time.
+
+    The same pairs, order and arithmetic as :func:`dolfinx_granular.kernel.candidate_pairs`
+    (L = X_j + shift * box - X_i, sorted by |L| / R, ties in scan order), so the overlaps
+    eps = R - |L| decide "active" exactly as the Taylor RVE does.
+
+    Args:
+        centers: (N, 2) centres inside [0, box) (mm); radii: (N,) (mm); box: (2,) (mm).
+        max_ratio: >= 1.
+
+    Returns:
+        ``(ij, shift, eps)``: ij (M, 2) int64 disk indices, shift (M, 2) int64 image offsets in
+        cells, eps (M,) overlaps in mm (negative: a gap).
+    """
+    m, pi, pj, ps = _find_pairs(centers, radii, box, max_ratio * (1.0 + 1e-9), 0.0, True)
+    i, j = pi[:m].astype(np.int64), pj[:m].astype(np.int64)
+    s = ps[:m].astype(np.int64)
+    lx = centers[j, 0] + s[:, 0] * box[0] - centers[i, 0]
+    ly = centers[j, 1] + s[:, 1] * box[1] - centers[i, 1]
+    d2 = lx * lx + ly * ly
+    rsum = radii[i] + radii[j]
+    keep = d2 <= (max_ratio * rsum) ** 2
+    scan = np.lexsort((s[keep, 1], s[keep, 0], j[keep], i[keep]))
+    idx = np.flatnonzero(keep)[scan]
+    order = idx[np.argsort(np.sqrt(d2[idx]) / rsum[idx], kind="stable")]
+    ij = np.stack([i[order], j[order]], axis=1)
+    return ij, s[order], rsum[order] - np.sqrt(d2[order])
+
+
+# -- FIRE --------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _forces(x, r, box, m, pi, pj, ps, f):
+    """Harmonic overlap forces (k = 1) of the first m listed pairs into f (N, 2).
+
+    Returns the virial sum over the contacts of overlap * distance (mm²).
+    """
     f[:, :] = 0.0
-    e = 0.0
     vir = 0.0
-    omax = 0.0
     for c in range(m):
         i = pi[c]
         j = pj[c]
-        dx = x[j, 0] + sh[c, 0] - x[i, 0]
-        dy = x[j, 1] + sh[c, 1] - x[i, 1]
+        dx = x[j, 0] + ps[c, 0] * box[0] - x[i, 0]
+        dy = x[j, 1] + ps[c, 1] * box[1] - x[i, 1]
         d2 = dx * dx + dy * dy
         rs = r[i] + r[j]
         if d2 < rs * rs:
             d = np.sqrt(d2)
             ov = rs - d
-            e += 0.5 * ov * ov
             vir += ov * d
-            if ov > omax:
-                omax = ov
             fx = ov * dx / d
             fy = ov * dy / d
             f[i, 0] -= fx
             f[i, 1] -= fy
             f[j, 0] += fx
             f[j, 1] += fy
-    return e, vir, omax
+    return vir
 
 
 @njit(cache=True)
-def _fire(x, r, box, skin, ftol, dt0, dt_max, max_steps):
-    """Minimise the overlap energy over the centres x (N, 2) (in place) with FIRE.
+def _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl):
+    """FIRE steps on the centres x (N, 2), in place, until max |f| < ftol or step ``stop``.
 
-    Unit masses and stiffness; stops when the largest force is below ``ftol``.
+    Unit masses and stiffness. The state lives in the arguments, so that a minimisation can run
+    in chunks with the same trajectory as in one go: velocities v and forces f (N, 2), the
+    centres x_ref (N, 2) at the last neighbour-list build, the list nl = (m, pi, pj, ps) and
+    st = [dt, alpha, n_pos, step, virial, max |f|] (float64 (6,), updated).
 
     Returns:
-        ``(steps, energy, virial, max_force)``.
+        ``(nl, converged)``: the (possibly rebuilt) neighbour list and whether max |f| < ftol.
     """
     n = r.shape[0]
-    v = np.zeros((n, 2))
-    f = np.empty((n, 2))
-    x_ref = x.copy()
-    m, pi, pj, sh = _build_pairs(x, r, box, skin)
-    x_ref[:, :] = x
-    dt = dt0
-    alpha = _ALPHA0
-    n_pos = 0
-    e, vir, omax = _forces(x, r, m, pi, pj, sh, f)
-    fmax = 0.0
-    step = 0
+    m, pi, pj, ps = nl
+    dt, alpha, n_pos, step = st[0], st[1], int(st[2]), int(st[3])
     half2 = (0.5 * skin) ** 2
-    while step < max_steps:
+    converged = False
+    while step < stop:
         fmax = 0.0
         fn2 = 0.0
         vn2 = 0.0
@@ -210,8 +254,9 @@ def _fire(x, r, box, skin, ftol, dt0, dt_max, max_steps):
             fn2 += fi2
             vn2 += v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
             power += f[i, 0] * v[i, 0] + f[i, 1] * v[i, 1]
-        fmax = np.sqrt(fmax)
-        if fmax < ftol:
+        st[5] = np.sqrt(fmax)
+        if st[5] < ftol:
+            converged = True
             break
         if power > 0.0:
             scale = alpha * np.sqrt(vn2 / fn2)
@@ -235,15 +280,106 @@ def _fire(x, r, box, skin, ftol, dt0, dt_max, max_steps):
             x[i, 1] += dt * v[i, 1]
             dxr = x[i, 0] - x_ref[i, 0]
             dyr = x[i, 1] - x_ref[i, 1]
-            d2 = dxr * dxr + dyr * dyr
-            if d2 > moved2:
-                moved2 = d2
+            moved2 = max(moved2, dxr * dxr + dyr * dyr)
         if moved2 > half2:
-            m, pi, pj, sh = _build_pairs(x, r, box, skin)
+            _wrap(x, box)
+            m, pi, pj, ps = _find_pairs(x, r, box, 1.0, skin, False)
             x_ref[:, :] = x
-        e, vir, omax = _forces(x, r, m, pi, pj, sh, f)
+        st[4] = _forces(x, r, box, m, pi, pj, ps, f)
         step += 1
-    return step, e, vir, fmax
+    st[0], st[1], st[2], st[3] = dt, alpha, n_pos, step
+    return (m, pi, pj, ps), converged
+
+
+def _minimise(x, r, box, skin, ftol, dt0, dt_max, max_steps, beat):
+    """Minimise the overlap energy over the centres x (N, 2) (in place) with FIRE.
+
+    Stops when the largest force is below ``ftol`` or after ``max_steps`` steps. Runs the Numba
+    kernel in chunks of ~0.1 s and calls ``beat(step, max_force)`` after each unfinished chunk.
+
+    Returns:
+        ``(steps, virial)``: virial = sum of overlap * distance over the contacts (mm²).
+    """
+    n = r.shape[0]
+    _wrap(x, box)
+    nl = _find_pairs(x, r, box, 1.0, skin, False)
+    v = np.zeros((n, 2))
+    f = np.empty((n, 2))
+    x_ref = x.copy()
+    st = np.array([dt0, _ALPHA0, 0.0, 0.0, 0.0, np.inf])
+    st[4] = _forces(x, r, box, *nl, f)
+    chunk = 16
+    while True:
+        t0 = time.perf_counter()
+        stop = min(int(st[3]) + chunk, max_steps)
+        nl, converged = _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl)
+        if converged or int(st[3]) >= max_steps:
+            return int(st[3]), st[4]
+        beat(int(st[3]), st[5])
+        elapsed = max(time.perf_counter() - t0, 1e-6)
+        chunk = int(min(max(chunk * _CHUNK_SECONDS / elapsed, 16), 8 * chunk))
+
+
+# -- progress ----------------------------------------------------------------------------------------
+
+
+class ProgressLine(str):
+    """One progress message of :func:`generate_packing`: a ``str`` (the line to print) with
+
+    Attributes:
+        stage: ``"jamming"``, ``"stress-free"``, ``"checking"`` or ``"done"``.
+        fraction: rough estimate of the finished share of the work, in [0, 1]; never decreases
+            within a call and is exactly 1.0 on the final ``"done"`` line only.
+    """
+
+    stage: str
+    fraction: float
+
+    def __new__(cls, text: str, stage: str, fraction: float):
+        line = super().__new__(cls, text)
+        line.stage = stage
+        line.fraction = fraction
+        return line
+
+
+class _Reporter:
+    """Turns stage events and heartbeats into :class:`ProgressLine` calls of ``callback``.
+
+    Within one jamming attempt the work is weighted 0.90 jamming, 0.07 stress-free correction,
+    0.02 checking; a further attempt shares out what is left of [0, 1).
+    """
+
+    _SPANS = {"jamming": (0.0, 0.90), "stress-free": (0.90, 0.97), "checking": (0.97, 0.99)}
+
+    def __init__(self, callback):
+        self.callback = callback
+        self.t0 = time.perf_counter()
+        self.last = -math.inf  # time of the last line
+        self.fraction = 0.0
+        self.base = 0.0  # fraction at the start of the current attempt
+
+    def new_attempt(self):
+        self.base = self.fraction
+
+    def elapsed(self):
+        return time.perf_counter() - self.t0
+
+    def __call__(self, stage, within, text, heartbeat=False):
+        """Report ``text``; ``within`` in [0, 1] is the progress inside ``stage``. A heartbeat
+        is dropped unless PROGRESS_INTERVAL has passed since the last line."""
+        if self.callback is None:
+            return
+        now = time.perf_counter()
+        if heartbeat and now - self.last < PROGRESS_INTERVAL:
+            return
+        if stage == "done":
+            self.fraction = 1.0
+        else:
+            lo, hi = self._SPANS[stage]
+            share = lo + (hi - lo) * min(max(within, 0.0), 1.0)
+            self.fraction = max(self.fraction, self.base + (1.0 - self.base) * share)
+        self.last = now
+        self.callback(ProgressLine(f"{text} [{100 * self.fraction:.0f} %]", stage, self.fraction))
 
 
 # -- public API --------------------------------------------------------------------------------------
@@ -273,23 +409,27 @@ class NetworkStats:
 
 
 def network_stats(packing: Packing) -> NetworkStats:
-    """Contacts, rattlers and coordination of ``packing`` at F = I (see :class:`NetworkStats`)."""
-    from .rve import TaylorRVE
+    """Contacts, rattlers and coordination of ``packing`` at F = I (see :class:`NetworkStats`).
 
-    rve = TaylorRVE(packing, 1.0, min_stretch=0.99)
-    cs = rve.contacts(np.eye(2))
-    rattler = _rattlers(cs.pairs, packing.n_particles)
-    keep = ~(rattler[cs.pairs[:, 0]] | rattler[cs.pairs[:, 1]])
-    counts = np.bincount(cs.pairs[keep].ravel(), minlength=packing.n_particles)[~rattler]
+    The contacts are those of ``TaylorRVE(packing, k).contacts(np.eye(2))`` (same pairs, same
+    arithmetic), found in O(N) time.
+    """
+    ij, _, eps = _candidates(packing.centers, packing.radii, packing.box, 1.0 / 0.99)
+    on = eps >= 0.0
+    pairs, overlap = ij[on], eps[on]
+    n = packing.n_particles
+    rattler = _rattlers(pairs, n)
+    keep = ~(rattler[pairs[:, 0]] | rattler[pairs[:, 1]])
+    counts = np.bincount(pairs[keep].ravel(), minlength=n)[~rattler]
     d_mean = 2.0 * packing.radii.mean()
     return NetworkStats(
         volume_fraction=packing.volume_fraction,
-        n_contacts=int(cs.pairs.shape[0]),
+        n_contacts=int(pairs.shape[0]),
         rattlers=np.flatnonzero(rattler),
         rattler_fraction=float(rattler.mean()),
         coordination=float(counts.mean()) if counts.size else 0.0,
         min_coordination=int(counts.min()) if counts.size else 0,
-        max_overlap=float(cs.overlap.max() / d_mean) if cs.overlap.size else 0.0,
+        max_overlap=float(overlap.max() / d_mean) if overlap.size else 0.0,
     )
 
 
@@ -328,7 +468,13 @@ def generate_packing(
             all; the attempt with the fewest rattlers is returned. Small cells (N ~ 70)
             need a second attempt for a few percent of the seeds.
         max_attempts: >= 1, see ``max_rattlers``.
-        progress: optional callable taking one status string per stage (for slow cases).
+        progress: optional callable of one argument, a :class:`ProgressLine`: a ``str`` to
+            print (it ends in the percentage) with attributes ``stage`` and ``fraction`` (a
+            rough, never decreasing estimate of the finished share of the work; 1.0 on the last
+            line, whose stage is ``"done"``). It is called at every stage event (each
+            minimisation of the jamming search, the jammed state, each rejected attempt, the
+            end) and, during long minimisations and corrections, at most once per
+            ``PROGRESS_INTERVAL`` (1 s) in between. It does not change the result.
 
     Returns:
         :class:`~dolfinx_granular.packing.Packing` with radii in mm.
@@ -337,6 +483,50 @@ def generate_packing(
         ValueError: N < 2, a bad sieve curve (not monotone, not reaching 100 %, non-positive
             apertures) or a parameter out of range.
     """
+    n, curve = _check_arguments(n_particles, gsd, aspect, pressure, max_rattlers, max_attempts,
+                                contact_overlap)
+    say = _Reporter(progress)
+    rng = np.random.default_rng(seed)
+    diam = curve.sample_diameters(n, rng, d_min=d_min)
+    rng.shuffle(diam)
+    r0 = 0.5 * diam
+    d_mean = float(diam.mean())
+    # Cell sized for phi ~ 0.84 at the sampled radii; stage 2 scales the radii, stage 3 scales back.
+    area = np.pi * np.sum(r0**2) / 0.84
+    box = np.array([np.sqrt(area / aspect), np.sqrt(area * aspect)])
+    if 2.0 * r0.max() >= 0.8 * box.min():
+        raise ValueError(
+            f"{n} disks are too few for this size span: the largest grain "
+            f"({2 * r0.max():.3g} mm) would span 80 % of the cell; use more particles or a "
+            "narrower grading (larger d_min)"
+        )
+    best = None
+    for attempt in range(max_attempts):
+        say.new_attempt()
+        x = rng.random((n, 2)) * box
+        x, scale, p = _jam(x, r0, box, pressure, d_mean, say)
+        say("jamming", 1.0, f"jammed at phi = {np.pi * np.sum((scale * r0) ** 2) / box.prod():.4f}"
+            f", p/k = {p:.2e} ({say.elapsed():.1f} s)")
+        centers, radii, cell = _stress_free(x / scale, r0.copy(), box / scale,
+                                            contact_overlap * d_mean, say)
+        packing = Packing(centers, radii, cell)
+        say("checking", 0.0, f"checking the contact network ({say.elapsed():.1f} s)", True)
+        stats = network_stats(packing)
+        if best is None or stats.rattler_fraction < best[1].rattler_fraction:
+            best = (packing, stats)
+        if stats.rattler_fraction <= max_rattlers and stats.coordination >= 3.8:
+            break
+        say("checking", 1.0, f"attempt {attempt + 1}: {100 * stats.rattler_fraction:.1f} % "
+            f"rattlers, Z = {stats.coordination:.2f}; jamming again from new random centres")
+    packing, stats = best
+    say("done", 1.0, f"done: {n} disks, phi = {packing.volume_fraction:.4f}, "
+        f"{100 * stats.rattler_fraction:.1f} % rattlers ({say.elapsed():.1f} s)")
+    return packing
+
+
+def _check_arguments(n_particles, gsd, aspect, pressure, max_rattlers, max_attempts,
+                     contact_overlap):
+    """Validate the arguments of :func:`generate_packing`; returns ``(n, sieve curve)``."""
     try:
         n = int(n_particles)
     except (TypeError, ValueError):
@@ -354,45 +544,7 @@ def generate_packing(
         raise ValueError(f"max_attempts must be an integer >= 1, got {max_attempts}")
     if not (0.0 < contact_overlap <= 1e-8):
         raise ValueError(f"contact_overlap must lie in (0, 1e-8], got {contact_overlap}")
-    say = progress if progress is not None else (lambda msg: None)
-    t0 = time.perf_counter()
-
-    rng = np.random.default_rng(seed)
-    diam = curve.sample_diameters(n, rng, d_min=d_min)
-    rng.shuffle(diam)
-    r0 = 0.5 * diam
-    d_mean = float(diam.mean())
-    if 2 * n < 2:  # pragma: no cover - guarded above
-        raise ValueError
-    # Cell sized for phi ~ 0.84 at the sampled radii; stage 2 scales the radii, stage 3 scales back.
-    area = np.pi * np.sum(r0**2) / 0.84
-    box = np.array([np.sqrt(area / aspect), np.sqrt(area * aspect)])
-    if 2.0 * r0.max() >= 0.8 * box.min():
-        raise ValueError(
-            f"{n} disks are too few for this size span: the largest grain "
-            f"({2 * r0.max():.3g} mm) would span 80 % of the cell; use more particles or a "
-            "narrower grading (larger d_min)"
-        )
-    best = None
-    for attempt in range(max_attempts):
-        x = rng.random((n, 2)) * box
-        x, scale, p = _jam(x, r0, box, pressure, d_mean, say)
-        say(f"jammed at phi = {np.pi * np.sum((scale * r0) ** 2) / box.prod():.4f}, "
-            f"p/k = {p:.2e} ({time.perf_counter() - t0:.1f} s)")
-        centers, radii, cell = _stress_free(x / scale, r0.copy(), box / scale,
-                                            contact_overlap * d_mean)
-        packing = Packing(centers, radii, cell)
-        stats = network_stats(packing)
-        if best is None or stats.rattler_fraction < best[1].rattler_fraction:
-            best = (packing, stats)
-        if stats.rattler_fraction <= max_rattlers and stats.coordination >= 3.8:
-            break
-        say(f"attempt {attempt + 1}: {100 * stats.rattler_fraction:.1f} % rattlers, "
-            f"Z = {stats.coordination:.2f}; jamming again from new random centres")
-    packing, stats = best
-    say(f"done: {n} disks, phi = {packing.volume_fraction:.4f}, "
-        f"{100 * stats.rattler_fraction:.1f} % rattlers ({time.perf_counter() - t0:.1f} s)")
-    return packing
+    return n, curve
 
 
 # -- stage 2: jamming --------------------------------------------------------------------------------
@@ -401,23 +553,26 @@ def generate_packing(
 def _jam(x, r0, box, p_target, d_mean, say):
     """Scale radii and minimise until the pressure p / k is within a factor 1.5 of ``p_target``.
 
-    Returns ``(x, scale, p)`` with the jammed centres at radii ``scale * r0``.
+    Args:
+        x: (N, 2) initial centres (mm); r0: (N,) radii (mm) at which the cell holds
+            phi0 = pi sum r0² / |box|; box: (2,) (mm); d_mean: mean diameter (mm);
+        say: the :class:`_Reporter`.
+
+    Returns:
+        ``(x, scale, p)`` with the jammed centres (N, 2) at radii ``scale * r0``.
     """
     phi0 = np.pi * np.sum(r0**2) / box.prod()
     skin = 0.3 * d_mean
     ftol = 1e-3 * p_target * d_mean
-    area = box.prod()
     phi = 0.86
     lo, hi = None, None  # (phi, p) bracket: unjammed / jammed
     jammed = []
     p = 0.0
     for it in range(60):
         scale = np.sqrt(phi / phi0)
-        r = scale * r0
-        steps, e, vir, fmax = _fire(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean,
-                                    2_000_000)
-        p = vir / (2.0 * area)
-        say(f"  phi = {phi:.5f}: p/k = {p:.3e} after {steps} FIRE steps")
+        steps, p = _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, phi, it)
+        say("jamming", (it + 1) / max(4.0, it + 1.5),
+            f"  phi = {phi:.5f}: p/k = {p:.3e} after {steps} FIRE steps")
         if p_target / 1.5 <= p <= 1.5 * p_target:
             return x, scale, p
         if p > p_target:
@@ -428,38 +583,63 @@ def _jam(x, r0, box, p_target, d_mean, say):
             jammed.append((phi, p))
         if lo is not None and hi is not None and hi - lo < 1e-9:
             # p jumps across the target (small N): accept the jammed state at the upper bound
-            phi = hi
-            scale = np.sqrt(phi / phi0)
-            _fire(x, scale * r0, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000)
+            scale = np.sqrt(hi / phi0)
+            _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, hi, it)
             return x, scale, _pressure(x, scale * r0, box)
-        # next phi: secant on the last two jammed states (p is ~ linear in phi above jamming),
-        # else a slope guess; bisect when the step leaves the bracket.
-        if len(jammed) >= 2 and jammed[-1][1] != jammed[-2][1] and jammed[-1][0] != jammed[-2][0]:
-            (f1, p1), (f2, p2) = jammed[-2], jammed[-1]
-            slope = max((p2 - p1) / (f2 - f1), 1e-3)
-            new = f2 + (p_target - p2) / slope
-        elif jammed:
-            new = jammed[-1][0] + (p_target - jammed[-1][1]) / 0.3
-        else:
-            new = phi + 0.005
-        if hi is None:
-            new = max(new, phi + 1e-4)
-        elif lo is None:
-            new = min(new, phi - 1e-4)
-        elif not (lo < new < hi):
-            new = 0.5 * (lo + hi)
-        phi = new
+        phi = _next_phi(phi, jammed, lo, hi, p_target)
     raise RuntimeError(f"jamming did not reach p/k = {p_target:g} (last p/k = {p:.3g})")
 
 
-# -- stage 3: stress-free reference ------------------------------------------------------------------
+def _minimise_reporting(x, r, box, skin, ftol, d_mean, say, phi, it):
+    """FIRE minimisation number ``it`` of the jamming search, with heartbeats; ``(steps, p / k)``.
+
+    The heartbeat's progress inside the minimisation is log(f0 / f) / log(f0 / ftol) for the
+    largest force f (f0 at the first heartbeat).
+    """
+    f0 = []
+
+    def beat(step, fmax):
+        f0.append(fmax)
+        g = math.log(f0[0] / fmax) / math.log(f0[0] / ftol) if f0[0] > ftol and fmax > 0 else 0.0
+        say("jamming", (it + max(g, 0.0)) / max(4.0, it + 1.5),
+            f"jamming: phi = {phi:.5f}, FIRE step {step}, largest force {fmax / ftol:.3g} x "
+            f"the tolerance ({say.elapsed():.1f} s)", heartbeat=True)
+
+    steps, vir = _minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
+    return steps, vir / (2.0 * box.prod())
+
+
+def _next_phi(phi, jammed, lo, hi, p_target):
+    """Next packing fraction of the root search on p(phi) = p_target.
+
+    A secant step on the last two jammed states (p is ~ linear in phi above jamming), else a
+    slope guess; a bisection of the bracket (lo, hi) when the step leaves it.
+    """
+    if len(jammed) >= 2 and jammed[-1][1] != jammed[-2][1] and jammed[-1][0] != jammed[-2][0]:
+        (f1, p1), (f2, p2) = jammed[-2], jammed[-1]
+        slope = max((p2 - p1) / (f2 - f1), 1e-3)
+        new = f2 + (p_target - p2) / slope
+    elif jammed:
+        new = jammed[-1][0] + (p_target - jammed[-1][1]) / 0.3
+    else:
+        new = phi + 0.005
+    if hi is None:
+        new = max(new, phi + 1e-4)
+    elif lo is None:
+        new = min(new, phi - 1e-4)
+    elif not (lo < new < hi):
+        new = 0.5 * (lo + hi)
+    return new
 
 
 def _pressure(x, r, box):
-    """Virial pressure p / k of centres x at radii r."""
-    m, pi, pj, sh = _build_pairs(x, r, box, 0.0)
-    e, vir, omax = _forces(x, r, m, pi, pj, sh, np.empty_like(x))
-    return vir / (2.0 * box.prod())
+    """Virial pressure p / k of the centres x (N, 2) (wrapped in place) at radii r (N,)."""
+    _wrap(x, box)
+    m, pi, pj, ps = _find_pairs(x, r, box, 1.0, 0.0, False)
+    return _forces(x, r, box, m, pi, pj, ps, np.empty_like(x)) / (2.0 * box.prod())
+
+
+# -- stage 3: stress-free reference ------------------------------------------------------------------
 
 
 def _rattlers(pairs, n):
@@ -474,55 +654,68 @@ def _rattlers(pairs, n):
         rattler |= new
 
 
-def _overlaps(centers, radii, box, L_only=False):
-    """Candidate pairs near contact with the kernel's arithmetic: (ij, shift, eps)."""
-    L, R, rho, ij, shift = kernel.candidate_pairs(centers, radii, box, 1.02)
-    eps = R - np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
-    return ij, shift, eps
+def _pair_keys(ij, shift, n):
+    """One int64 key per pair (i, j, shift) (M, 2) + (M, 2) of an N-disk packing."""
+    s = shift + 64  # |shift| <= 2 here: a disk spans less than 80 % of the cell
+    return ((ij[:, 0] * n + ij[:, 1]) * 129 + s[:, 0]) * 129 + s[:, 1]
 
 
-def _stress_free(x, r, box, delta):
+def _stress_free(x, r, box, delta, say):
     """Move centres and radii minimally so that contacts overlap by exactly ``delta``.
 
     Contacts between non-rattlers get eps = delta, contacts of rattlers a gap 1e5 * delta.
-    Returns wrapped ``(centers, radii, box)``.
+
+    Args:
+        x: (N, 2) jammed centres (mm); r: (N,) radii (mm); box: (2,) (mm); delta: overlap (mm);
+        say: the :class:`_Reporter`.
+
+    Returns:
+        Wrapped ``(centers (N, 2), radii (N,), box (2,))``.
     """
     n = r.size
     gap = 1e5 * delta
     centers = Packing(x, r, box).centers
-    targets = {}  # (i, j, sx, sy) -> target eps
-    for _round in range(10):
-        ij, shift, eps = _overlaps(centers, r, box)
-        keys = [(int(a), int(b), int(c), int(d)) for (a, b), (c, d) in zip(ij, shift)]
-        if not targets:
-            on = eps > 0.0
-            rattler = _rattlers(ij[on], n)
-            for k, key in enumerate(keys):
-                if on[k]:
-                    bad = rattler[key[0]] or rattler[key[1]]
-                    targets[key] = -gap if bad else delta
+    net_keys = np.empty(0, np.int64)  # the network's pairs, in the order they joined it
+    net_eps = np.empty(0)  # and their target overlaps
+    for rnd in range(10):
+        ij, shift, eps = _candidates(centers, r, box, 1.02)
+        keys = _pair_keys(ij, shift, n)
+        if net_keys.size == 0:
+            new = eps > 0.0
+            rattler = _rattlers(ij[new], n)
         else:
             # pairs that closed during the last correction join the network
-            for k, key in enumerate(keys):
-                if key not in targets and eps[k] > -0.5 * gap:
-                    bad = rattler[key[0]] or rattler[key[1]]
-                    targets[key] = -gap if bad else delta
-        index = {key: k for k, key in enumerate(keys)}
-        sel = np.array([index[key] for key in targets if key in index], dtype=np.int64)
-        tgt = np.array([targets[key] for key in targets if key in index])
-        free = np.ones(len(keys), bool)
+            new = (eps > -0.5 * gap) & ~np.isin(keys, net_keys)
+        bad = rattler[ij[new, 0]] | rattler[ij[new, 1]]
+        net_keys = np.concatenate([net_keys, keys[new]])
+        net_eps = np.concatenate([net_eps, np.where(bad, -gap, delta)])
+        sorted_keys = np.argsort(keys)
+        at = np.minimum(np.searchsorted(keys, net_keys, sorter=sorted_keys), keys.size - 1)
+        found = keys[sorted_keys[at]] == net_keys
+        sel, tgt = sorted_keys[at[found]], net_eps[found]
+        free = np.ones(keys.size, bool)
         free[sel] = False
         ok_free = not np.any(eps[free] > -0.5 * gap)
-        resid = eps[sel] - tgt
-        if ok_free and sel.size == len(targets) and np.all(np.abs(resid) <= 0.1 * delta):
+        if ok_free and found.all() and np.all(np.abs(eps[sel] - tgt) <= 0.1 * delta):
             return centers, r, box
+        say("stress-free", rnd / (rnd + 2.0), f"stress-free correction, round {rnd + 1}: "
+            f"{sel.size} contacts ({say.elapsed():.1f} s)", heartbeat=True)
         centers, r = _newton(centers, r, box, ij[sel], shift[sel], tgt, delta)
         centers = Packing(centers, r, box).centers
     raise RuntimeError("the stress-free correction of the contact network did not converge")
 
 
 def _newton(x, r, box, ij, shift, target, delta):
-    """Minimum-norm Newton steps on (x, r) for eps_c(x, r) = target_c over the given pairs."""
+    """Minimum-norm Newton steps on (x, r) for eps_c(x, r) = target_c over the given pairs.
+
+    Args:
+        x: (N, 2) centres (mm); r: (N,) radii (mm); box: (2,) (mm); ij, shift: (M, 2) pairs
+        and image shifts (cells); target: (M,) overlaps (mm); delta: the tolerance scale (mm):
+        stops when every |eps - target| <= 0.01 delta, or after 8 steps.
+
+    Returns:
+        The corrected ``(x, r)``.
+    """
     x = x.copy()
     r = r.copy()
     i, j = ij[:, 0], ij[:, 1]
@@ -543,8 +736,11 @@ def _newton(x, r, box, ij, shift, target, delta):
         J = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, 3 * n))
         JJt = (J @ J.T).tocsc()
         JJt = JJt + sp.identity(m, format="csc") * 1e-12 * JJt.diagonal().mean()
-        lam = spla.splu(JJt).solve(-g)
-        dz = J.T @ lam
+        # J J^T is symmetric positive definite: a symmetric fill-reducing order without pivoting
+        # fills in far less than the default column order (O(M^1.2) instead of O(M^1.6) here)
+        lu = spla.splu(JJt, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+        dz = J.T @ lu.solve(-g)
         x += dz[: 2 * n].reshape(n, 2)
         r += dz[2 * n:]
     return x, r

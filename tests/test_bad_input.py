@@ -112,7 +112,7 @@ def test_mesh_without_physical_groups():
     from mpi4py import MPI
 
     sys.path.insert(0, ROOT)
-    from meshes.slope import MeshError, build_gmsh_model, model_to_mesh
+    from dolfinx_granular.slope.geometry import MeshError, build_gmsh_model, model_to_mesh
 
     comm = MPI.COMM_WORLD
     gmsh.initialize()

@@ -15,7 +15,8 @@ from dolfinx import fem, mesh
 from mpi4py import MPI
 
 from dolfinx_granular import _dolfinx as dfx
-from scripts import ROOT, load_demo
+from dolfinx_granular.slope import SlopeOptions, run_slope
+from scripts import ROOT
 
 LIBRARIES = ("dolfinx", "ufl", "basix", "ffcx")
 
@@ -76,7 +77,7 @@ def test_mpi_command_matches_this_python():
 
 @pytest.mark.mpi
 def test_gmsh_model_to_mesh_gives_mesh_and_tags():
-    from meshes.slope import SOIL, SlopeGeometry, create_mesh
+    from dolfinx_granular.slope.geometry import SOIL, SlopeGeometry, create_mesh
 
     msh, cells, facets = create_mesh(MPI.COMM_WORLD, SlopeGeometry())
     assert msh.topology.index_map(2).size_global == SlopeGeometry().n_cells
@@ -91,8 +92,8 @@ def test_no_deprecation_warning_from_the_package(tmp_path):
     packing = generate_packing(20, seed=2)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        summary = load_demo("slope").run(packing, steps=1, out=str(tmp_path), figure=False,
-                                         verbose=False)
+        summary = run_slope(packing, SlopeOptions(steps=1), out=str(tmp_path), figure=False,
+                            verbose=False)
         dfx.vtk_mesh(dfx.vector_space(square(1)))
     assert summary["converged"]
     ours = [f"{w.filename}:{w.lineno}: {w.message}" for w in caught

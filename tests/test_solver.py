@@ -10,10 +10,10 @@ dolfinx = pytest.importorskip("dolfinx")
 from mpi4py import MPI  # noqa: E402
 
 from columns import granular_column  # noqa: E402
-from scripts import load_demo  # noqa: E402
 
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
 from dolfinx_granular._dolfinx import SNES_NAN_REASON  # noqa: E402
+from dolfinx_granular.slope import SlopeOptions, run_slope  # noqa: E402
 
 
 def column(pressure, petsc_options=None, prefix="col_", n=6):
@@ -84,20 +84,28 @@ def test_failure_is_reported_not_raised():
 
 def test_small_slope_run_converges_quadratically(tmp_path):
     """All 21 load steps of the slope with a 70-particle RVE, no figure."""
-    slope = load_demo("slope")
-    summary = slope.run(generate_packing(70, seed=2), steps=20, out=str(tmp_path),
+    summary = run_slope(generate_packing(70, seed=2), SlopeOptions(steps=20), out=str(tmp_path),
                         comm=MPI.COMM_SELF, figure=False, verbose=False)
     assert summary["converged"], summary["failed"]
     assert len(summary["iterations"]) == 21
     with open(tmp_path / "convergence.csv") as f:
         rows = list(csv.DictReader(f))
-    assert list(rows[0]) == ["step", "iteration", "residual_norm", "energy_norm_rel"]
+    assert list(rows[0]) == ["step", "iterate", "residual_norm", "energy_norm_rel", "converged_by"]
     by_step = {}
     for r in rows:
-        by_step.setdefault(int(r["step"]), []).append(float(r["energy_norm_rel"]))
+        by_step.setdefault(int(r["step"]), []).append(r)
     assert sorted(by_step) == list(range(1, 22))
-    for step, e in by_step.items():
-        assert e[0] == 1.0
+    for step, its in by_step.items():
+        assert [int(r["iterate"]) for r in its] == list(range(len(its)))
+        assert its[0]["energy_norm_rel"] == "" and float(its[1]["energy_norm_rel"]) == 1.0
+        e = [float(r["energy_norm_rel"]) for r in its[1:]]
+        residuals = [float(r["residual_norm"]) for r in its]
+        # every step ends where the table says why: the energy norm or round-off residual
+        assert [r["converged_by"] for r in its[:-1]] == [""] * (len(its) - 1)
+        last = its[-1]["converged_by"]
+        assert last in ("energy norm", "round-off"), its[-1]
+        assert (last == "energy norm" and e[-1] <= 1e-20) or residuals[-1] <= 1e-11 * residuals[0]
+        assert residuals[-1] == summary["step_info"][step - 1]["residual_norm"]
         assert len(e) <= 8, (step, e)
         if step > 1:  # footing steps: small increments, Newton's quadratic range from the start
             assert len(e) <= 6, (step, e)

@@ -178,7 +178,7 @@ def check_physical_groups(comm):
         if missing:
             problem = (f"the gmsh model lacks the physical groups {', '.join(missing)}; tag the "
                        "boundary curves and the surfaces with gmsh.model.addPhysicalGroup as "
-                       "meshes/slope.py build_gmsh_model does")
+                       "dolfinx_granular.slope.geometry.build_gmsh_model does")
     problem = comm.bcast(problem, root=0)
     if problem:
         raise MeshError(problem)
@@ -189,7 +189,7 @@ def model_to_mesh(comm):
     :func:`check_physical_groups`: ``(mesh, cell_tags, facet_tags)``."""
     import gmsh
 
-    from dolfinx_granular._dolfinx import gmsh_model_to_mesh
+    from .._dolfinx import gmsh_model_to_mesh
 
     check_physical_groups(comm)
     msh, cell_tags, facet_tags = gmsh_model_to_mesh(gmsh.model, comm, 0, gdim=2)

@@ -1,0 +1,151 @@
+"""Nothing lost: a run's records on disk after every converged step, and restarts on any ranks.
+
+:class:`RunWriter` replaces its files atomically on rank 0 (a reader or a killed run sees the old
+file or the new one, never a partial one): CSV tables, JSON summaries and a restart ``.npz``.
+:class:`NodeOrder` and :class:`PointOrder` gather a Function's nodal values, or per-point data of
+the quadrature points (e.g. the history of a frictional material), on rank 0 in an order that does
+not depend on the partition, and scatter them back to any partition by matching coordinates: a
+run restarted on another number of ranks continues with the same state.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+
+import numpy as np
+from mpi4py import MPI
+
+
+class RestartError(ValueError):
+    """A restart file that cannot be used (missing, damaged, another mesh)."""
+
+
+def atomic_write(path, data):
+    """Replace ``path`` by ``data`` (bytes or str) atomically."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "wb") as f:
+        f.write(data.encode() if isinstance(data, str) else data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+class RunWriter:
+    """Atomic files of one run in the folder ``out`` (written by rank 0 of ``comm``).
+
+    Args:
+        out: output folder (created).
+        comm: the run's communicator; only its rank 0 writes.
+    """
+
+    def __init__(self, out, comm=MPI.COMM_WORLD):
+        self.out, self.comm = str(out), comm
+        if comm.rank == 0:
+            os.makedirs(self.out, exist_ok=True)
+
+    def path(self, name) -> str:
+        return os.path.join(self.out, name)
+
+    def csv(self, name, header, rows):
+        """Write a CSV table; floats with 17 significant digits (round trip exact)."""
+        if self.comm.rank != 0:
+            return
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(header)
+        w.writerows([f"{v:.16e}" if isinstance(v, float) else v for v in row] for row in rows)
+        atomic_write(self.path(name), buf.getvalue())
+
+    def json(self, name, obj):
+        if self.comm.rank == 0:
+            atomic_write(self.path(name), json.dumps(obj, indent=1))
+
+    def npz(self, name, **arrays):
+        """Write numpy arrays (and 0-d string arrays for JSON metadata) as ``name``."""
+        if self.comm.rank != 0:
+            return
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        atomic_write(self.path(name), buf.getvalue())
+
+
+def read_npz(path, format_name):
+    """The arrays of a restart file written with ``format=format_name``, as a dict; raises
+    :class:`RestartError` naming the problem."""
+    if not os.path.isfile(path):
+        raise RestartError(f"{path!r} does not exist; give the output folder of a run that "
+                           "completed at least one load step")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if str(f["format"]) != format_name:
+                raise ValueError(f"not a {format_name} file")
+            return {k: np.array(f[k]) for k in f.files}
+    except Exception as err:  # zip, key or format errors: all mean an unusable file
+        raise RestartError(f"{path!r} is not a usable restart file ({err}); start the run "
+                           "again without resuming") from err
+
+
+class _CoordinateOrder:
+    """Per-rank rows keyed by coordinates X (m, 2), gathered on rank 0 sorted by x then y."""
+
+    def __init__(self, comm, X, tolerance):
+        self.comm, self.tolerance = comm, tolerance
+        self.X_local = np.asarray(X)
+        parts = comm.gather(self.X_local, root=0)
+        self.X = self.order = None
+        if comm.rank == 0:
+            X = np.concatenate(parts)
+            self.order = np.lexsort((X[:, 1], X[:, 0]))
+            self.X = X[self.order]
+
+    def gather(self, values):
+        """Rank 0: the rows of every rank, in coordinate order; other ranks: None."""
+        parts = self.comm.gather(np.asarray(values), root=0)
+        return np.concatenate(parts)[self.order] if self.comm.rank == 0 else None
+
+    def match(self, X_stored, X_here):
+        """Indices into ``X_stored`` of the rows at ``X_here``; RestartError if any row has no
+        stored counterpart within the tolerance (decided on every rank alike)."""
+        from scipy.spatial import cKDTree
+
+        dist, idx = cKDTree(X_stored).query(X_here) if len(X_here) else (np.zeros(0), [])
+        worst = self.comm.allreduce(float(dist.max()) if len(dist) else 0.0, op=MPI.MAX)
+        if worst > self.tolerance:
+            raise RestartError("the restart file belongs to another mesh; start the run again "
+                               "without resuming")
+        return np.asarray(idx, dtype=np.int64)
+
+
+class NodeOrder(_CoordinateOrder):
+    """The owned nodal values of a vector Function, partition-independent (nodes by x, then y)."""
+
+    def __init__(self, comm, V, tolerance):
+        self.V = V
+        self.bs = V.dofmap.index_map_bs
+        self.n_owned = V.dofmap.index_map.size_local
+        x = V.tabulate_dof_coordinates()[:, :2]
+        super().__init__(comm, x[: self.n_owned], tolerance)
+        self._x_all = x
+
+    def gather_function(self, u):
+        """Rank 0: (n_nodes, bs) values of ``u`` in node order."""
+        return self.gather(u.x.array[: self.bs * self.n_owned].reshape(-1, self.bs).copy())
+
+    def scatter_function(self, values, X_stored, u):
+        """Set ``u`` (owned and ghost dofs) from ``values`` (n, bs) stored at nodes ``X_stored``."""
+        idx = self.match(X_stored, self._x_all)
+        u.x.array[:] = np.asarray(values)[idx].ravel()
+
+
+class PointOrder(_CoordinateOrder):
+    """Per-point data of a quadrature material's points, partition-independent."""
+
+    def __init__(self, comm, points, tolerance):
+        super().__init__(comm, points, tolerance)
+
+    def local_rows(self, X_stored):
+        """Indices into the stored (ordered) points of this rank's points, in local order."""
+        return self.match(X_stored, self.X_local)

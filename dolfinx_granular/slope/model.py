@@ -1,0 +1,170 @@
+"""The slope benchmark as a DOLFINx model: mesh, displacement, material, dead loads, supports,
+solver and the quantities a run reports (settlement, stresses, diagnostics).
+
+The material and the solver come from factories, so that a study can swap the law (model levels,
+friction, a UFL yardstick) or the solver settings without touching the model.
+"""
+
+from __future__ import annotations
+
+import dolfinx.fem.petsc  # noqa: F401  (fem.petsc)
+import numpy as np
+import ufl
+from dolfinx import fem
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from .. import _dolfinx as dfx
+from ..material import GranularMaterial
+from ..postprocess import global_extremum, min_acoustic_eigenvalue, nearest_point_value, von_mises
+from ..solver import NewtonSolver
+from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
+
+
+def granular_material(law, u, stabilise=0.0):
+    """The default material factory: the law at the 2x2 Gauss points of every cell."""
+    return GranularMaterial(law, u, quadrature_degree=2, stabilise=stabilise)
+
+
+def newton_solver(residual, jacobian, u, bcs, material, petsc_options=None, verbose=False):
+    """The default solver factory: Newton with LU (MUMPS), at most 15 steps per load step."""
+    return NewtonSolver(residual, jacobian, u, bcs, material, max_it=15, prefix="slope_",
+                        petsc_options=petsc_options, verbose=verbose)
+
+
+class SlopeModel:
+    """The slope of :class:`~dolfinx_granular.slope.geometry.SlopeGeometry` under its own weight
+    and an eccentric strip footing, plane strain, dead loads on the reference configuration.
+
+    Args:
+        comm: MPI communicator.
+        law: the material-point law (e.g. a TaylorRVE).
+        geometry: dimensions and loads (default: the reconstruction of the paper's figure 6).
+        load_factor: multiplies the footing load (negative: uplift).
+        material_factory: ``material_factory(law, u)`` -> a quadrature material.
+        solver_factory: ``solver_factory(residual, jacobian, u, bcs, material)`` -> a solver
+            with ``solve()``, ``materials``, ``u``, ``timings`` and ``destroy()``.
+
+    Attributes:
+        mesh, facets, V, u, material, solver, bcs: the model's DOLFINx objects.
+        gravity, footing: Constants multiplying the weight and the footing load.
+        edge: (2,) the loaded footing edge (m), where the settlement is measured.
+    """
+
+    def __init__(self, comm, law, geometry=None, load_factor=1.0,
+                 material_factory=granular_material, solver_factory=newton_solver):
+        self.comm, self.law = comm, law
+        self.geometry = g = geometry or SlopeGeometry()
+        self.load_factor = float(load_factor)
+        self.mesh, _, self.facets = create_mesh(comm, g)
+        self.V = dfx.vector_space(self.mesh)
+        self.u = fem.Function(self.V, name="displacement")
+        self.material = material_factory(law, self.u)
+        v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+        self.gravity = fem.Constant(self.mesh, PETSc.ScalarType(0.0))
+        self.footing = fem.Constant(self.mesh, PETSc.ScalarType(0.0))
+        q = g.footing_pressure_on_strip(ufl.SpatialCoordinate(self.mesh)[0])
+        ds = ufl.Measure("ds", domain=self.mesh, subdomain_data=self.facets)
+        self.f_ext = (self.gravity * (-g.density * g.gravity) * v[1] * ufl.dx
+                      + self.footing * q * v[1] * ds(FOOTING))
+        residual = self.material.residual_form(v) - self.f_ext
+        self.bcs = self._supports()
+        self.solver = solver_factory(residual, self.material.jacobian_form(du, v), self.u,
+                                     self.bcs, self.material)
+        self._f_ext_form = fem.form(self.f_ext)
+        self._stab_form = None
+        if getattr(self.material, "P_stab", None) is not None:
+            self._stab_form = fem.form(ufl.inner(self.material.P_stab, ufl.grad(v))
+                                       * self.material.dx)
+        self.edge = np.array([g.loaded_edge, float(g.surface_height(g.loaded_edge))])
+        n_owned = self.V.dofmap.index_map.size_local
+        dof_x = self.V.tabulate_dof_coordinates()[:n_owned, :2]
+        self._edge_dofs = np.flatnonzero(np.linalg.norm(dof_x - self.edge, axis=1)
+                                         < 1e-6 * g.width)
+
+    def _supports(self):
+        """Fixed base, rollers on the left and right sides."""
+        fdim = self.mesh.topology.dim - 1
+        V = self.V
+        zero = np.zeros(2, dtype=PETSc.ScalarType)
+        bcs = [fem.dirichletbc(zero, fem.locate_dofs_topological(V, fdim, self.facets.find(BOTTOM)),
+                               V)]
+        for tag in (LEFT, RIGHT):
+            dofs = fem.locate_dofs_topological(V.sub(0), fdim, self.facets.find(tag))
+            bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), dofs, V.sub(0)))
+        return bcs
+
+    # -- loads ---------------------------------------------------------------------------------
+
+    def set_gravity(self, t):
+        """Gravity phase: weight x t, no footing load."""
+        self.gravity.value, self.footing.value = t, 0.0
+
+    def set_footing(self, t):
+        """Footing phase: full weight, footing load x ``load_factor * t``."""
+        self.gravity.value, self.footing.value = 1.0, self.load_factor * t
+
+    def footing_load(self) -> float:
+        """The footing load now applied (N per metre, negative = down)."""
+        return float(self.footing.value) * self.geometry.footing_load
+
+    # -- what a run reports ----------------------------------------------------------------------
+
+    def settlement(self) -> float:
+        """Vertical displacement (m) of the loaded footing edge, the same on every rank."""
+        local = [float(self.u.x.array[2 * d + 1]) for d in self._edge_dofs]
+        return [s for part in self.comm.allgather(local) for s in part][0]
+
+    def non_elliptic_points(self) -> int:
+        """RVEs whose tangent has lost strong ellipticity (0 for a law without a tangent view)."""
+        A = getattr(self.material, "tangent", None)
+        if A is None:
+            return 0
+        lowest = min_acoustic_eigenvalue(A)
+        scale = self.comm.allreduce(float(np.abs(A).max()) if len(A) else 0.0, op=MPI.MAX)
+        return self.comm.allreduce(int(np.count_nonzero(lowest < -1e-12 * scale)))
+
+    def stabiliser_share(self) -> float:
+        """|nodal forces of the stabilising stress| / |external load| on the free dofs."""
+        if self._stab_form is None:
+            return 0.0
+        norms = []
+        for form in (self._stab_form, self._f_ext_form):
+            b = fem.petsc.assemble_vector(form)
+            b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            fem.petsc.set_bc(b, self.bcs, None, 0.0)  # reactions are not forces on the soil
+            norms.append(b.norm())
+            b.destroy()
+        return norms[0] / norms[1] if norms[1] > 0 else 0.0
+
+    def open_points(self) -> int:
+        return self.comm.allreduce(getattr(self.material, "n_open", 0))
+
+    def von_mises(self) -> np.ndarray:
+        """Von Mises stress (n_points,) in Pa at this rank's Gauss points."""
+        return von_mises(self.material.cauchy())
+
+    def extremes(self):
+        """``(vm, (vmax, xmax), (vmin, xmin))``: von Mises at the points and its global extremes
+        with their reference coordinates."""
+        vm = self.von_mises()
+        X = self.material.points
+        return vm, global_extremum(self.comm, vm, X, "max"), global_extremum(self.comm, vm, X, "min")
+
+    def probes(self, xmax):
+        """The four probe points of figure 7 (label, point, text) and F at the nearest Gauss point."""
+        g = self.geometry
+        spots = [("A", xmax, "max von Mises"),
+                 ("B", [g.loaded_edge - 0.5 * g.column_width, 0.75 * g.crest_height],
+                  "under the footing"),
+                 ("C", [g.slope_end + 0.5 * g.column_width, 0.9 * g.toe_height], "at the toe"),
+                 ("D", [0.5 * g.footing_start + 0.5 * g.column_width, 0.1 * g.crest_height],
+                  "deep")]
+        found = [nearest_point_value(self.comm, self.material.points, self.material.F, p)
+                 for _, p, _ in spots]
+        return [(label, xp, Fp, text) for (label, _, text), (xp, Fp) in zip(spots, found)]
+
+    def min_singular_value(self) -> float:
+        F = self.material.F
+        return self.comm.allreduce(
+            float(np.linalg.svd(F, compute_uv=False).min()) if len(F) else np.inf, op=MPI.MIN)

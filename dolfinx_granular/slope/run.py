@@ -1,0 +1,299 @@
+"""The slope benchmark's load path: gravity, then the footing in steps, every step on disk.
+
+:class:`SlopeRun` drives a :class:`~dolfinx_granular.slope.model.SlopeModel` through its load
+phases with a :class:`~dolfinx_granular.loading.LoadStepper` (cut-backs, limit loads), records
+every converged step (Newton history, settlement, diagnostics) and writes through a
+:class:`~dolfinx_granular.runwriter.RunWriter` after each of them: ``slope.xdmf`` (+ ``.h5``:
+displacement and cell-mean von Mises per step, appended), ``convergence.csv``, ``summary.json``
+and ``restart.npz``, so that a killed run loses nothing and :func:`load_restart` continues it on
+any number of ranks with the same answer.
+
+``convergence.csv`` has one row per Newton iterate of every converged step: the residual norm
+there, the relative energy norm of the Newton step that led to it (table 2 of the paper), and, on
+the last row of each step, the test that ended it (``energy norm``, ``round-off``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+
+import numpy as np
+from mpi4py import MPI
+
+from .. import _dolfinx as dfx
+from ..loading import Cutback, LoadStepper
+from ..packing import Packing
+from ..postprocess import cell_function
+from ..rve import TaylorRVE
+from ..runwriter import NodeOrder, RunWriter, read_npz
+from .geometry import SlopeGeometry
+from .model import SlopeModel, granular_material, newton_solver
+from .summary import draw_figure, figure_data, report_stop, summarise
+
+K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
+RESTART_FORMAT = "dolfinx_granular.slope_restart"
+CONVERGENCE_HEADER = ["step", "iterate", "residual_norm", "energy_norm_rel", "converged_by"]
+PHASES = ("gravity", "footing")
+
+
+@dataclasses.dataclass
+class SlopeOptions:
+    """What defines a slope run (stored in its restart file).
+
+    Attributes:
+        steps: nominal footing load steps after the gravity step.
+        load_factor: multiplies the footing load (2: doubled, -0.25: uplift).
+        stabilise: stiffness where an RVE has no loaded contact, relative to its small-strain
+            modulus (0: off).
+        max_cutbacks: most halvings of one increment in a row.
+        petsc_options: SNES/KSP options of the solver (e.g. the line search).
+        normal_stiffness: k_n in N/m².
+        geometry: the slope's dimensions and loads.
+    """
+
+    steps: int = 20
+    load_factor: float = 1.0
+    stabilise: float = 0.0
+    max_cutbacks: int = 6
+    petsc_options: dict = dataclasses.field(default_factory=dict)
+    normal_stiffness: float = K_N
+    geometry: SlopeGeometry = dataclasses.field(default_factory=SlopeGeometry)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d) -> SlopeOptions:
+        d = dict(d)
+        d["geometry"] = SlopeGeometry(**d["geometry"])
+        return cls(**d)
+
+
+def convergence_rows(step, result):
+    """The convergence.csv rows of one converged solve, one per Newton iterate."""
+    h = result.history
+    residuals = [r for _, r, _ in h] + [result.residual_norm]
+    energies = [""] + [e for _, _, e in h]
+    last = len(residuals) - 1
+    return [(step, i, float(residuals[i]), energies[i] if i else "",
+             result.stopped_by if i == last else "") for i in range(len(residuals))]
+
+
+def load_restart(folder) -> dict:
+    """``folder/restart.npz`` as a dict: ``options`` (SlopeOptions), ``state`` (dict),
+    ``packing``, ``nodes`` (n, 2), ``u_history`` (steps, n, 2), ``path``; raises
+    :class:`~dolfinx_granular.runwriter.RestartError` if unusable."""
+    path = os.path.join(folder, "restart.npz")
+    f = read_npz(path, RESTART_FORMAT)
+    try:
+        return {"options": SlopeOptions.from_dict(json.loads(str(f["options"]))),
+                "state": json.loads(str(f["state"])),
+                "packing": Packing(f["centers"], f["radii"], f["box"]),
+                "nodes": f["nodes"], "u_history": f["u_history"], "path": path}
+    except Exception as err:  # JSON or packing errors
+        from ..runwriter import RestartError
+
+        raise RestartError(f"{path!r} is not a usable restart file ({err}); start the run "
+                           "again without resuming") from err
+
+
+class SlopeRun:
+    """One run of the slope benchmark, written to ``out``.
+
+    Args:
+        packing: the RVE microstructure (the same on every rank).
+        options: :class:`SlopeOptions`.
+        out: output folder.
+        comm: MPI communicator.
+        verbose: progress lines on rank 0 (and one line per Newton step).
+        restart: the dict of :func:`load_restart` to continue from (its options are used).
+        stop_after: stop after this many converged load steps (all phases).
+        started: ``time.perf_counter()`` when the run began (``wall_time``), default now.
+        law_factory: ``law_factory(packing, normal_stiffness)`` -> the material-point law.
+        material_factory, solver_factory: see :class:`~dolfinx_granular.slope.model.SlopeModel`.
+    """
+
+    def __init__(self, packing, options=None, out="results/slope", comm=MPI.COMM_WORLD,
+                 verbose=True, restart=None, stop_after=None, started=None, law_factory=TaylorRVE,
+                 material_factory=None, solver_factory=None):
+        self.t_start = time.perf_counter() if started is None else started
+        self.options = o = restart["options"] if restart else (options or SlopeOptions())
+        self.packing, self.comm, self.stop_after = packing, comm, stop_after
+        self.say = (lambda *a: print(*a, flush=True)) if (verbose and comm.rank == 0) else (
+            lambda *a: None)
+        material_factory = material_factory or (
+            lambda law, u: granular_material(law, u, stabilise=o.stabilise))
+        solver_factory = solver_factory or (
+            lambda *a: newton_solver(*a, petsc_options=o.petsc_options, verbose=verbose))
+        self.law = law_factory(packing, o.normal_stiffness)
+        self.model = SlopeModel(comm, self.law, o.geometry, o.load_factor, material_factory,
+                                solver_factory)
+        self.writer = RunWriter(out, comm)
+        self.nodes = NodeOrder(comm, self.model.V, tolerance=1e-9 * o.geometry.width)
+        self.stepper = LoadStepper(self.model.solver, max_cutbacks=o.max_cutbacks,
+                                   log=lambda line: self.say("  " + line))
+        self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
+        self.resumed_from, self.time_output = None, 0.0
+        self._V0 = dfx.function_space(self.model.mesh, "DG", 0)
+        self._start = (0, 0.0, None)  # phase, t, dt
+        self._begin_xdmf()
+        if restart is not None:
+            self._resume(restart)
+        self.setup_time = time.perf_counter() - self.t_start
+
+    @property
+    def n_nominal(self) -> int:
+        return 1 + self.options.steps
+
+    # -- output ----------------------------------------------------------------------------------
+
+    def _begin_xdmf(self):
+        from dolfinx import io
+
+        with io.XDMFFile(self.comm, self.writer.path("slope.xdmf"), "w") as xdmf:
+            xdmf.write_mesh(self.model.mesh)
+
+    def _append_xdmf(self, step):
+        """Append u and the cell-mean von Mises stress (file closed per step: complete on disk)."""
+        from dolfinx import io
+
+        m = self.model
+        vm = cell_function(self._V0, m.material.cell_average(m.von_mises()))
+        vm.name = "von_mises"
+        with io.XDMFFile(self.comm, self.writer.path("slope.xdmf"), "a") as xdmf:
+            xdmf.write_function(m.u, float(step))
+            xdmf.write_function(vm, float(step))
+
+    def _state(self, phase_index, step, t):
+        return {"step": step, "phase": phase_index, "t": t, "dt": self.stepper.dt,
+                "iterations": self.iterations, "step_info": self.step_info, "rows": self.rows,
+                "cutbacks": [c.as_dict() for c in self.stepper.cutbacks],
+                "path": self.stepper.path}
+
+    def _write_step(self, phase_index, step, t):
+        """Everything of a converged step on disk (XDMF appended, the rest replaced)."""
+        t_out = time.perf_counter()
+        self._append_xdmf(step)
+        values = self.nodes.gather_function(self.model.u)
+        if self.comm.rank == 0:
+            self.u_history.append(values)
+        state = self._state(phase_index, step, t)
+        self.writer.csv("convergence.csv", CONVERGENCE_HEADER, self.rows)
+        self.writer.npz("restart.npz", format=np.array(RESTART_FORMAT), version=np.array(2),
+                        options=np.array(json.dumps(self.options.as_dict())),
+                        state=np.array(json.dumps(state)), centers=self.packing.centers,
+                        radii=self.packing.radii, box=self.packing.box, nodes=self.nodes.X,
+                        u_history=np.asarray(self.u_history))
+        self.writer.json("summary.json", {
+            "status": "running", "ranks": self.comm.size, "steps": self.n_nominal,
+            "completed_steps": step, "resumed_from": self.resumed_from,
+            "cutbacks": state["cutbacks"], "iterations": self.iterations,
+            "footing_settlement": self.step_info[-1]["settlement"],
+            "load_factor": self.options.load_factor, "stabilise": self.options.stabilise,
+            "step_info": self.step_info})
+        self.time_output += time.perf_counter() - t_out
+
+    # -- the load path ---------------------------------------------------------------------------
+
+    def _resume(self, restart):
+        """Continue from a restart: records, stepper state, and the XDMF file rewritten from the
+        stored displacements (valid whatever the partition was)."""
+        state = restart["state"]
+        self.resumed_from = state["step"]
+        self.rows = [tuple(r) for r in state["rows"]]
+        self.iterations, self.step_info = list(state["iterations"]), list(state["step_info"])
+        self.stepper.step = state["step"]
+        self.stepper.cutbacks = [Cutback(**c) for c in state["cutbacks"]]
+        self.stepper.path = list(state.get("path", []))
+        for k, values in enumerate(restart["u_history"], start=1):
+            self.nodes.scatter_function(values, restart["nodes"], self.model.u)
+            self.model.material.update(tangent=False)
+            self.model.material.commit()
+            self._append_xdmf(k)
+        self.u_history = list(restart["u_history"]) if self.comm.rank == 0 else []
+        phase, t, dt = state["phase"], state["t"], state["dt"]
+        if t >= 1.0:  # the stored step ended a phase: go on with the next one
+            phase, t, dt = phase + 1, 0.0, None
+        self._start = (phase, t, dt)
+        self.say(f"slope: resumed from {restart['path']} after step {self.resumed_from} "
+                 f"({PHASES[min(phase, len(PHASES) - 1)]}, t = {t:.6g})")
+
+    def _record(self, phase_index, step, t, result, elapsed):
+        m = self.model
+        lam_g, lam_f = (t, 0.0) if phase_index == 0 else (1.0, m.load_factor * t)
+        self.iterations.append(result.iterations)
+        self.rows.extend(convergence_rows(step, result))
+        self.step_info.append({
+            "step": step, "phase": PHASES[phase_index], "t": t, "gravity": lam_g,
+            "footing_load": lam_f * m.geometry.footing_load, "iterations": result.iterations,
+            "converged": True, "residual_norm": result.residual_norm,
+            "converged_by": result.stopped_by, "reason": result.reason_name,
+            "open_points": m.open_points(), "non_elliptic_points": m.non_elliptic_points(),
+            "settlement": m.settlement(), "stabiliser_force": m.stabiliser_share(),
+            "time": elapsed})
+        self.say(f"step {step:2d}/{self.n_nominal}: gravity x{lam_g:.2f}, footing "
+                 f"{lam_f * m.geometry.footing_load:.3e} N/m, {result.iterations} iterations, "
+                 f"{elapsed:.2f} s")
+
+    def run(self) -> bool:
+        """Take the load phases from where the run stands; True if every phase completed."""
+        setters = (self.model.set_gravity, self.model.set_footing)
+        increments = (1.0, 1.0 / self.options.steps)
+        clock = [time.perf_counter()]
+
+        def converged(phase_index, step, t, result):
+            self._record(phase_index, step, t, result, time.perf_counter() - clock[0])
+            self._write_step(phase_index, step, t)
+            clock[0] = time.perf_counter()
+            return not (self.stop_after is not None and step >= self.stop_after)
+
+        start_phase, start_t, start_dt = self._start
+        for i in range(start_phase, len(PHASES)):
+            t0 = start_t if i == start_phase else 0.0
+            setters[i](t0)  # the loads of the converged state the phase starts from
+            if not self.stepper.run(PHASES[i], setters[i], increments[i], t=t0,
+                                    dt=start_dt if i == start_phase else None,
+                                    on_converged=lambda *a, i=i: converged(i, *a)):
+                return False
+        return True
+
+
+def is_complete(restart) -> bool:
+    """True if the run of ``restart`` (:func:`load_restart`) had completed every load phase."""
+    state = restart["state"]
+    return state["phase"] == len(PHASES) - 1 and state["t"] >= 1.0
+
+
+def run_slope(packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, figure=True,
+              **kwargs) -> dict:
+    """Run the slope benchmark (or continue it: ``restart=``) and write its results to ``out``;
+    returns the summary dict (also in ``out/summary.json``). Keyword arguments as
+    :class:`SlopeRun`; ``figure`` draws ``out/slope.png``."""
+    run = SlopeRun(packing, options, out, comm, **kwargs)
+    o, m = run.options, run.model
+    run.say(f"slope: {m.mesh.topology.index_map(2).size_global} cells, "
+            f"{comm.allreduce(m.material.n_points)} RVEs of {packing.n_particles} particles, "
+            f"{comm.size} rank(s), {run.n_nominal} load steps, footing load x{o.load_factor:g}"
+            + (f", stabiliser {o.stabilise:g}" if o.stabilise else ""))
+    run.run()
+    report_stop(run)
+    extremes = m.extremes()
+    probes = m.probes(extremes[1][1])
+    data = figure_data(run, extremes) if figure else None
+    m.solver.destroy()  # collective PETSc clean-up while all ranks are here (rank 0 draws next)
+    seconds = 0.0
+    if figure and comm.rank == 0:
+        seconds = draw_figure(run, run.writer.path("slope.png"), data, extremes, probes)
+    summary = summarise(run, extremes, probes, seconds)
+    run.writer.csv("convergence.csv", CONVERGENCE_HEADER, run.rows)
+    run.writer.json("summary.json", summary)
+    t = summary
+    run.say(f"slope: done in {t['wall_time']:.1f} s (set-up {t['time_setup']:.1f} s, RVE "
+            f"{t['time_rve']:.1f} s, assembly {t['time_assembly']:.1f} s, solve "
+            f"{t['time_solve']:.1f} s, output {t['time_output']:.1f} s); settlement "
+            f"{t['footing_settlement']:.4f} m; von Mises {t['min_von_mises']:.4g} .. "
+            f"{t['max_von_mises']:.4g} Pa; results in {run.writer.out}")
+    return summary

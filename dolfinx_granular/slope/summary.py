@@ -1,0 +1,102 @@
+"""What a slope run reports at its end: ``summary.json`` and the figure-7 view.
+
+The summary holds the load path (iterations, cut-backs, per step the settlement, the RVEs
+without a loaded contact and those that lost strong ellipticity), the stop (converged, stopped,
+failed at a limit load), the stress extremes at the last converged state and the timings.
+"""
+
+from __future__ import annotations
+
+import time
+
+from mpi4py import MPI
+
+from ..postprocess import gather_mesh, plot_slope
+
+
+def limit_message(failed, run) -> str | None:
+    """The log line of a failed footing phase that stopped at a limit load (adds the carried
+    footing load in N/m to ``failed["limit_load"]``), or None."""
+    limit = failed["limit_load"]
+    if limit is None or failed["phase"] != "footing":
+        return None
+    lf = run.options.load_factor
+    limit["footing_load"] = lf * limit["t_converged"] * run.options.geometry.footing_load
+    return (f"slope: limit load: the slope carries at most {abs(limit['footing_load']):.4g} N/m "
+            f"of footing {'uplift' if lf < 0 else 'load'} ({abs(lf) * limit['t_converged']:.4g} x "
+            f"the nominal footing load); the displacement per load increment has grown "
+            f"{1 / limit['stiffness_ratio']:.3g}-fold. Past a limit point load control finds no "
+            "equilibrium.")
+
+
+def report_stop(run):
+    """Log how the run ended (failure, limit load, a requested stop)."""
+    failed, stepper = run.stepper.failed, run.stepper
+    if failed is not None:
+        run.say(f"slope: load step {failed['step']} ({failed['phase']}, t = {failed['t']:.6g} "
+                f"reached) did not converge: {failed['reason']}; stopping.")
+        line = limit_message(failed, run)
+        if line:
+            run.say(line)
+    elif stepper.stopped:
+        run.say(f"slope: stopped after step {stepper.step} as asked (--stop-after); continue "
+                f"with --resume {run.writer.out}")
+
+
+def summarise(run, extremes, probes, figure_time=0.0) -> dict:
+    """The summary dict of a run at its last converged state (collective); ``extremes`` and
+    ``probes`` from :class:`~dolfinx_granular.slope.model.SlopeModel`."""
+    m, comm, stepper = run.model, run.comm, run.stepper
+    _, (vmax, xmax), (vmin, xmin) = extremes
+    failed = stepper.failed
+    t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in m.solver.timings.items()}
+    status = "failed" if failed else ("stopped" if stepper.stopped else "converged")
+    info = run.step_info
+    return {
+        "ranks": comm.size, "steps": run.n_nominal, "completed_steps": stepper.step,
+        "status": status, "converged": status == "converged", "failed": failed,
+        "resumed_from": run.resumed_from,
+        "cutbacks": [c.as_dict() for c in stepper.cutbacks],
+        "load_factor": run.options.load_factor, "stabilise": run.options.stabilise,
+        "open_points": m.open_points(),
+        # at the last converged step: points whose tangent lost strong ellipticity
+        "non_elliptic_points": info[-1].get("non_elliptic_points", 0) if info else 0,
+        # largest |nodal force of the stabilising stress| / |external load| over the steps
+        "stabiliser_force_max": max([s.get("stabiliser_force", 0.0) for s in info] or [0.0]),
+        "iterations": run.iterations,
+        "footing_settlement": m.settlement(), "footing_settlement_point": m.edge.tolist(),
+        "max_von_mises": vmax, "max_von_mises_location": xmax,
+        "min_von_mises": vmin, "min_von_mises_location": xmin,
+        "min_singular_value_F": m.min_singular_value(),
+        "particles": run.packing.n_particles, "rves": comm.allreduce(m.material.n_points),
+        "wall_time": time.perf_counter() - run.t_start, "time_setup": run.setup_time,
+        "time_rve": t["rve"],
+        "time_rve_kernel": comm.allreduce(m.material.timings["rve"], op=MPI.MAX),
+        "time_assembly": t["assembly"], "time_solve": t["solve"],
+        "time_output": run.time_output + figure_time, "step_info": info,
+        "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()}
+                   for label, xp, Fp, _ in probes},
+    }
+
+
+def figure_data(run, extremes):
+    """The mesh, displacement and cell-mean von Mises stress gathered on rank 0 (collective)."""
+    m = run.model
+    return gather_mesh(m.V, m.u, m.material.cell_average(extremes[0]))
+
+
+def draw_figure(run, path, data, extremes, probes):
+    """Figure 7 on rank 0: von Mises on the deformed slope, the extremes and four probe RVEs'
+    force networks. Returns the seconds it took."""
+    t0 = time.perf_counter()
+    _, (vmax, xmax), (vmin, xmin) = extremes
+    markers = [(label, xp, text) for label, xp, _, text in probes]
+    markers[0] = ("A", xmax, f"max {vmax / 1e6:.3f} MPa")
+    markers.append(("min", xmin, f"{vmin / 1e6:.3f} MPa"))
+    insets = [(label, run.law, Fp, f"{text}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
+              for label, xp, Fp, text in probes]
+    settlement = run.step_info[-1]["settlement"] if run.step_info else 0.0
+    plot_slope(path, data, markers, insets,
+               title=f"step {run.stepper.step}/{run.n_nominal}: settlement {settlement:.3f} m, "
+                     f"{run.packing.n_particles} particles, deformation x1")
+    return time.perf_counter() - t0
