@@ -24,17 +24,14 @@ import os
 import sys
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-if ROOT not in sys.path:
-    sys.path.insert(0, ROOT)
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from dolfinx_granular import Packing, TaylorRVE, cen_standard_sand  # noqa: E402
-from dolfinx_granular.fabric import anisotropy, contact_angles, density_deviation, fabric_tensor  # noqa: E402
-from dolfinx_granular.generation import generate_packing, network_stats  # noqa: E402
-from dolfinx_granular.gsd import DEFAULT_D_MIN  # noqa: E402
-from dolfinx_granular import plotting  # noqa: E402
+from dolfinx_granular import TaylorRVE, cen_standard_sand, plotting
+from dolfinx_granular.cache import PackingCache
+from dolfinx_granular.fabric import anisotropy, contact_angles, density_deviation, fabric_tensor
+from dolfinx_granular.generation import network_stats
+from dolfinx_granular.gsd import DEFAULT_D_MIN
+from dolfinx_granular.timing import time_per_point
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 MAX_STRAIN = 0.10
@@ -53,33 +50,6 @@ PATHS = {
 }
 
 
-class PackingCache:
-    """Generated packings, cached as ``DIR/n{n}_s{seed}.npz`` with their generation times."""
-
-    def __init__(self, directory, use_cache=True):
-        self.dir = directory
-        self.use = use_cache
-        os.makedirs(directory, exist_ok=True)
-        self.times_file = os.path.join(directory, "generation_times.json")
-        self.times = {}
-        if use_cache and os.path.isfile(self.times_file):
-            with open(self.times_file) as f:
-                self.times = json.load(f)
-
-    def get(self, n, seed):
-        path = os.path.join(self.dir, f"n{n}_s{seed}.npz")
-        key = f"{n}/{seed}"
-        if self.use and os.path.isfile(path) and key in self.times:
-            return Packing.load(path)
-        t0 = time.perf_counter()
-        packing = generate_packing(n, seed=seed)
-        self.times[key] = time.perf_counter() - t0
-        packing.save(path)
-        with open(self.times_file, "w") as f:
-            json.dump(self.times, f, indent=1)
-        return packing
-
-
 def stress_paths(packings, steps):
     """``{path: (s (steps+1,), mean (steps+1, 2, 2), std (steps+1, 2, 2))}`` over the packings."""
     s = np.linspace(0.0, MAX_STRAIN, steps + 1)
@@ -92,17 +62,12 @@ def stress_paths(packings, steps):
     return out
 
 
-def time_per_point(rve, n_points=2000, repeats=3):
-    """Best wall time (s) per quadrature point of stress + tangent for F near I (|strain| <= 5 %)."""
+def evaluation_time(rve, n_points=2000, repeats=3):
+    """Best wall time (s) per quadrature point of stress + tangent (``rve.evaluate``) for F near I
+    (every entry of F - I uniform in [-0.05, 0.05])."""
     rng = np.random.default_rng(0)
     F = np.eye(2) + rng.uniform(-0.05, 0.05, (n_points, 2, 2))
-    rve.evaluate(F[:10])  # compile / warm up
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        rve.evaluate(F)
-        best = min(best, time.perf_counter() - t0)
-    return best / n_points
+    return time_per_point(rve.evaluate, F, repeats)
 
 
 def write_csv(path, header, rows):
@@ -135,8 +100,9 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
             ratio = np.abs(rve.cauchy(np.eye(2))).max() / np.abs(rve.cauchy(0.99 * np.eye(2))).max()
             ang = contact_angles(p)
             a, _ = anisotropy(fabric_tensor(ang))
-            stats_rows.append([n, s, f"{cache.times[f'{n}/{s}']:.3f}", f"{st.volume_fraction:.4f}",
-                               f"{st.coordination:.3f}", st.min_coordination,
+            stats_rows.append([n, s, f"{cache.generation_time(n, s):.3f}",
+                               f"{st.volume_fraction:.4f}", f"{st.coordination:.3f}",
+                               st.min_coordination,
                                f"{st.rattler_fraction:.3f}", f"{ratio:.2e}", f"{a:.4f}",
                                f"{density_deviation(ang, np.radians(20.0)):.4f}"])
         say(f"{n:5d} particles: generated / loaded {n_seeds[n]} packings "
@@ -146,7 +112,7 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
                "min_coordination", "rattler_fraction", "prestress_ratio", "fabric_anisotropy",
                "density_deviation_20deg"], stats_rows)
 
-    # -- figures 2 and 3 ----------------------------------------------------------------------------
+    # -- figures 2 and 3 ------------------------------------------------------------------------
     n_show = max(cfg["fig_sizes"])
     fig = plotting.plot_sieve_curve(cen_standard_sand(), packings[n_show][0], d_min=DEFAULT_D_MIN)
     figure_sets = {n: packings[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}
@@ -185,7 +151,7 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     fig.savefig(os.path.join(out, "fig5_shear.png"), dpi=DPI)
     say(f"figures 4 and 5 ({time.perf_counter() - t_start:.1f} s)")
 
-    # -- speed against error -------------------------------------------------------------------------
+    # -- speed against error ---------------------------------------------------------------------
     F_c = np.array([[0.95, 0.0], [0.0, 1.0]])
     F_s = np.array([[1.0, 0.05], [0.0, 1.0]])
     table = []
@@ -200,8 +166,9 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
             "cv_compression": float(sc.std(ddof=ddof) / abs(sc.mean())),
             "sigma12_shear_mean_Pa": float(ss.mean()),
             "cv_shear": float(ss.std(ddof=ddof) / abs(ss.mean())),
-            "time_per_point": float(np.median([time_per_point(r) for r in rves[:2]])),
-            "generation_time_s": float(np.mean([cache.times[f"{n}/{s}"] for s in range(len(rves))])),
+            "time_per_point": float(np.median([evaluation_time(r) for r in rves[:2]])),
+            "generation_time_s": float(np.mean([cache.generation_time(n, s)
+                                                for s in range(len(rves))])),
             "seeds": len(rves),
         })
     keys = list(table[0])

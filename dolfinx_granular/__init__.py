@@ -28,6 +28,7 @@ __version__ = "0.1.0"
 # DOLFINx-side names, imported on first use so that `import dolfinx_granular` stays DOLFINx-free.
 _LAZY = {
     "GranularMaterial": "material", "NewtonSolver": "solver", "SolveResult": "solver",
+    "LoadStepper": "loading", "LinearElasticMaterial": "linear", "derivative": "quadrature",
     "von_mises": "postprocess", "vector_space": "_dolfinx",
 }
 __all__ += list(_LAZY)

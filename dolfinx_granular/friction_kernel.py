@@ -2,34 +2,37 @@
 
 Notation as in :mod:`dolfinx_granular.kernel`: candidate c has reference branch vector L = (x, y),
 radius sum R (the note's rho), l = F L, d = |l|, n = l / d, t = J n with J = [[0, -1], [1, 0]],
-overlap eps = R - d. History per point: the committed F_n and the tangential forces f_t,n of the
-candidates of its visited prefix (zero where a contact was not active at F_n).
+overlap eps = R - d. History per point: the committed F_n (= G below) and the tangential forces
+f_t,n of a prefix of the candidates (zero where a contact was not active at F_n).
 
-Per active contact (tangential activity: eps > 0) the step from F_n to F is
+Per contact with eps > 0 the step from F_n to F is (closed form, no local iteration)
 
-    ds  = R (dphi - dtheta),  dphi = atan2(cross(l_n, l), dot(l_n, l)),  dtheta per point
-    f*  = f_t,n + k_t ds;  stick if |f*| <= mu k_n eps (and mu k_n eps > 0), else f_t = ±mu k_n eps
+    ds = R (dphi - dtheta),  dphi = atan2(cross(G L, F L), dot(G L, F L)),  dtheta per point,
+    f* = f_t,n + k_t ds;  stick if |f*| <= lim = mu k_n eps and lim > 0, else f_t = sign(f*) lim.
 
-With K_t = 1/V, Theta = dtheta/dF and H = d²theta/dF², every output is a contraction of moment sums
-over the contacts (LL and LLLL products of the reference branch vector, as in the frictionless
-kernel) with the per-point matrices F, JF = J F, Theta and H:
+Every output is a contraction of moment sums over the contacts (weighted LL and LLLL products of
+the reference branch vector, as in the frictionless kernel) with the per-point matrices F,
+JF = J F, Theta = dtheta/dF and H = d²theta/dF². With w_st = k_t R² for sticking contacts and
+w_sl = sign(f_t) mu k_n R for sliding ones (else 0):
 
-    S   = sum eps/d LL              U   = sum f_t R/d² LL          sR  = sum f_t R
-    TN  = sum R/d³ LLLL             Tph = sum -f_t R/d⁴ LLLL       Tst = sum_stick k_t R²/d⁴ LLLL
-    Tsl = sum_slip -s mu k_n R/d³ LLLL  (s = sign f*)
-    Z1  = sum_stick k_t R²/d² LL    Z2  = sum_slip s mu k_n R/d LL  skr = sum_stick k_t R²
+    S  = sum eps/d LL                 U  = sum f_t R/d² LL           sR = sum f_t R
+    TA = sum (k_n R/d³ - w_st/d⁴) LLLL    TB = sum (-2 f_t R/d⁴ - w_sl/d³) LLLL
+    Z1 = sum w_st/d² LL               Z2 = sum w_sl/d LL             skr = sum w_st
 
-    P = -K F S + [JF U - sR Theta] / V
-    A = K [F F TN - I S] + [JF F (Tph + Tsl) + F JF Tph + JF JF Tst - sR H
-         - (JF Z1) x Theta - Theta x (JF Z1) + skr Theta x Theta + Theta x (F Z2)] / V
+    V P = -k_n F S + JF U - sR Theta
+    V A = F F TA + F JF TB - k_n I S + I Z1 - J (U + Z2) - sR H
+          - (JF Z1) x Theta - Theta x (JF Z1) + skr Theta x Theta + Theta x (F Z2)
 
-where ``X Y T`` means X_ae Y_cf T_efBD. The derivation: ds/dF = R [JF L x L / d² - Theta], the
-second derivative of phi is -(t x n + n x t) L L / d², stick adds k_t ds/dF x ds/dF, slip adds
--s mu k_n ds/dF x (n x L) = -s mu k_n ds/dF x (F L x L) / d.
+where ``X Y T`` means X_ae Y_cf T_efBD and ``I S`` means delta_ac S_BD. Derivation: ds/dF =
+R [t (x) L / d - Theta], d²phi/dF² = -(t n + n t) L L / d², stick adds k_t ds/dF (x) ds/dF, slip
+adds -sign(f*) mu k_n ds/dF (x) (n (x) L). Per contact the 4th-order part is M_ac L_B L_D with
+M = a n n + b n t + c t n + e t t; t t = I - n n and t n = n t + J give
+M = (a - e) n n + (b + c) n t + e I + c J, hence two LLLL sums instead of four.
 
-The contact loop has no function call (the angle uses the vectorisable :func:`atan2` below), so
-LLVM vectorises it like the frictionless loop. Every point is computed independently with the same
-code path, so results do not depend on how points are batched.
+The contact loops have no function call and no branch (atan by selects and a rational or, for
+small rotation increments, a polynomial), so LLVM vectorises them like the frictionless loop.
+Every point is computed independently by the same code path: results do not depend on how the
+points are batched.
 """
 
 from __future__ import annotations
@@ -57,9 +60,14 @@ _PIO4 = 0.7853981633974483
 _PI = 3.141592653589793
 
 # Layout of the per-point accumulator array (see the module docstring).
-_E2, _S, _TN, _FT2, _DIS, _SR, _U, _TPH, _TST, _TSL, _Z1, _Z2, _SKR = (
-    0, 1, 4, 9, 10, 11, 12, 15, 20, 25, 30, 33, 36)
-N_ACC = 37
+_E2, _S, _FT2, _DIS, _SR, _U, _TA, _TB, _Z1, _Z2, _SKR = 0, 1, 4, 5, 6, 7, 10, 15, 20, 23, 26
+N_ACC = 27
+
+# Coefficients (-1)^k / (2k + 1) of atan(z) = z + z sum_k c_k z^2k; six terms are exact to
+# < 0.1 ulp for |z| <= 0.05 (next term z^13 / 13).
+_C1, _C2, _C3, _C4, _C5 = -1.0 / 3.0, 1.0 / 5.0, -1.0 / 7.0, 1.0 / 9.0, -1.0 / 11.0
+# Largest |F F_n^-1 - I| (Frobenius) for the polynomial: |tan dphi| <= e / (1 - e) <= 0.0472.
+_SMALL_INCREMENT = 0.045
 
 
 @njit(cache=True, inline="always")
@@ -101,12 +109,25 @@ def atan2(y, x):
     return _atan2_unit(y / m, x / m)
 
 
+@njit(cache=True, inline="always")
+def _atan_small(y, x):
+    """atan(y / x) for x > 0 and |y / x| <= 0.05 (one division, five multiply-adds)."""
+    z = y / x
+    zz = z * z
+    return z + z * (zz * (_C1 + zz * (_C2 + zz * (_C3 + zz * (_C4 + zz * _C5)))))
+
+
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def atan2_array(y, x, out, unit):
-    """:func:`atan2` (``unit`` False) or :func:`_atan2_unit` (True) elementwise over (n,) arrays,
-    compiled with the contact loop's flags (for tests)."""
+def atan2_array(y, x, out, kind):
+    """Elementwise (n,) :func:`atan2` (kind 0), :func:`_atan2_unit` (1) or :func:`_atan_small`
+    (2), compiled with the contact loop's flags (for tests)."""
     for i in range(y.shape[0]):
-        out[i] = _atan2_unit(y[i], x[i]) if unit else atan2(y[i], x[i])
+        if kind == 0:
+            out[i] = atan2(y[i], x[i])
+        elif kind == 1:
+            out[i] = _atan2_unit(y[i], x[i])
+        else:
+            out[i] = _atan_small(y[i], x[i])
 
 
 @njit(cache=True)
@@ -124,7 +145,7 @@ def prefix_lengths(F, rho, min_stretch, status, lengths):
 @njit(cache=True, inline="always")
 def _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2):
     """Coefficients of cross(G L, F L) and dot(G L, F L) as quadratic forms in (xx, xy, yy),
-    scaled so that both are at most ~1 for |L|² <= lmax2 (the angle does not change)."""
+    scaled so that both are at most ~1 for |L|² <= lmax2 (their ratio, the angle, is kept)."""
     cxx = G00 * F10 - G10 * F00
     cxy = G00 * F11 + G01 * F10 - G10 * F01 - G11 * F00
     cyy = G01 * F11 - G11 * F01
@@ -137,25 +158,36 @@ def _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2):
 
 
 @njit(cache=True, inline="always")
+def _small_increment(F00, F01, F10, F11, G00, G01, G10, G11):
+    """True if |F G^-1 - I| <= _SMALL_INCREMENT: every branch turns by |tan dphi| <= 0.05."""
+    jg = G00 * G11 - G01 * G10
+    e00 = (F00 * G11 - F01 * G10) / jg - 1.0
+    e01 = (F01 * G00 - F00 * G01) / jg
+    e10 = (F10 * G11 - F11 * G10) / jg
+    e11 = (F11 * G00 - F10 * G01) / jg - 1.0
+    return e00 * e00 + e01 * e01 + e10 * e10 + e11 * e11 <= _SMALL_INCREMENT**2
+
+
+@njit(cache=True, inline="always")
 def _contact_law(ftn, ds, ee, kt, mukn):
-    """Trial force, stick flag and new tangential force of one contact (closed form)."""
+    """Trial force f*, new tangential force f_t and the stick flag of one contact."""
     fstar = ftn + kt * ds
     lim = mukn * ee
-    stick = (abs(fstar) <= lim) & (lim > 0.0)  # mu = 0: no stick, the frictionless limit
-    ft = fstar if stick else (lim if fstar >= 0.0 else -lim)
-    return fstar, stick, ft
+    ft = fstar if abs(fstar) <= lim else (lim if fstar >= 0.0 else -lim)
+    return fstar, ft, (abs(fstar) <= lim) & (lim > 0.0)  # mu = 0: never sticks
 
 
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, tangent, work,
-                  acc):
-    """Contact law and the stress sums of one point: e2, S, ft2, dis, sR, U into ``acc``.
+def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, general, ft_io,
+                  winv, acc):
+    """Contact law and the stress sums e2, S, ft2, dis, sR, U of one point into ``acc``.
 
-    ``work`` (2, >= n_visit): row 0 holds f_t,n on entry and the new f_t on exit; row 1 gets 1/d
-    (0 if open), negated unless the contact sticks, for :func:`_tangent_pass` (two short loops
-    vectorise better than one with 37 running sums). Only these two rows are written: with more
-    output arrays LLVM needs more runtime alias checks than it allows and leaves the loop scalar.
-    ``tangent`` is unused (a branch in the loop would stop it vectorising too)."""
+    ``ft_io`` (n_visit,) holds f_t,n on entry and the new f_t on exit; ``winv`` (>= n_visit,) gets
+    1/d (0 if open), negated unless the contact sticks, for :func:`_tangent_pass`. Only these two
+    arrays are written: with more LLVM needs more runtime alias checks than it allows and leaves
+    the loop scalar; a branch on a flag inside the loop does the same, so ``general`` is None
+    (small increment: polynomial atan, branch pruned at compile time) or True (any angle).
+    """
     cxx, cxy, cyy, dxx, dxy, dyy = cq
     mukn = mu * kn
     e2 = 0.0
@@ -188,9 +220,15 @@ def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, tan
         s1 += b * xy
         s2 += b * yy
         # sliding since F_n: branch rotation minus particle spin, both wrapped to (-pi, pi]
-        dphi = _atan2_unit(cxx * xx + cxy * xy + cyy * yy, dxx * xx + dxy * xy + dyy * yy)
-        fstar, stick, ft = _contact_law(work[0, c], r * (dphi - dth), ee, kt, mukn)
-        work[0, c] = ft
+        cr = cxx * xx + cxy * xy + cyy * yy
+        dt = dxx * xx + dxy * xy + dyy * yy
+        if general is None:
+            dphi = _atan_small(cr, dt)
+        else:
+            dphi = _atan2_unit(cr, dt)
+        fstar, ft, stick = _contact_law(ft_io[c], r * (dphi - dth), ee, kt, mukn)
+        ft_io[c] = ft
+        winv[c] = inv if stick else -inv
         ft2 += ft * ft
         dis += abs(ft) * abs(fstar - ft)  # 0 in stick and for open contacts
         ftr = ft * r
@@ -199,7 +237,6 @@ def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, tan
         u0 += u * xx
         u1 += u * xy
         u2 += u * yy
-        work[1, c] = inv if stick else -inv
     acc[_E2] = e2
     acc[_S] = s0
     acc[_S + 1] = s1
@@ -217,16 +254,14 @@ _FASTMATH_SUMS = _FASTMATH | {"contract"}
 
 
 @njit(cache=True, fastmath=_FASTMATH_SUMS, error_model="numpy")
-def _tangent_pass(X, Y, R, n_visit, work, kt, mukn, acc):
-    """The tangent's moment sums TN, Tph, Tst, Tsl, Z1, Z2, skr of one point into ``acc``, from
-    the new forces and the signed 1/d in ``work`` (see :func:`_contact_pass`).
+def _tangent_pass(X, Y, R, n_visit, fts, winv, kn, kt, mukn, acc):
+    """The tangent sums TA, TB, Z1, Z2, skr of one point into ``acc``, from the new forces
+    ``fts`` and the signed 1/d ``winv`` of :func:`_contact_pass`.
 
-    Stick: work[1] > 0, weight k_t R². Slip (sliding sign s = sign f_t, f_t = s mu k_n eps):
-    work[1] < 0, weight s mu k_n R; f_t = 0 (open, eps = 0 or mu = 0) gives no slip weight."""
-    n0 = n1 = n2 = n3 = n4 = 0.0
-    h0 = h1 = h2 = h3 = h4 = 0.0
-    k0 = k1 = k2 = k3 = k4 = 0.0
-    p0 = p1 = p2 = p3 = p4 = 0.0
+    Stick: winv > 0, w_st = k_t R². Slip: winv < 0 and f_t != 0, w_sl = sign(f_t) mu k_n R
+    (f_t = 0 when open, at eps = 0 or for mu = 0: no slip weight)."""
+    a0 = a1 = a2 = a3 = a4 = 0.0
+    b0 = b1 = b2 = b3 = b4 = 0.0
     z0 = z1 = z2 = 0.0
     w0 = w1 = w2 = 0.0
     skr = 0.0
@@ -234,60 +269,45 @@ def _tangent_pass(X, Y, R, n_visit, work, kt, mukn, acc):
         x = X[c]
         y = Y[c]
         r = R[c]
-        ft = work[0, c]
-        w = work[1, c]
+        ft = fts[c]
+        w = winv[c]
         inv = abs(w)
-        ws = kt * r * r if w > 0.0 else 0.0
-        wl = mukn * r if ft > 0.0 else -mukn * r
-        wl = wl if (w < 0.0) & (ft != 0.0) else 0.0
+        wst = kt * r * r if w > 0.0 else 0.0
+        wsl = mukn * r if ft > 0.0 else -mukn * r
+        wsl = wsl if (w < 0.0) & (ft != 0.0) else 0.0
         xx = x * x
         xy = x * y
         yy = y * y
-        q0 = xx * xx
-        q1 = xx * xy
-        q2 = xx * yy
-        q3 = xy * yy
-        q4 = yy * yy
         inv2 = inv * inv
         inv3 = inv2 * inv
-        inv4 = inv2 * inv2
-        g = r * inv3
-        n0 += g * q0
-        n1 += g * q1
-        n2 += g * q2
-        n3 += g * q3
-        n4 += g * q4
-        g = -ft * r * inv4
-        h0 += g * q0
-        h1 += g * q1
-        h2 += g * q2
-        h3 += g * q3
-        h4 += g * q4
-        g = ws * inv4
-        k0 += g * q0
-        k1 += g * q1
-        k2 += g * q2
-        k3 += g * q3
-        k4 += g * q4
-        g = -wl * inv3
-        p0 += g * q0
-        p1 += g * q1
-        p2 += g * q2
-        p3 += g * q3
-        p4 += g * q4
-        g = ws * inv2
+        g = kn * r * inv3 - wst * inv2 * inv2
+        h = -2.0 * ft * r * inv2 * inv2 - wsl * inv3
+        q = xx * xx
+        a0 += g * q
+        b0 += h * q
+        q = xx * xy
+        a1 += g * q
+        b1 += h * q
+        q = xx * yy
+        a2 += g * q
+        b2 += h * q
+        q = xy * yy
+        a3 += g * q
+        b3 += h * q
+        q = yy * yy
+        a4 += g * q
+        b4 += h * q
+        g = wst * inv2
         z0 += g * xx
         z1 += g * xy
         z2 += g * yy
-        g = wl * inv
+        g = wsl * inv
         w0 += g * xx
         w1 += g * xy
         w2 += g * yy
-        skr += ws
-    acc[_TN], acc[_TN + 1], acc[_TN + 2], acc[_TN + 3], acc[_TN + 4] = n0, n1, n2, n3, n4
-    acc[_TPH], acc[_TPH + 1], acc[_TPH + 2], acc[_TPH + 3], acc[_TPH + 4] = h0, h1, h2, h3, h4
-    acc[_TST], acc[_TST + 1], acc[_TST + 2], acc[_TST + 3], acc[_TST + 4] = k0, k1, k2, k3, k4
-    acc[_TSL], acc[_TSL + 1], acc[_TSL + 2], acc[_TSL + 3], acc[_TSL + 4] = p0, p1, p2, p3, p4
+        skr += wst
+    acc[_TA], acc[_TA + 1], acc[_TA + 2], acc[_TA + 3], acc[_TA + 4] = a0, a1, a2, a3, a4
+    acc[_TB], acc[_TB + 1], acc[_TB + 2], acc[_TB + 3], acc[_TB + 4] = b0, b1, b2, b3, b4
     acc[_Z1], acc[_Z1 + 1], acc[_Z1 + 2] = z0, z1, z2
     acc[_Z2], acc[_Z2 + 1], acc[_Z2 + 2] = w0, w1, w2
     acc[_SKR] = skr
@@ -315,54 +335,59 @@ def _rotation(F00, F01, F10, F11, G00, G01, G10, G11):
 
 
 @njit(cache=True)
-def _finish_point(q, Fq, acc, dth_data, K, inv_area, kt, tangent, W, P, A):
-    """W[q], P[q] and (if ``tangent``) A[q] from the moment sums of point q."""
-    th, alpha, beta = dth_data
-    JF = np.empty((2, 2))
+def _finish_point(q, Fq, acc, rot, kn, inv_area, kt, tangent, W, P, A, M):
+    """W[q], P[q] and (if ``tangent``) A[q] from the sums of point q (module docstring);
+    ``rot`` = (Theta (4,), alpha, beta) of :func:`_rotation`; ``M`` (6, 2, 2) scratch."""
+    th, alpha, beta = rot
+    JF, Th, Z1, Z2, I2, J2 = M[0], M[1], M[2], M[3], M[4], M[5]
     JF[0, 0] = -Fq[1, 0]
     JF[0, 1] = -Fq[1, 1]
     JF[1, 0] = Fq[0, 0]
     JF[1, 1] = Fq[0, 1]
-    Th = np.empty((2, 2))
     Th[0, 0], Th[0, 1], Th[1, 0], Th[1, 1] = th
-    W[q] = 0.5 * K * acc[_E2] + (0.5 * acc[_FT2] / kt * inv_area if kt > 0.0 else 0.0)
+    W[q] = inv_area * (0.5 * kn * acc[_E2] + (0.5 * acc[_FT2] / kt if kt > 0.0 else 0.0))
     sr = acc[_SR]
     for a in range(2):
         for b in range(2):
-            fric = JF[a, 0] * acc[_U + b] + JF[a, 1] * acc[_U + 1 + b] - sr * Th[a, b]
-            P[q, a, b] = -K * (Fq[a, 0] * acc[_S + b] + Fq[a, 1] * acc[_S + 1 + b]) + inv_area * fric
+            fs = Fq[a, 0] * acc[_S + b] + Fq[a, 1] * acc[_S + 1 + b]
+            fu = JF[a, 0] * acc[_U + b] + JF[a, 1] * acc[_U + 1 + b]
+            P[q, a, b] = inv_area * (-kn * fs + fu - sr * Th[a, b])
     if not tangent:
         return
-    # Z1 and Z2 contracted: JF Z1L, F Z2L
-    Z1 = np.empty((2, 2))
-    Z2 = np.empty((2, 2))
     for a in range(2):
         for b in range(2):
-            Z1[a, b] = JF[a, 0] * acc[_Z1 + b] + JF[a, 1] * acc[_Z1 + 1 + b]
-            Z2[a, b] = Fq[a, 0] * acc[_Z2 + b] + Fq[a, 1] * acc[_Z2 + 1 + b]
-    I2 = ((1.0, 0.0), (0.0, 1.0))
-    J2 = ((0.0, -1.0), (1.0, 0.0))
+            Z1[a, b] = JF[a, 0] * acc[_Z1 + b] + JF[a, 1] * acc[_Z1 + 1 + b]  # JF Z1
+            Z2[a, b] = Fq[a, 0] * acc[_Z2 + b] + Fq[a, 1] * acc[_Z2 + 1 + b]  # F Z2
+            I2[a, b] = 1.0 if a == b else 0.0
+    J2[0, 0], J2[0, 1], J2[1, 0], J2[1, 1] = 0.0, -1.0, 1.0, 0.0
     skr = acc[_SKR]
     for a in range(2):
         for b in range(2):
             for c in range(2):
                 for d in range(2):
-                    nrm = 0.0
-                    fr = 0.0
+                    v = 0.0
                     for e in range(2):
                         for f in range(2):
                             i = e + f + b + d
-                            nrm += Fq[a, e] * Fq[c, f] * acc[_TN + i]
-                            fr += (JF[a, e] * Fq[c, f] * (acc[_TPH + i] + acc[_TSL + i])
-                                   + Fq[a, e] * JF[c, f] * acc[_TPH + i]
-                                   + JF[a, e] * JF[c, f] * acc[_TST + i])
-                    if a == c:
-                        nrm -= acc[_S + b + d]
-                    H = (alpha * (J2[a][b] * J2[c][d] - I2[a][b] * I2[c][d])
-                         + beta * (J2[a][b] * I2[c][d] + I2[a][b] * J2[c][d]))
-                    fr += (-sr * H - Z1[a, b] * Th[c, d] - Th[a, b] * Z1[c, d]
-                           + skr * Th[a, b] * Th[c, d] + Th[a, b] * Z2[c, d])
-                    A[q, a, b, c, d] = K * nrm + inv_area * fr
+                            v += Fq[a, e] * (Fq[c, f] * acc[_TA + i] + JF[c, f] * acc[_TB + i])
+                    bd = b + d
+                    v += (I2[a, c] * (acc[_Z1 + bd] - kn * acc[_S + bd])
+                          - J2[a, c] * (acc[_U + bd] + acc[_Z2 + bd]))
+                    H = (alpha * (J2[a, b] * J2[c, d] - I2[a, b] * I2[c, d])
+                         + beta * (J2[a, b] * I2[c, d] + I2[a, b] * J2[c, d]))
+                    v += (-sr * H - Z1[a, b] * Th[c, d] - Th[a, b] * Z1[c, d]
+                          + skr * Th[a, b] * Th[c, d] + Th[a, b] * Z2[c, d])
+                    A[q, a, b, c, d] = inv_area * v
+
+
+@njit(cache=True, inline="always")
+def _copy_history(src, dst):
+    """dst[:] = src, zero-padded or cut: committed forces past the stored prefix are zero."""
+    m = min(src.shape[0], dst.shape[0])
+    for c in range(m):
+        dst[c] = src[c]
+    for c in range(m, dst.shape[0]):
+        dst[c] = 0.0
 
 
 @njit(cache=True)
@@ -374,7 +399,7 @@ def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, ta
         F: (n, 2, 2) deformation gradients.
         X, Y, R, rho: (M,) candidate arrays of :func:`kernel.candidate_pairs` (L = (X, Y)).
         lmax2: max |L|² over the candidates (scales the angle computation).
-        kn, kt, mu: normal stiffness, tangential stiffness (N/m²), friction coefficient.
+        kn, kt, mu: normal and tangential stiffness (N/m²), friction coefficient.
         inv_area: 1 / V_rve.
         min_stretch: smallest supported singular value of F.
         tangent: compute A (else A is not touched and may have length 0).
@@ -387,9 +412,9 @@ def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, ta
         D: out (n,), dissipation after the step (Pa).
         status: (n,) int8 out: OK or the reason F was rejected (outputs then zero).
     """
-    K = kn * inv_area
     acc = np.zeros(N_ACC)
-    work = np.empty((2, R.shape[0]))
+    winv = np.empty(R.shape[0])
+    M = np.empty((6, 2, 2))
     for q in range(F.shape[0]):
         F00, F01, F10, F11 = F[q, 0, 0], F[q, 0, 1], F[q, 1, 0], F[q, 1, 1]
         code, _ = _check_F(F00, F01, F10, F11, min_stretch)
@@ -403,24 +428,26 @@ def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, ta
             continue
         o = off[q]
         n_visit = off[q + 1] - o
-        m = min(n_visit, off_n[q + 1] - off_n[q])
-        work[0, :m] = f_n[off_n[q]:off_n[q] + m]
-        work[0, m:n_visit] = 0.0  # not stored: not active at F_n
+        ft = f[o:o + n_visit]  # the new forces, computed in place from the committed ones
+        _copy_history(f_n[off_n[q]:off_n[q + 1]], ft)
         G00, G01, G10, G11 = Fn[q, 0, 0], Fn[q, 0, 1], Fn[q, 1, 0], Fn[q, 1, 1]
         dth, th, alpha, beta = _rotation(F00, F01, F10, F11, G00, G01, G10, G11)
         cq = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2)
-        _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, tangent, work,
-                      acc)
-        f[o:o + n_visit] = work[0, :n_visit]
+        if _small_increment(F00, F01, F10, F11, G00, G01, G10, G11):
+            _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, None,
+                          ft, winv, acc)
+        else:
+            _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, True,
+                          ft, winv, acc)
         if tangent:
-            _tangent_pass(X, Y, R, n_visit, work, kt, mu * kn, acc)
-        D[q] = D_n[q] + (acc[_DIS] / kt * inv_area if kt > 0.0 else 0.0)
-        _finish_point(q, F[q], acc, (th, alpha, beta), K, inv_area, kt, tangent, W, P, A)
+            _tangent_pass(X, Y, R, n_visit, ft, winv, kn, kt, mu * kn, acc)
+        D[q] = D_n[q] + (inv_area * acc[_DIS] / kt if kt > 0.0 else 0.0)
+        _finish_point(q, F[q], acc, (th, alpha, beta), kn, inv_area, kt, tangent, W, P, A, M)
 
 
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
 def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick_out):
-    """Per-candidate step of one point (same arithmetic as :func:`_contact_pass`), for diagnostics.
+    """Per-candidate step of one point, for diagnostics: the arithmetic of :func:`_contact_pass`.
 
     ``buf`` (n_visit,) holds f_t,n on entry and f_t on exit; ``eps_out`` gets the overlaps and
     ``stick_out`` 1 for a sticking contact, 0 otherwise."""
@@ -429,6 +456,7 @@ def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick
     dth = _rotation(F00, F01, F10, F11, G00, G01, G10, G11)[0]
     cxx, cxy, cyy, dxx, dxy, dyy = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11,
                                                     lmax2)
+    small = _small_increment(F00, F01, F10, F11, G00, G01, G10, G11)
     for c in range(n_visit):
         x = X[c]
         y = Y[c]
@@ -440,8 +468,10 @@ def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick
         xx = x * x
         xy = x * y
         yy = y * y
-        dphi = _atan2_unit(cxx * xx + cxy * xy + cyy * yy, dxx * xx + dxy * xy + dyy * yy)
-        _, stick, ft = _contact_law(buf[c], r * (dphi - dth), ee, kt, mu * kn)
+        cr = cxx * xx + cxy * xy + cyy * yy
+        dt = dxx * xx + dxy * xy + dyy * yy
+        dphi = _atan_small(cr, dt) if small else _atan2_unit(cr, dt)
+        _, ft, stick = _contact_law(buf[c], r * (dphi - dth), ee, kt, mu * kn)
         buf[c] = ft
         eps_out[c] = eps
         stick_out[c] = 1 if stick else 0

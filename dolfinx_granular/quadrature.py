@@ -39,8 +39,8 @@ def unflatten(t):
 
 def check_quadrature_degree(value) -> int:
     """``value`` as a quadrature degree: an integer >= 1 (2.0 is accepted, 2.7 is not)."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or value != int(value) \
-            or value < 1:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) \
+            or not (np.isfinite(value) and value == int(value) and value >= 1):
         raise ValueError(f"quadrature_degree must be an integer >= 1, got {value!r}")
     return int(value)
 

@@ -248,3 +248,33 @@ def test_limit_point_inside_the_failed_increment_needs_a_smaller_drop():
     mild = [{"phase": "p", "t": 0.1 * k, "dt": 0.1, "increment_norm": 0.1 / S_k}
             for k, S_k in enumerate([1.0, 0.9, 0.7], start=1)]  # extrapolates to t* = 0.403
     assert limit_point(mild, 0.45) is None
+
+
+class SevenIterationSolver:
+    """A stand-in for NewtonSolver whose solves take 7 Newton steps (the count of a typical
+    step to the energy norm 1e-20), except the first attempt, which fails."""
+
+    def __init__(self, u):
+        self.u, self.materials, self.calls = u, (), 0
+
+    def solve(self):
+        from dolfinx_granular.solver import SolveResult
+
+        self.calls += 1
+        ok = self.calls > 1
+        return SolveResult(converged=ok, reason=2 if ok else -5,
+                           reason_name="CONVERGED_FNORM_ABS" if ok else "DIVERGED_MAX_IT",
+                           iterations=7)
+
+
+def test_increment_grows_back_after_ordinary_newton_steps():
+    """After a cut-back, steps of 7 Newton iterations count as easy: the increment grows back to
+    the nominal one (1/4 -> 3/8 -> 1/2 capped), instead of staying at the cut-back size."""
+    from dolfinx_granular import LoadStepper as exported
+
+    assert exported is LoadStepper  # the package exports it
+    msh = mesh.create_unit_square(MPI.COMM_SELF, 1, 1)
+    stepper = LoadStepper(SevenIterationSolver(fem.Function(vector_space(msh))))
+    assert stepper.run("p", lambda t: None, 0.5)
+    assert [round(p["dt"], 12) for p in stepper.path] == [0.25, 0.375, 0.375]
+    assert len(stepper.cutbacks) == 1

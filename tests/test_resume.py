@@ -140,3 +140,13 @@ def test_resume_errors(tmp_path):
                               capture_output=True, text=True, timeout=300)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr
         assert proc.stderr.startswith("error: --resume") and words in proc.stderr
+
+
+def test_resume_of_a_finished_run_changes_nothing(tmp_path, uninterrupted):
+    """--resume on a run that completed every step says so and leaves its files as they are."""
+    out = tmp_path / "done"
+    demo(*SMALL, "--out", str(out))
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    stdout = demo("--resume", str(out), "--no-figure")
+    assert "completed all 5 load steps; nothing to resume" in stdout and "t = 0" not in stdout
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before

@@ -110,3 +110,49 @@ def test_small_slope_run_converges_quadratically(tmp_path):
         if step > 1:  # footing steps: small increments, Newton's quadratic range from the start
             assert len(e) <= 6, (step, e)
             assert e[2] <= e[1] ** 1.5, (step, e)
+
+
+@pytest.mark.mpi
+def test_a_converged_state_returns_at_once():
+    """The same load twice: the second solve starts converged (residual at round-off of the
+    forces) and returns with 0 iterations, not a stagnation from round-off / round-off."""
+    solver, _, u = column(2e5)
+    first = solver.solve()
+    u_first = u.x.array.copy()
+    again = solver.solve()
+    assert first.converged and again.converged and again.iterations == 0
+    assert again.stopped_by == "round-off" and again.residual_norm <= 1e-12 * again.force_scale
+    assert np.array_equal(u.x.array, u_first)
+    solver.destroy()
+
+
+@pytest.mark.mpi
+def test_readme_loop_from_zero_load_and_after_a_failure():
+    """The README's loop with the loads 0, 1e5, 2e5 Pa: at zero load the reference state's
+    round-off overlaps (P(I) ~ 1e-11 of the modulus) are all there is to balance, and Newton may
+    open touching contacts and fail; a failed solve leaves u where it started, so that the next
+    loads converge. A crushing load fails the same way, and the next solve converges."""
+    solver, material, u, p = granular_column(TaylorRVE(generate_packing(70, seed=4), 2.8e7),
+                                             "readme_loop_", n=6)
+    p.value = 0.0
+    if not solver.solve().converged:
+        assert not u.x.array.any()
+    for pressure in [1e5, 2e5]:
+        p.value = pressure
+        assert solver.solve().converged, pressure
+    u_good = u.x.array.copy()
+    p.value = 3e7  # far beyond what the column carries
+    crushed = solver.solve()
+    assert not crushed.converged and np.array_equal(u.x.array, u_good)
+    assert np.array_equal(material.F, material.deformation_gradient())  # data belong to u
+    p.value = 2.5e5
+    assert solver.solve().converged
+    solver.destroy()
+
+
+def test_gravity_only_slope_converges(tmp_path):
+    """No footing load (--load-factor 0): every footing step starts converged and takes 0
+    Newton steps; the run succeeds."""
+    summary = run_slope(generate_packing(70, seed=2), SlopeOptions(steps=2, load_factor=0.0),
+                        out=str(tmp_path), comm=MPI.COMM_SELF, figure=False, verbose=False)
+    assert summary["converged"] and summary["iterations"][1:] == [0, 0], summary["iterations"]
