@@ -11,6 +11,7 @@ loads its MPI library there; ``import dolfinx`` fails without it: ``libmpi.so.12
 from __future__ import annotations
 
 import inspect
+import logging
 import os
 import shutil
 import sys
@@ -26,6 +27,18 @@ try:
     from basix.ufl import quadrature_element as _quadrature_element
 except ImportError:  # DOLFINx 0.5 / 0.6
     _quadrature_element = None
+
+class _CompilerChatter(logging.Filter):
+    """Drops the INFO lines of the C compiler runs behind DOLFINx's JIT (setuptools logs every
+    command line on the root logger, which FFCx has given a stderr handler)."""
+
+    def filter(self, record):
+        where = record.pathname.replace(os.sep, "/")
+        return not (record.levelno < logging.WARNING
+                    and ("/distutils/" in where or "/setuptools/" in where))
+
+
+logging.getLogger().addFilter(_CompilerChatter())
 
 #: SNES reason for a NaN residual: DIVERGED_FNORM_NAN up to PETSc 3.19, then renamed
 SNES_NAN_REASON = int(getattr(PETSc.SNES.ConvergedReason, "DIVERGED_FNORM_NAN", None)

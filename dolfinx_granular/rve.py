@@ -12,6 +12,7 @@ depend on the packing's absolute size.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,18 @@ _REASONS = {
     kernel.NOT_ORIENTATION_PRESERVING: "has det F <= 0 (an inverted or collapsed element)",
     kernel.BELOW_MIN_STRETCH: "compresses below the supported smallest singular value",
 }
+
+
+#: |P(I)| / |C| above which the reference state counts as prestressed (a warning); a generated,
+#: stress-free packing has ~1e-11 (its contacts overlap by 1e-11 of the mean diameter)
+PRESTRESS_WARNING = 1e-6
+#: largest reference overlap / (r_i + r_j) accepted without ``allow_overlaps``: beyond it the
+#: packing is not a contact configuration but overlapping disks (linear springs far out of range)
+MAX_REFERENCE_OVERLAP = 0.05
+
+
+class PrestressWarning(UserWarning):
+    """The packing's reference state (F = I) carries stress: its disks overlap."""
 
 
 class UnsupportedDeformationError(ValueError):
@@ -68,19 +81,26 @@ class TaylorRVE:
         min_stretch: smallest singular value of F that is supported, 0 < min_stretch <= 1.
             Candidate contacts are all pairs that can touch at such an F; a smaller bound costs
             more memory and set-up time but not evaluation time at moderate strain.
+        allow_overlaps: accept a packing whose disks overlap by more than
+            ``MAX_REFERENCE_OVERLAP`` of their radius sum at F = I (otherwise a ValueError).
+
+    The reference state is explicit: :attr:`prestress` is P(I). A packing whose P(I) exceeds
+    ``PRESTRESS_WARNING`` of its modulus (overlapping disks) gives a :class:`PrestressWarning`;
+    :func:`~dolfinx_granular.generation.relax_overlaps` makes it stress-free.
 
     Every ``F`` argument is an array of shape (n, 2, 2) (or (2, 2) for a single point); an F that
     is non-finite, has det F <= 0 or a singular value below ``min_stretch`` raises
     :class:`UnsupportedDeformationError` naming the points.
     """
 
-    def __init__(self, packing: Packing, normal_stiffness: float, min_stretch: float = 0.5):
+    def __init__(self, packing: Packing, normal_stiffness: float, min_stretch: float = 0.5,
+                 allow_overlaps: bool = False):
         if not isinstance(packing, Packing):
             raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
-        k = float(normal_stiffness)
+        k = _number(normal_stiffness, "normal_stiffness")
         if not (np.isfinite(k) and k > 0.0):
             raise ValueError(f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}")
-        s = float(min_stretch)
+        s = _number(min_stretch, "min_stretch")
         if not (0.0 < s <= 1.0):
             raise ValueError(f"min_stretch must lie in (0, 1], got {min_stretch!r}")
         self.packing = packing
@@ -93,6 +113,33 @@ class TaylorRVE:
         self._X = np.ascontiguousarray(self._L[:, 0])
         self._Y = np.ascontiguousarray(self._L[:, 1])
         self._K = k / packing.area
+        self._check_reference(bool(allow_overlaps))
+
+    def _check_reference(self, allow_overlaps):
+        """Refuse far-overlapping disks, report the prestress P(I) of overlapping ones."""
+        _, eps = self._overlaps(np.eye(2))
+        worst = float((eps / self._R).max()) if eps.size else 0.0
+        self.max_reference_overlap = max(worst, 0.0)
+        if worst > MAX_REFERENCE_OVERLAP and not allow_overlaps:
+            raise ValueError(
+                f"the packing's disks overlap by up to {100 * worst:.3g} % of their radius sums at "
+                f"F = I (more than {100 * MAX_REFERENCE_OVERLAP:g} %): that is no contact network "
+                "but overlapping disks. Relax it with dolfinx_granular.relax_overlaps(packing), "
+                "or pass allow_overlaps=True to use it as it is")
+        self.prestress = self.stress(np.eye(2))[1]
+        if self.prestress_ratio > PRESTRESS_WARNING:
+            warnings.warn(
+                f"the reference state is prestressed: P(I) = {self.prestress.round(1).tolist()} Pa "
+                f"({self.prestress_ratio:.2g} of the modulus), from disks overlapping by up to "
+                f"{100 * self.max_reference_overlap:.3g} % at F = I; dolfinx_granular."
+                "relax_overlaps(packing) makes it stress-free", PrestressWarning, stacklevel=3)
+
+    @property
+    def prestress_ratio(self) -> float:
+        """|P(I)| / |C| (Frobenius norms; C the eq. 15 modulus): the strain that would carry the
+        reference stress. ~1e-11 for a generated packing."""
+        C = np.linalg.norm(self.small_strain_modulus())
+        return float(np.linalg.norm(self.prestress) / C) if C > 0 else 0.0
 
     @property
     def n_candidates(self) -> int:
@@ -198,6 +245,14 @@ class TaylorRVE:
         X, Y = self._L[:, 0], self._L[:, 1]
         l = np.stack([F[0, 0] * X + F[0, 1] * Y, F[1, 0] * X + F[1, 1] * Y], axis=1)
         return l, self._R - np.sqrt(l[:, 0] * l[:, 0] + l[:, 1] * l[:, 1])
+
+
+def _number(value, name):
+    """``value`` as a float; a TypeError or ValueError that names the parameter otherwise."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
 
 
 def _as_batch(F):

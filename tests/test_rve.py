@@ -7,6 +7,9 @@ from reference import central_differences, reference, reference_modulus
 
 from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError
 
+# these tests use prestressed (overlapping) packings on purpose
+pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
+
 K_N = 2.8e7
 
 
@@ -35,7 +38,7 @@ def packing():
 
 @pytest.fixture(scope="module")
 def rve(packing):
-    return TaylorRVE(packing, K_N)
+    return TaylorRVE(packing, K_N, allow_overlaps=True)  # prestressed on purpose
 
 
 def test_matches_reference(packing, rve, rng):
@@ -55,7 +58,7 @@ def test_matches_reference(packing, rve, rng):
 def test_candidates_complete_at_min_stretch(packing, rng):
     """At the supported bound the pruned kernel still finds every contact the brute force finds."""
     for smin in (0.5, 0.7):
-        rve = TaylorRVE(packing, K_N, min_stretch=smin)
+        rve = TaylorRVE(packing, K_N, min_stretch=smin, allow_overlaps=True)
         for _ in range(3):
             F = rotation(rng.uniform(0, 6.3)) @ np.diag([smin, 1.2]) @ rotation(rng.uniform(0, 6.3))
             _, P, A = rve.evaluate(F)
@@ -66,7 +69,7 @@ def test_candidates_complete_at_min_stretch(packing, rng):
 def test_self_image_contact():
     """A disk wider than the compressed cell touches its own periodic image."""
     packing = Packing([[0.5, 0.5], [0.5, 3.0]], [0.45, 0.45], (1.0, 6.0))
-    rve = TaylorRVE(packing, K_N)
+    rve = TaylorRVE(packing, K_N, allow_overlaps=True)
     F = np.diag([0.8, 1.0])
     _, P, A = rve.evaluate(F)
     _, P_r, A_r, _, _ = reference(packing, K_N, F)
@@ -247,3 +250,31 @@ def test_coincident_centres_are_refused():
     packing = Packing([[1.0, 1.0], [1.0, 1.0], [3.0, 3.0]], [0.5, 0.4, 0.5], (5.0, 5.0))
     with pytest.raises(ValueError, match="disks 0 and 1 have the same centre"):
         TaylorRVE(packing, K_N)
+
+
+def test_reference_state_is_explicit():
+    """A generated packing is stress-free (P(I) ~ 1e-11 of the modulus, no warning); radii x 1.02
+    prestress it (warning naming P(I)); radii x 1.1 are refused unless asked for."""
+    import warnings
+
+    from dolfinx_granular import generate_packing
+    from dolfinx_granular.rve import PrestressWarning
+
+    packing = generate_packing(40, seed=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PrestressWarning)
+        rve = TaylorRVE(packing, K_N)
+    assert rve.prestress.shape == (2, 2) and rve.prestress_ratio < 1e-9
+    assert rve.max_reference_overlap < 1e-9
+    swollen = Packing(packing.centers, 1.02 * packing.radii, packing.box)
+    with pytest.warns(PrestressWarning, match=r"P\(I\) = \[\[-\d"):
+        rve = TaylorRVE(swollen, K_N)
+    assert 1e-3 < rve.prestress_ratio < 0.1 and np.all(np.linalg.eigvalsh(rve.prestress) < 0)
+    assert np.array_equal(rve.prestress, rve.stress(np.eye(2))[1])
+    overlapping = Packing(packing.centers, 1.1 * packing.radii, packing.box)
+    with pytest.raises(ValueError, match="overlap by up to .*relax_overlaps"):
+        TaylorRVE(overlapping, K_N)
+    with pytest.warns(PrestressWarning):
+        TaylorRVE(overlapping, K_N, allow_overlaps=True)
+    with pytest.raises(ValueError, match="normal_stiffness must be a number, got 'stiff'"):
+        TaylorRVE(packing, "stiff")

@@ -125,3 +125,20 @@ def test_serial_and_two_ranks_agree(tmp_path):
             b = rows2[(a["step"], a["iterate"])]
             assert rel(float(a["residual_norm"]), float(b["residual_norm"])) <= 1e-10
             assert rel(float(a["energy_norm_rel"]), float(b["energy_norm_rel"])) <= 1e-8
+
+
+def test_prestressed_packing_is_reported(tmp_path):
+    """Radii x 1.02: the run warns, logs P(I) and records it in summary.json."""
+    import json
+
+    from dolfinx_granular import Packing, generate_packing
+
+    p = generate_packing(70, seed=1)
+    Packing(p.centers, 1.02 * p.radii, p.box).save(tmp_path / "swollen.npz")
+    cmd = slope_command("--packing", tmp_path / "swollen.npz", "--steps", "1", "--no-figure",
+                        "--out", tmp_path / "out")
+    proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "PrestressWarning" in proc.stderr and "reference state of the RVE: P(I) = [[-6" in proc.stdout
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert 1e-3 < summary["prestress_ratio"] < 0.1 and summary["prestress"][0][0] < -1e5

@@ -278,6 +278,10 @@ def run_slope(packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, f
             f"{comm.allreduce(m.material.n_points)} RVEs of {packing.n_particles} particles, "
             f"{comm.size} rank(s), {run.n_nominal} load steps, footing load x{o.load_factor:g}"
             + (f", stabiliser {o.stabilise:g}" if o.stabilise else ""))
+    if getattr(run.law, "prestress", None) is not None:
+        run.say(f"slope: reference state of the RVE: P(I) = "
+                f"{np.array2string(run.law.prestress, precision=3)} Pa "
+                f"({run.law.prestress_ratio:.2g} of its modulus)")
     run.run()
     report_stop(run)
     extremes = m.extremes()

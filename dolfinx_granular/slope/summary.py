@@ -52,6 +52,7 @@ def summarise(run, extremes, probes, figure_time=0.0) -> dict:
     t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in m.solver.timings.items()}
     status = "failed" if failed else ("stopped" if stepper.stopped else "converged")
     info = run.step_info
+    prestress = getattr(run.law, "prestress", None)
     return {
         "ranks": comm.size, "steps": run.n_nominal, "completed_steps": stepper.step,
         "status": status, "converged": status == "converged", "failed": failed,
@@ -69,6 +70,9 @@ def summarise(run, extremes, probes, figure_time=0.0) -> dict:
         "min_von_mises": vmin, "min_von_mises_location": xmin,
         "min_singular_value_F": m.min_singular_value(),
         "particles": run.packing.n_particles, "rves": comm.allreduce(m.material.n_points),
+        # the reference state of the RVE: P(I) in Pa, and |P(I)| / |C|
+        "prestress": None if prestress is None else prestress.tolist(),
+        "prestress_ratio": getattr(run.law, "prestress_ratio", None),
         "wall_time": time.perf_counter() - run.t_start, "time_setup": run.setup_time,
         "time_rve": t["rve"],
         "time_rve_kernel": comm.allreduce(m.material.timings["rve"], op=MPI.MAX),
