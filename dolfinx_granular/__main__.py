@@ -1,9 +1,10 @@
 """Command line: ``python -m dolfinx_granular <command> ...`` (also installed as ``dolfinx-granular``).
 
 Commands:
-    generate N [--seed S] [-o packing.npz] [--d-min MM] [--sieve-curve CSV] [--aspect A]
+    generate N [--seed S] [-o packing.npz] [--force] [--d-min MM] [--sieve-curve CSV] [--aspect A]
         Write a jammed, stress-free periodic packing of N disks (see
-        :func:`dolfinx_granular.generation.generate_packing`).
+        :func:`dolfinx_granular.generation.generate_packing`); an existing file is kept unless
+        ``--force``.
 
 A user error (bad argument, bad sieve curve, unwritable file) prints one line ``error: ...`` to
 stderr and exits with status 2; ``--debug`` shows the traceback instead. New commands register a
@@ -13,6 +14,7 @@ sub-parser in :func:`build_parser` and a handler taking the parsed arguments.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -48,7 +50,10 @@ def _d_min(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="python -m dolfinx_granular", description=__doc__.split("\n")[0])
+    parser = _Parser(prog="python -m dolfinx_granular",
+                     description="dolfinx_granular's command line (also installed as "
+                     "dolfinx-granular). 'python -m dolfinx_granular COMMAND --help' describes a "
+                     "command; the slope benchmark is 'python -m dolfinx_granular.slope'.")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
@@ -60,7 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     gen.add_argument("n_particles", type=_integer, help="number of disks (>= 2)")
     gen.add_argument("--seed", type=_integer, default=0, help="random seed (default 0)")
-    gen.add_argument("-o", "--output", default="packing.npz", help="output .npz file")
+    gen.add_argument("-o", "--output", default="packing.npz",
+                     help="output .npz file (default packing.npz; kept if it exists, see --force)")
+    gen.add_argument("--force", action="store_true", help="overwrite an existing output file")
     gen.add_argument(
         "--d-min", type=_d_min, default=_AUTO, metavar="MM",
         help="cut size in mm: finer grains are left out ('none' keeps the whole curve; "
@@ -83,6 +90,9 @@ def _cmd_generate(args) -> int:
 
     if not args.output.endswith(".npz"):
         raise ValueError(f"the output file must end in .npz, got {args.output!r}")
+    if os.path.exists(args.output) and not args.force:
+        raise ValueError(f"{args.output!r} exists; choose another name with -o, or pass --force "
+                         "to overwrite it")
     gsd = SieveCurve.from_csv(args.sieve_curve) if args.sieve_curve else None
     d_min = args.d_min
     if d_min is _AUTO:

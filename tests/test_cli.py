@@ -80,3 +80,24 @@ def test_user_sieve_curve_and_options(tmp_path, monkeypatch, capsys):
 def test_no_command_prints_help(capsys):
     assert main([]) == 2
     assert "generate" in capsys.readouterr().err
+
+
+def test_existing_output_is_kept_unless_forced(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    generate_packing(20, seed=1).save("packing.npz")
+    before = (tmp_path / "packing.npz").read_bytes()
+    assert main(["generate", "30", "--quiet"]) == 2  # the default name exists already
+    err = capsys.readouterr().err
+    assert "'packing.npz' exists" in err and "--force" in err
+    assert (tmp_path / "packing.npz").read_bytes() == before
+    assert main(["generate", "30", "--quiet", "--force"]) == 0
+    assert Packing.load(tmp_path / "packing.npz").n_particles == 30
+
+
+def test_help_is_plain_text_and_names_the_default_file(capsys):
+    for argv in (["--help"], ["generate", "--help"]):
+        with pytest.raises(SystemExit):
+            main(argv)
+        out = capsys.readouterr().out
+        assert "``" not in out and ":func:" not in out, out
+    assert "default packing.npz" in " ".join(out.split())
