@@ -150,7 +150,7 @@ def force_network(rve, F, force_scale):
     return quads, centers, pk.radii
 
 
-def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
+def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, value_range=None):
     """Figure 7: von Mises contour on the deformed slope with min/max and four RVE force networks.
 
     Args:
@@ -159,6 +159,12 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
         markers: list of ``(label, point (2,) reference coordinates, text)``; marked on the slope.
         rves: list of ``(label, rve, F (2, 2), text)`` for the insets (same force and length scale).
         deformation_scale: factor on u for the deformed shape.
+        value_range: ``(min, max)`` von Mises stress in Pa that the colour bar spans (default:
+            the cell values'); pass the Gauss-point extremes that the markers name, so that the
+            bar covers them.
+
+    Returns:
+        The colour bar's range ``(min, max)`` in MPa.
     """
     _headless_vtk()
     import pyvista as pv
@@ -176,13 +182,15 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
     plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
                          window_size=(1800, 860), border=False)
     plotter.subplot(0, 0)
-    clim = (float(vm.min()) / 1e6, float(vm.max()) / 1e6)
+    lo, hi = value_range if value_range is not None else (vm.min(), vm.max())
+    clim = (float(lo) / 1e6, float(hi) / 1e6)
     # VTK's scalar bar actor crashes in this VTK wheel (std::regex in its label formatter), so the
     # colour bar is drawn as a mesh of its own below the slope.
     plotter.add_mesh(grid, scalars="von Mises [MPa]", cmap="turbo", n_colors=16, clim=clim,
                      show_scalar_bar=False)
     plotter.add_mesh(grid.extract_all_edges(), color="black", line_width=0.5, opacity=0.25)
-    _colorbar(plotter, grid.bounds, clim, "von Mises stress [MPa], cell means of the Gauss points")
+    _colorbar(plotter, grid.bounds, clim, "von Mises stress [MPa]: colours the cell means, the bar "
+              "spans the Gauss points' range")
     u_of = _displacement_lookup(points, u)
     mk = []
     for label, X, text in markers:
@@ -226,6 +234,7 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0):
         plotter.camera.parallel_scale = 1.1 * extent
     plotter.screenshot(path)
     plotter.close()
+    return clim
 
 
 def _headless_vtk():

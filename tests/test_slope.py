@@ -98,6 +98,9 @@ def test_demo_reduced_size_writes_everything(tmp_path):
 
     img = mpimg.imread(png)
     assert img.shape[0] > 400 and img.shape[1] > 800 and img[..., :3].std() > 0.05
+    # the colour bar spans the Gauss-point extremes that the figure's markers name
+    lo, hi = summary["figure_colour_range"]
+    assert (lo, hi) == (summary["min_von_mises"] / 1e6, summary["max_von_mises"] / 1e6)
 
 
 @pytest.mark.slow

@@ -288,10 +288,11 @@ def run_slope(packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, f
     probes = m.probes(extremes[1][1])
     data = figure_data(run, extremes) if figure else None
     m.solver.destroy()  # collective PETSc clean-up while all ranks are here (rank 0 draws next)
-    seconds = 0.0
+    seconds, colour_range = 0.0, None
     if figure and comm.rank == 0:
-        seconds = draw_figure(run, run.writer.path("slope.png"), data, extremes, probes)
-    summary = summarise(run, extremes, probes, seconds)
+        seconds, colour_range = draw_figure(run, run.writer.path("slope.png"), data, extremes,
+                                            probes)
+    summary = summarise(run, extremes, probes, seconds, colour_range)
     run.writer.csv("convergence.csv", CONVERGENCE_HEADER, run.rows)
     run.writer.json("summary.json", summary)
     t = summary

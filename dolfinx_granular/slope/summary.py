@@ -43,9 +43,10 @@ def report_stop(run):
                 f"with --resume {run.writer.out}")
 
 
-def summarise(run, extremes, probes, figure_time=0.0) -> dict:
+def summarise(run, extremes, probes, figure_time=0.0, colour_range=None) -> dict:
     """The summary dict of a run at its last converged state (collective); ``extremes`` and
-    ``probes`` from :class:`~dolfinx_granular.slope.model.SlopeModel`."""
+    ``probes`` from :class:`~dolfinx_granular.slope.model.SlopeModel`, the figure's time and
+    colour range from :func:`draw_figure`."""
     m, comm, stepper = run.model, run.comm, run.stepper
     _, (vmax, xmax), (vmin, xmin) = extremes
     failed = stepper.failed
@@ -78,6 +79,8 @@ def summarise(run, extremes, probes, figure_time=0.0) -> dict:
         "time_rve_kernel": comm.allreduce(m.material.timings["rve"], op=MPI.MAX),
         "time_assembly": t["assembly"], "time_solve": t["solve"],
         "time_output": run.time_output + figure_time, "step_info": info,
+        # the figure's colour bar (MPa), which spans the Gauss-point extremes its markers name
+        "figure_colour_range": colour_range,
         "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()}
                    for label, xp, Fp, _ in probes},
     }
@@ -91,7 +94,7 @@ def figure_data(run, extremes):
 
 def draw_figure(run, path, data, extremes, probes):
     """Figure 7 on rank 0: von Mises on the deformed slope, the extremes and four probe RVEs'
-    force networks. Returns the seconds it took."""
+    force networks. Returns the seconds it took and the colour bar's range (MPa)."""
     t0 = time.perf_counter()
     _, (vmax, xmax), (vmin, xmin) = extremes
     markers = [(label, xp, text) for label, xp, _, text in probes]
@@ -100,7 +103,8 @@ def draw_figure(run, path, data, extremes, probes):
     insets = [(label, run.law, Fp, f"{text}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
               for label, xp, Fp, text in probes]
     settlement = run.step_info[-1]["settlement"] if run.step_info else 0.0
-    plot_slope(path, data, markers, insets,
-               title=f"step {run.stepper.step}/{run.n_nominal}: settlement {settlement:.3f} m, "
-                     f"{run.packing.n_particles} particles, deformation x1")
-    return time.perf_counter() - t0
+    colour_range = plot_slope(
+        path, data, markers, insets, value_range=(vmin, vmax),
+        title=f"step {run.stepper.step}/{run.n_nominal}: settlement {settlement:.3f} m, "
+              f"{run.packing.n_particles} particles, deformation x1")
+    return time.perf_counter() - t0, colour_range
