@@ -144,3 +144,24 @@ def mpi_command(ranks: int) -> list[str] | None:
 
     extra = ["--oversubscribe"] if "Open MPI" in MPI.Get_library_version() else []
     return [launcher, "-n", str(ranks), *extra]
+
+
+_XINCLUDE_WRONG = 'xmlns:xi="https://www.w3.org/2001/XInclude"'
+_XINCLUDE = 'xmlns:xi="http://www.w3.org/2001/XInclude"'
+
+
+def repair_xdmf(path) -> None:
+    """Give an XDMF file written by DOLFINx the XInclude namespace of the W3C standard.
+
+    DOLFINx 0.9 and later write ``xmlns:xi="https://..."``; XInclude's namespace is the ``http``
+    URI, and VTK's XDMF reader (pyvista, ParaView) then cannot resolve the file's ``xi:include``
+    elements and crashes. A no-op for files with the right namespace (DOLFINx 0.5). Call it on
+    one rank after the file is closed.
+    """
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    if _XINCLUDE_WRONG in text:
+        tmp = f"{path}.tmp{os.getpid()}"
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text.replace(_XINCLUDE_WRONG, _XINCLUDE))
+        os.replace(tmp, path)

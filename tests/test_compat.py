@@ -102,3 +102,21 @@ def test_no_deprecation_warning_from_the_package(tmp_path):
                 f"{os.sep}{lib}{os.sep}" in w.filename or f"{os.sep}{lib}." in w.filename
                 for lib in LIBRARIES))]
     assert not ours, "\n".join(ours)
+
+
+def test_xdmf_gets_the_standard_xinclude_namespace(tmp_path):
+    """DOLFINx >= 0.9 writes the XInclude namespace as https (VTK's reader then crashes on the
+    file); the repaired file names the W3C's http URI, and a correct file is left alone."""
+    from dolfinx import io
+
+    path = str(tmp_path / "m.xdmf")
+    msh = square(2)
+    with io.XDMFFile(MPI.COMM_SELF, path, "w") as f:
+        f.write_mesh(msh)
+        f.write_function(fem.Function(dfx.vector_space(msh)), 0.0)
+    dfx.repair_xdmf(path)
+    text = open(path).read()
+    assert 'xmlns:xi="http://www.w3.org/2001/XInclude"' in text and "https://www.w3" not in text
+    before = os.stat(path).st_mtime_ns
+    dfx.repair_xdmf(path)
+    assert os.stat(path).st_mtime_ns == before and open(path).read() == text

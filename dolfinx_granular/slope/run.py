@@ -155,6 +155,7 @@ class SlopeRun:
 
         with io.XDMFFile(self.comm, self.writer.path("slope.xdmf"), "w") as xdmf:
             xdmf.write_mesh(self.model.mesh)
+        self._repair_xdmf()
 
     def _append_xdmf(self, step):
         """Append u and the cell-mean von Mises stress (file closed per step: complete on disk)."""
@@ -166,6 +167,12 @@ class SlopeRun:
         with io.XDMFFile(self.comm, self.writer.path("slope.xdmf"), "a") as xdmf:
             xdmf.write_function(m.u, float(step))
             xdmf.write_function(vm, float(step))
+        self._repair_xdmf()
+
+    def _repair_xdmf(self):
+        if self.comm.rank == 0:
+            dfx.repair_xdmf(self.writer.path("slope.xdmf"))
+        self.comm.barrier()  # (the next append reads the file on every rank)
 
     def _state(self, phase_index, step, t):
         return {"step": step, "phase": phase_index, "t": t, "dt": self.stepper.dt,
