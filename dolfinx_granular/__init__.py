@@ -23,7 +23,9 @@ __all__ = ["Packing", "PackingFileError", "TaylorRVE", "ContactSet", "Unsupporte
            "SieveCurve", "cen_standard_sand", "generate_packing", "network_stats", "NetworkStats",
            "contact_angles", "normal_density", "fabric_tensor", "anisotropy", "density_deviation",
            "SmallStrainRVE", "AdaptiveRVE"]
-__version__ = "0.1.0"
+__version__ = "0.2.0"
+#: the DOLFINx releases this version supports and tests (Debian bookworm, trixie, PyPI wheel)
+SUPPORTED_DOLFINX = (">=0.5.2", "<0.12")
 
 # DOLFINx-side names, imported on first use so that `import dolfinx_granular` stays DOLFINx-free.
 _LAZY = {

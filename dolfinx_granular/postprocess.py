@@ -1,4 +1,5 @@
-"""Post-processing: von Mises stress, XDMF output and the figure-7 style pyvista plot.
+"""Post-processing: von Mises stress, loss of ellipticity, MPI gathers, force networks and the
+figure-7 style pyvista plot of the slope.
 
 Functions that take a communicator gather to rank 0 what they need; pyvista is imported only by
 :func:`plot_slope`, and only on rank 0.

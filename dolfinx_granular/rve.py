@@ -1,6 +1,7 @@
 """The Taylor RVE material: energy, stresses and tangents of a disk packing under a macroscopic F.
 
-Equation numbers refer to Meier, Steinmann & Kuhl (paper in ``shared/paper``). Every particle
+Equation numbers refer to Meier, Steinmann & Kuhl, *Towards multiscale computation of confined
+granular media: contact forces, stresses and tangent operators*. Every particle
 follows the macroscopic deformation gradient (x = F X, eq. 1); disks in contact (overlap eps >= 0,
 eq. 3) interact through linear normal springs (eq. 4). Each physical contact is counted once, which
 equals the paper's double sum over i != j with its factor 1/2.
