@@ -77,56 +77,47 @@ def write_csv(path, header, rows):
         w.writerows(rows)
 
 
-def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
-    """Run the study, write figures and tables to ``out``; returns a summary dict."""
-    t_start = time.perf_counter()
-    cfg = SMALL if small else FULL
-    say = print if verbose else (lambda *a, **k: None)
-    os.makedirs(out, exist_ok=True)
-    cache = PackingCache(os.path.join(out, "packings"), use_cache)
-    seeds = list(range(cfg["seeds"]))
-    sizes = sorted(set(cfg["fig_sizes"]) | set(cfg["speed_sizes"]))
-    n_seeds = {n: max(cfg["seeds"] if n in cfg["fig_sizes"] else 0,
-                      cfg["speed_seeds"] if n in cfg["speed_sizes"] else 0) for n in sizes}
-
-    # -- packings and their networks --------------------------------------------------------------
-    packings = {}
-    stats_rows = []
-    for n in sizes:
-        packings[n] = [cache.get(n, s) for s in range(n_seeds[n])]
-        for s, p in enumerate(packings[n]):
+def packing_table(cache, packings, out):
+    """``OUT/packings.csv``: per packing its generation time, volume fraction, coordination,
+    rattlers, the residual prestress, fabric anisotropy and the deviation of the contact-normal
+    density from uniform (``packings``: ``{n: [Packing per seed]}``)."""
+    rows = []
+    for n, group in packings.items():
+        for s, p in enumerate(group):
             st = network_stats(p)
             rve = TaylorRVE(p, K_N, min_stretch=0.85)
             ratio = np.abs(rve.cauchy(np.eye(2))).max() / np.abs(rve.cauchy(0.99 * np.eye(2))).max()
             ang = contact_angles(p)
             a, _ = anisotropy(fabric_tensor(ang))
-            stats_rows.append([n, s, f"{cache.generation_time(n, s):.3f}",
-                               f"{st.volume_fraction:.4f}", f"{st.coordination:.3f}",
-                               st.min_coordination,
-                               f"{st.rattler_fraction:.3f}", f"{ratio:.2e}", f"{a:.4f}",
-                               f"{density_deviation(ang, np.radians(20.0)):.4f}"])
-        say(f"{n:5d} particles: generated / loaded {n_seeds[n]} packings "
-            f"({time.perf_counter() - t_start:.1f} s)")
+            rows.append([n, s, f"{cache.generation_time(n, s):.3f}", f"{st.volume_fraction:.4f}",
+                         f"{st.coordination:.3f}", st.min_coordination,
+                         f"{st.rattler_fraction:.3f}", f"{ratio:.2e}", f"{a:.4f}",
+                         f"{density_deviation(ang, np.radians(20.0)):.4f}"])
     write_csv(os.path.join(out, "packings.csv"),
               ["n", "seed", "generation_time_s", "volume_fraction", "coordination_nonrattlers",
                "min_coordination", "rattler_fraction", "prestress_ratio", "fabric_anisotropy",
-               "density_deviation_20deg"], stats_rows)
+               "density_deviation_20deg"], rows)
 
-    # -- figures 2 and 3 ------------------------------------------------------------------------
-    n_show = max(cfg["fig_sizes"])
-    fig = plotting.plot_sieve_curve(cen_standard_sand(), packings[n_show][0], d_min=DEFAULT_D_MIN)
-    figure_sets = {n: packings[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}
+
+def packing_figures(figure_sets, out):
+    """Figure 2 (the sieve curve with the grains of the largest size's first packing) and figure 3
+    (packings and contact-normal densities); ``figure_sets``: ``{n: [Packing per seed]}``."""
+    n_show = max(figure_sets)
+    fig = plotting.plot_sieve_curve(cen_standard_sand(), figure_sets[n_show][0],
+                                    d_min=DEFAULT_D_MIN)
     fig.savefig(os.path.join(out, "fig2_sieve_curve.png"), dpi=DPI)
-    ratt = {n: [network_stats(p).rattlers for p in figure_sets[n]] for n in cfg["fig_sizes"]}
-    fig = plotting.plot_packings_and_densities(figure_sets, rattlers=ratt)
+    rattlers = {n: [network_stats(p).rattlers for p in group] for n, group in figure_sets.items()}
+    fig = plotting.plot_packings_and_densities(figure_sets, rattlers=rattlers)
     fig.savefig(os.path.join(out, "fig3_packings_densities.png"), dpi=80)
-    say(f"figures 2 and 3 ({time.perf_counter() - t_start:.1f} s)")
 
-    # -- figures 4 and 5: stress paths ------------------------------------------------------------
-    curves = {n: stress_paths(figure_sets[n], cfg["steps"]) for n in cfg["fig_sizes"]}
+
+def stress_figures(figure_sets, steps, out):
+    """Figures 4 and 5 and ``OUT/stress_curves.csv``: Cauchy stress along the four paths, mean
+    and standard deviation over the packings of each size."""
+    curves = {n: stress_paths(group, steps) for n, group in figure_sets.items()}
     rows = []
     for name in PATHS:
-        for n in cfg["fig_sizes"]:
+        for n in figure_sets:
             s, mean, std = curves[n][name]
             for k in range(s.size):
                 rows.append([name, n, f"{s[k]:.4f}"] + [
@@ -137,26 +128,29 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
                "sigma22_std_Pa", "sigma12_mean_Pa", "sigma12_std_Pa"], rows)
 
     def panels(names, titles):
-        return [(t, PATHS[k][1], {n: curves[n][k] for n in cfg["fig_sizes"]})
+        return [(t, PATHS[k][1], {n: curves[n][k] for n in figure_sets})
                 for k, t in zip(names, titles)]
 
+    seeds = max(len(group) for group in figure_sets.values())
     fig = plotting.plot_stress_curves(
         panels(["compression_11", "compression_22"],
                ["uniaxial compression in 11", "uniaxial compression in 22"]),
-        f"Fig. 4: compression, mean ± std over {len(seeds)} RVEs (solid σ11, dashed σ22)")
+        f"Fig. 4: compression, mean ± std over {seeds} RVEs (solid σ11, dashed σ22)")
     fig.savefig(os.path.join(out, "fig4_compression.png"), dpi=DPI)
     fig = plotting.plot_stress_curves(
         panels(["shear_12", "shear_21"], ["simple shear in 12", "simple shear in 21"]),
-        f"Fig. 5: simple shear, mean ± std over {len(seeds)} RVEs (solid σ11, dashed σ22)")
+        f"Fig. 5: simple shear, mean ± std over {seeds} RVEs (solid σ11, dashed σ22)")
     fig.savefig(os.path.join(out, "fig5_shear.png"), dpi=DPI)
-    say(f"figures 4 and 5 ({time.perf_counter() - t_start:.1f} s)")
 
-    # -- speed against error ---------------------------------------------------------------------
+
+def speed_error(cache, packings, out):
+    """Scatter of the stress over the seeds against the cost of a point, per particle count:
+    ``OUT/speed_error.csv`` and ``.png``; returns the rows (dicts)."""
     F_c = np.array([[0.95, 0.0], [0.0, 1.0]])
     F_s = np.array([[1.0, 0.05], [0.0, 1.0]])
     table = []
-    for n in cfg["speed_sizes"]:
-        rves = [TaylorRVE(p, K_N, min_stretch=0.85) for p in packings[n]]
+    for n, group in packings.items():
+        rves = [TaylorRVE(p, K_N, min_stretch=0.85) for p in group]
         sc = np.array([r.cauchy(F_c)[0, 0] for r in rves])
         ss = np.array([r.cauchy(F_s)[0, 1] for r in rves])
         ddof = 1 if len(rves) > 1 else 0
@@ -175,8 +169,32 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     write_csv(os.path.join(out, "speed_error.csv"), keys,
               [[f"{row[k]:.6g}" if isinstance(row[k], float) else row[k] for k in keys]
                for row in table])
-    fig = plotting.plot_speed_error(table)
-    fig.savefig(os.path.join(out, "speed_error.png"), dpi=DPI)
+    plotting.plot_speed_error(table).savefig(os.path.join(out, "speed_error.png"), dpi=DPI)
+    return table
+
+
+def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
+    """Run the study, write figures and tables to ``out``; returns a summary dict."""
+    t_start = time.perf_counter()
+    cfg = SMALL if small else FULL
+    say = print if verbose else (lambda *a, **k: None)
+    os.makedirs(out, exist_ok=True)
+    cache = PackingCache(os.path.join(out, "packings"), use_cache)
+    sizes = sorted(set(cfg["fig_sizes"]) | set(cfg["speed_sizes"]))
+    packings = {}
+    for n in sizes:
+        seeds = max(cfg["seeds"] if n in cfg["fig_sizes"] else 0,
+                    cfg["speed_seeds"] if n in cfg["speed_sizes"] else 0)
+        packings[n] = [cache.get(n, s) for s in range(seeds)]
+        say(f"{n:5d} particles: generated / loaded {seeds} packings "
+            f"({time.perf_counter() - t_start:.1f} s)")
+    packing_table(cache, packings, out)
+    figure_sets = {n: packings[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}
+    packing_figures(figure_sets, out)
+    say(f"figures 2 and 3 ({time.perf_counter() - t_start:.1f} s)")
+    stress_figures(figure_sets, cfg["steps"], out)
+    say(f"figures 4 and 5 ({time.perf_counter() - t_start:.1f} s)")
+    table = speed_error(cache, {n: packings[n] for n in cfg["speed_sizes"]}, out)
 
     say("\n    n   CV(σ11, 5 % compr.)  CV(σ12, 5 % shear)  time/point [µs]  generation [s]")
     for row in table:
@@ -184,9 +202,8 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
             f"  {1e6 * row['time_per_point']:15.2f}  {row['generation_time_s']:14.2f}")
     runtime = time.perf_counter() - t_start
     say(f"\nwrote {out}/ in {runtime:.1f} s")
-    summary = {"runtime_s": runtime, "speed_error": table, "seeds": seeds,
-               "speed_seeds": cfg["speed_seeds"],
-               "fig_sizes": list(cfg["fig_sizes"])}
+    summary = {"runtime_s": runtime, "speed_error": table, "seeds": list(range(cfg["seeds"])),
+               "speed_seeds": cfg["speed_seeds"], "fig_sizes": list(cfg["fig_sizes"])}
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)
     return summary

@@ -129,6 +129,28 @@ def gmsh_model_to_mesh(model, comm, rank: int, gdim: int):
     return tuple(data)
 
 
+def create_mesh(comm, cells, x, cell: str, gdim: int):
+    """A mesh of affine ``cell`` s ("interval", "triangle", ...) from node coordinates ``x``
+    (n, gdim) and connectivity ``cells`` (m, nodes per cell), given on rank 0 (other ranks'
+    arrays are ignored) and distributed over ``comm``."""
+    from dolfinx import mesh
+
+    if _quadrature_element is not None:  # basix.ufl elements (0.7+)
+        from basix.ufl import element
+
+        domain = ufl.Mesh(element("Lagrange", cell, 1, shape=(gdim,)))
+    else:
+        domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(cell, geometric_dimension=gdim),
+                                            1, dim=gdim))
+    cells = np.asarray(cells, dtype=np.int64)
+    x = np.asarray(x, dtype=np.float64)
+    if comm.rank != 0:
+        cells, x = cells[:0], x[:0]
+    params = inspect.signature(mesh.create_mesh).parameters
+    key = "domain" if "domain" in params else "e"  # 0.5 / later; the order of x changed in 0.10
+    return mesh.create_mesh(comm, cells=cells, x=x, **{key: domain})
+
+
 def mpi_command(ranks: int) -> list[str] | None:
     """The command prefix that starts ``ranks`` processes with the MPI library of this Python's
     mpi4py: the venv's own ``mpiexec`` where the PyPI wheel installed one (MPICH), else

@@ -237,26 +237,31 @@ class NewtonSolver:
 
     def _residual(self, snes, x, b):
         with self.clock("callbacks"):
-            self._residual_at(x, b)
+            error = self.residual(x, b, self._tangent_needed(x))
+            if error:
+                self._error = error
 
-    def _residual_at(self, x, b):
+    def residual(self, x, b, tangent=True):
+        """Evaluate the materials at the state x (a vector like u's) and assemble R(x) into b,
+        Dirichlet rows ``x - g`` (collective). Returns None, or the message of a material that
+        could not be evaluated (an RVE outside its range; b is NaN then, on every rank)."""
         error = None
         try:
-            self._evaluate(x, self._tangent_needed(x))
+            self._evaluate(x, tangent)
         except ValueError as err:  # UnsupportedDeformationError
             error = str(err)
         errors = [e for e in self.comm.allgather(error) if e]
         if errors:  # every rank takes this branch: a NaN residual makes SNES stop
-            self._error = errors[0]
             self._have_eval = False
             with b.localForm() as b_local:
                 b_local.set(np.nan)
-            return
+            return errors[0]
         with self.clock("residual"):
             self._assemble(b, self.L)
             apply_lifting(b, [self.a], [self.bcs], [x], -1.0)
             b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             set_bc(b, self.bcs, x, -1.0)
+        return None
 
     @staticmethod
     def _assemble(b, form):
@@ -270,14 +275,21 @@ class NewtonSolver:
 
     def _jacobian(self, snes, x, A, P):
         with self.clock("callbacks"):
-            if not (self._same_as_evaluated(x) and self._have_tangent):
-                self._evaluate(x)
-            with self.clock("jacobian"):
-                A.zeroEntries()
-                assemble_matrix(A, self.a, self.bcs)
-                A.assemble()
+            self.jacobian(x, A)
 
-    def _force_scale(self, R):
+    def jacobian(self, x, A=None):
+        """Assemble dR/du at x into A (default: the solver's matrix), with the materials' tangent
+        at x (re-evaluated unless the last evaluation was at x with a tangent); returns A."""
+        A = self.A if A is None else A
+        if not (self._same_as_evaluated(x) and self._have_tangent):
+            self._evaluate(x)
+        with self.clock("jacobian"):
+            A.zeroEntries()
+            assemble_matrix(A, self.a, self.bcs)
+            A.assemble()
+        return A
+
+    def force_scale(self, R):
         """The magnitude of the forces in balance (N): max(|f_int|, |f_ext|) at the current
         iterate, f_int the materials' internal forces (reactions included), f_ext = f_int - R on
         the free dofs. Round-off in R is a small multiple of eps times it."""
@@ -317,7 +329,7 @@ class NewtonSolver:
         if not np.isfinite(fnorm):
             return SNES_NAN_REASON
         if it == 0 or stalled:  # (dead loads: |f_ext| is that of the start; once is enough)
-            self._scale = self._force_scale(R)
+            self._scale = self.force_scale(R)
         if fnorm == 0.0 or fnorm <= self.residual_atol:
             return self._stop_as("residual_atol", _CR.CONVERGED_FNORM_ABS)
         if fnorm <= self.residual_rtol * self._scale:

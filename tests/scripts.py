@@ -1,7 +1,9 @@
-"""The scripts the tests run (benchmarks and demos are not a package): import them as modules, or
-build the command line that runs the slope demo, serially or under mpirun."""
+"""The scripts the tests run: the demos (not a package) imported as modules, and the command line
+that runs the slope demo, serially or under mpirun. Benchmark scripts need nothing here: pytest
+puts ``benchmarks/`` on the path (``pythonpath`` in pyproject.toml), so tests ``import kernel``."""
 
 import csv
+import importlib
 import importlib.util
 import json
 import os
@@ -14,22 +16,18 @@ SLOPE = os.path.join(ROOT, "demos", "slope.py")
 MPI_ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 
 
-def _load(folder, name):
-    spec = importlib.util.spec_from_file_location(name, os.path.join(ROOT, folder, f"{name}.py"))
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # (dataclasses look their module up there)
-    spec.loader.exec_module(module)
-    return module
-
-
 def load_benchmark(name):
-    """The module ``benchmarks/<name>.py``."""
-    return _load("benchmarks", name)
+    """The module ``benchmarks/<name>.py`` (a plain import: ``benchmarks/`` is on pytest's path)."""
+    return importlib.import_module(name)
 
 
 def load_demo(name):
     """The module ``demos/<name>.py``."""
-    return _load("demos", name)
+    spec = importlib.util.spec_from_file_location(name, os.path.join(ROOT, "demos", f"{name}.py"))
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # (dataclasses look their module up there)
+    spec.loader.exec_module(module)
+    return module
 
 
 def slope_command(*args, ranks=1):

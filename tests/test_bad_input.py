@@ -3,7 +3,6 @@ no traceback (unless ``--debug``), also under ``mpirun -n 2``; a gmsh model with
 physical groups."""
 
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -111,7 +110,6 @@ def test_mesh_without_physical_groups():
     import gmsh
     from mpi4py import MPI
 
-    sys.path.insert(0, ROOT)
     from dolfinx_granular.slope.geometry import MeshError, build_gmsh_model, model_to_mesh
 
     comm = MPI.COMM_WORLD

@@ -10,6 +10,7 @@ import pytest
 from scripts import load_demo
 
 from dolfinx_granular import Packing, TaylorRVE
+from dolfinx_granular.cache import PackingCache
 
 
 @pytest.fixture(scope="module")
@@ -46,14 +47,16 @@ def test_stress_curves_are_mean_and_std_over_the_seeds(study):
     assert max(float(r["strain"]) for r in rows) >= 0.10
     # recompute one point from the cached packings, independently of the demo's code path
     n = mod.SMALL["fig_sizes"][0]
-    packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz") for s in range(mod.SMALL["seeds"])]
+    packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz")
+                for s in range(mod.SMALL["seeds"])]
     F = np.array([[1.0, 0.0], [0.05, 1.0]])
     sig = np.array([TaylorRVE(p, mod.K_N).cauchy(F) for p in packings])
     row = next(r for r in rows if r["path"] == "shear_21" and r["n"] == str(n)
                and float(r["strain"]) == pytest.approx(0.05))
     for key, (a, b) in (("sigma11", (0, 0)), ("sigma22", (1, 1)), ("sigma12", (0, 1))):
         assert float(row[f"{key}_mean_Pa"]) == pytest.approx(sig[:, a, b].mean(), rel=1e-6)
-        assert float(row[f"{key}_std_Pa"]) == pytest.approx(sig[:, a, b].std(ddof=1), rel=1e-6, abs=1e-3)
+        assert float(row[f"{key}_std_Pa"]) == pytest.approx(sig[:, a, b].std(ddof=1), rel=1e-6,
+                                                           abs=1e-3)
     # compression loads the compressed direction hardest; unloaded reference is stress-free
     c11 = [r for r in rows if r["path"] == "compression_11" and r["n"] == str(n)]
     s11 = [float(r["sigma11_mean_Pa"]) for r in c11]
@@ -68,10 +71,12 @@ def test_speed_error_table(study):
     assert [int(r["n"]) for r in rows] == list(mod.SMALL["speed_sizes"])
     for r in rows:
         n = int(r["n"])
-        packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz") for s in range(mod.SMALL["speed_seeds"])]
+        packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz")
+                    for s in range(mod.SMALL["speed_seeds"])]
         assert int(r["seeds"]) == len(packings)
         sc = np.array([TaylorRVE(p, mod.K_N).cauchy(np.diag([0.95, 1.0]))[0, 0] for p in packings])
-        assert float(r["cv_compression"]) == pytest.approx(sc.std(ddof=1) / abs(sc.mean()), rel=1e-5)
+        cv = sc.std(ddof=1) / abs(sc.mean())
+        assert float(r["cv_compression"]) == pytest.approx(cv, rel=1e-5)
         assert 0 < float(r["time_per_point"]) < 1e-3
         assert float(r["cv_shear"]) > 0
 
@@ -79,7 +84,8 @@ def test_speed_error_table(study):
 def test_packing_table(study):
     mod, out, _ = study
     rows = read(out / "packings.csv")
-    assert len(rows) == len(set(mod.SMALL["fig_sizes"]) | set(mod.SMALL["speed_sizes"])) * mod.SMALL["speed_seeds"]
+    sizes = set(mod.SMALL["fig_sizes"]) | set(mod.SMALL["speed_sizes"])
+    assert len(rows) == len(sizes) * mod.SMALL["speed_seeds"]
     for r in rows:
         assert float(r["volume_fraction"]) >= 0.82
         assert float(r["prestress_ratio"]) < 1e-6
@@ -88,8 +94,20 @@ def test_packing_table(study):
 
 def test_cache_is_reused(study, tmp_path):
     mod, out, _ = study
-    cache = mod.PackingCache(str(out / "packings"))
+    cache = PackingCache(str(out / "packings"))
     t0 = time.perf_counter()
     p = cache.get(70, 0)
     assert time.perf_counter() - t0 < 0.5
     assert p == Packing.load(out / "packings" / "n70_s0.npz")
+    assert cache.generation_time(70, 0) > 0  # recorded by the study's run, read back here
+
+
+def test_cache_records_generation_times(tmp_path):
+    cache = PackingCache(tmp_path)
+    p = cache.get(12, 3)
+    assert cache.get(12, 3) is p and cache.path(12, 3) == str(tmp_path / "n12_s3.npz")
+    assert 0 < cache.generation_time(12, 3) < 60
+    again = PackingCache(tmp_path)  # a later process: the file and its time are reused
+    assert again.get(12, 3) == p and again.times == cache.times
+    fresh = PackingCache(tmp_path, use_cache=False)  # generated anew (deterministic per seed)
+    assert fresh.times == {} and fresh.get(12, 3) == p and fresh.generation_time(12, 3) > 0

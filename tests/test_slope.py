@@ -1,7 +1,6 @@
 """The slope demo at reduced size: its files, and serial and ``mpirun -n 2`` runs agreeing."""
 
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -18,7 +17,6 @@ def test_mesh_and_footing_load():
     from dolfinx import fem
     from mpi4py import MPI
 
-    sys.path.insert(0, ROOT)
     from dolfinx_granular.slope.geometry import BOTTOM, FOOTING, LEFT, RIGHT, SURFACE, SlopeGeometry, create_mesh
 
     g = SlopeGeometry()
@@ -50,7 +48,6 @@ def test_mesh_and_footing_load():
 
 
 def test_geometry_rejects_off_grid_dimensions():
-    sys.path.insert(0, ROOT)
     from dolfinx_granular.slope.geometry import SlopeGeometry
 
     with pytest.raises(ValueError, match="column boundary"):

@@ -26,10 +26,11 @@ def granular_material(law, u, stabilise=0.0):
     return GranularMaterial(law, u, quadrature_degree=2, stabilise=stabilise)
 
 
-def newton_solver(residual, jacobian, u, bcs, material, petsc_options=None, verbose=False):
-    """The default solver factory: Newton with LU (MUMPS), at most 15 steps per load step."""
-    return NewtonSolver(residual, jacobian, u, bcs, material, max_it=15, prefix="slope_",
-                        petsc_options=petsc_options, verbose=verbose)
+def newton_solver(residual, jacobian, u, bcs, material, **options):
+    """The default solver factory: Newton with LU (MUMPS), at most 15 steps per load step;
+    ``options`` (petsc_options, verbose, skip_final_tangent, ...) go to NewtonSolver."""
+    options = {"max_it": 15, "prefix": "slope_", **options}
+    return NewtonSolver(residual, jacobian, u, bcs, material, **options)
 
 
 class SlopeModel:
