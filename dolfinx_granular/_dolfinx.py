@@ -129,10 +129,12 @@ def gmsh_model_to_mesh(model, comm, rank: int, gdim: int):
     return tuple(data)
 
 
-def create_mesh(comm, cells, x, cell: str, gdim: int):
+def create_mesh(comm, cells, x, cell: str, gdim: int, max_facet_to_cell_links: int = 2):
     """A mesh of affine ``cell`` s ("interval", "triangle", ...) from node coordinates ``x``
     (n, gdim) and connectivity ``cells`` (m, nodes per cell), given on rank 0 (other ranks'
-    arrays are ignored) and distributed over ``comm``."""
+    arrays are ignored) and distributed over ``comm``. ``max_facet_to_cell_links`` > 2 allows
+    branching (three bars meeting at a node of an interval mesh): DOLFINx >= 0.10 needs to be
+    told, or the ranks do not share such a node."""
     from dolfinx import mesh
 
     if _quadrature_element is not None:  # basix.ufl elements (0.7+)
@@ -147,8 +149,10 @@ def create_mesh(comm, cells, x, cell: str, gdim: int):
     if comm.rank != 0:
         cells, x = cells[:0], x[:0]
     params = inspect.signature(mesh.create_mesh).parameters
-    key = "domain" if "domain" in params else "e"  # 0.5 / later; the order of x changed in 0.10
-    return mesh.create_mesh(comm, cells=cells, x=x, **{key: domain})
+    kwargs = {"domain" if "domain" in params else "e": domain}  # 0.5 / later (x moved in 0.10)
+    if "max_facet_to_cell_links" in params:
+        kwargs["max_facet_to_cell_links"] = max_facet_to_cell_links
+    return mesh.create_mesh(comm, cells=cells, x=x, **kwargs)
 
 
 def mpi_command(ranks: int) -> list[str] | None:

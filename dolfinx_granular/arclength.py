@@ -1,0 +1,414 @@
+"""Path following past limit points: arc-length continuation of R(u) - lam f = 0.
+
+Load control stops at a limit point (the largest load the structure carries): beyond it no
+equilibrium exists at a larger load. :class:`ArcLength` follows the equilibrium path instead,
+with the load parameter lam as an unknown beside u, constrained per increment by (Crisfield)
+
+    |Du|^2 + psi^2 |f|^2 Dlam^2 = ds^2      (psi = 0: cylindrical, the default; > 0: spherical)
+
+or, with ``control=``, by the increment of one displacement dof (displacement control). Each
+corrector iteration factorises the tangent K once and solves it for two right-hand sides,
+``K a = -R`` and ``K b = f``; the correction ``du = a + dlam b`` satisfies the linearised
+equilibrium for any dlam, which the constraint then fixes (the bordered system, without a new
+matrix). Of the constraint's two roots the one that keeps going forward is taken: the smaller
+angle between the new increment and the last one. The predictor follows the previous increment's
+direction (the sign of ``Du_prev . b``), so the path turns round limit points by itself.
+
+Increments adapt to the Newton iterations they take; a failed increment (no real root, Newton
+divergence, an RVE outside its range, a singular tangent) is restored and halved. The sign of
+det K (MUMPS computes the determinant with the factorisation) is watched along the path: where it
+changes between two converged states the path has crossed a critical point; a limit point where
+the load turns back, a bifurcation point where it does not. Laws with history are committed only
+at converged increments.
+
+The residual must have the form R(u) - lam f with lam a :class:`dolfinx.fem.Constant` (``load``)
+and f a linear form (``external``, the load pattern); this is checked once at construction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from dolfinx import fem
+from dolfinx.fem.petsc import assemble_vector, set_bc
+from petsc4py import PETSc
+
+from ._dolfinx import petsc_vec
+
+
+@dataclass
+class Increment:
+    """One converged increment: the load parameter and the path length at its end."""
+
+    step: int
+    lam: float
+    dlam: float
+    ds: float
+    iterations: int
+    det_sign: int  # sign of det K at the start of the increment (0: unknown)
+    increment_norm: float  # |Du| over all dofs (m)
+    control: float | None = None  # value of the control dof at the end (m), if any
+    residual_norm: float = float("nan")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class CriticalPoint:
+    """A sign change of det K between two converged states."""
+
+    kind: str  # "limit" (the load turns back) or "bifurcation"
+    step: int  # the increment that ended past it
+    lam_before: float
+    lam_after: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+class ArcLength:
+    """Arc-length continuation on top of a :class:`~dolfinx_granular.solver.NewtonSolver`.
+
+    Args:
+        solver: the Newton solver of R(u) - lam f (its forms, materials, boundary conditions and
+            LU solver are used; converged increments commit the materials' history).
+        load: the Constant lam in the residual.
+        external: the load pattern f (UFL linear form; the residual is ``... - lam * f``).
+        ds: first arc length (m of |Du|, plus psi-weighted load).
+        psi: load weight of the constraint (0: cylindrical).
+        control: ``(dof, sign)``: constrain the increment of this local dof (owned by one rank,
+            -1 on the others) instead of |Du|; its increment has the sign of ``sign``.
+        direction: sign of the first increment of lam.
+        max_it: most corrector iterations per increment.
+        target_iterations: the iterations an increment should take; ds grows or shrinks by
+            sqrt(target / iterations), within a factor 2.
+        ds_max, ds_min: bounds of ds; an increment below ds_min that fails ends the path.
+        max_cutbacks: most halvings of one increment in a row.
+        log: callable taking one progress line, or None.
+
+    Attributes:
+        path: the converged :class:`Increment` s.
+        critical: the :class:`CriticalPoint` s crossed.
+        lam: load parameter of the converged state.
+        failed: None, or the reason the path ended early.
+    """
+
+    def __init__(self, solver, load, external, ds, *, psi=0.0, control=None, direction=1.0,
+                 max_it=15, target_iterations=5, ds_max=None, ds_min=None, max_cutbacks=8,
+                 energy_rtol=1e-20, log=None):
+        self.solver, self.load = solver, load
+        self.ds = float(ds)
+        self.psi = float(psi)
+        self.control = control
+        self.direction = 1.0 if direction >= 0 else -1.0
+        self.max_it, self.target_iterations = int(max_it), int(target_iterations)
+        self.ds_max = float(ds_max) if ds_max else 10.0 * self.ds
+        self.ds_min = float(ds_min) if ds_min else 1e-4 * self.ds
+        self.max_cutbacks = int(max_cutbacks)
+        self.energy_rtol = float(energy_rtol)
+        self.log = log or (lambda line: None)
+        self.lam = float(load.value)
+        self.path: list[Increment] = []
+        self.critical: list[CriticalPoint] = []
+        self.failed = None
+        self._du_prev = None  # the last converged increment Du (a vector) and Dlam
+        self._dlam_prev = 0.0
+        self._det_sign = 0
+        self.f = self._load_vector(external)
+        self._check_form(external)
+
+    # -- set-up ----------------------------------------------------------------------------------
+
+    def _load_vector(self, external):
+        """f assembled once (dead load), zero in the Dirichlet rows."""
+        u_vec = petsc_vec(self.solver.u)
+        f = u_vec.duplicate()
+        with f.localForm() as fl:
+            fl.set(0.0)
+        assemble_vector(f, fem.form(external))
+        f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        set_bc(f, self.solver.bcs, None, 0.0)
+        return f
+
+    def _check_form(self, external):
+        """R(u, lam + 1) - R(u, lam) must be -f: the residual is R(u) - lam f."""
+        x = petsc_vec(self.solver.u).copy()
+        r0, r1 = x.duplicate(), x.duplicate()
+        lam = float(self.load.value)
+        self.load.value = lam + 1.0
+        self.solver.residual(x, r1, tangent=False)
+        self.load.value = lam
+        self.solver.residual(x, r0, tangent=False)
+        r1.axpy(-1.0, r0)
+        r1.axpy(1.0, self.f)
+        scale = max(self.f.norm(), 1e-300)
+        if not r1.norm() <= 1e-8 * max(scale, r0.norm()):
+            raise ValueError("the residual is not R(u) - lam * external with lam = load: "
+                             f"dR/dlam differs from -external by {r1.norm():.3g} (|f| = "
+                             f"{scale:.3g}); pass the load pattern that the load Constant scales")
+        for v in (x, r0, r1):
+            v.destroy()
+
+    # -- linear algebra ------------------------------------------------------------------------
+
+    def _factorise(self, x):
+        """Assemble K at x and factorise it; the sign of det K (0 where the LU solver does not
+        give it). Raises RuntimeError if the factorisation fails."""
+        A = self.solver.jacobian(x)
+        ksp = self.solver.snes.getKSP()
+        ksp.setOperators(A)
+        pc = ksp.getPC()
+        mumps = pc.getFactorSolverType() == "mumps"
+        try:
+            if mumps:
+                pc.setFactorSetUpSolverType()
+                pc.getFactorMatrix().setMumpsIcntl(33, 1)  # the determinant, with the factors
+            ksp.setUp()
+        except PETSc.Error as err:
+            pc.reset()
+            raise RuntimeError(f"factorisation failed (PETSc error {err.ierr}): a singular "
+                               "tangent") from None
+        if not mumps:
+            return 0
+        return int(np.sign(pc.getFactorMatrix().getMumpsRinfog(12)))
+
+    def _solve(self, rhs, out):
+        ksp = self.solver.snes.getKSP()
+        ksp.solve(rhs, out)
+        if ksp.getConvergedReason() < 0:
+            ksp.getPC().reset()
+            raise RuntimeError("linear solve failed (singular tangent or zero pivot)")
+
+    def _control_value(self, vec):
+        """The control dof's entry of ``vec`` (every rank gets it)."""
+        dof = self.control[0]
+        local = float(vec.array_r[dof]) if dof >= 0 else 0.0
+        return self.solver.comm.allreduce(local)
+
+    def _dot(self, a, b):
+        return a.dot(b)
+
+    # -- one increment -------------------------------------------------------------------------
+
+    def _predictor(self, x):
+        """Du and Dlam of the predictor from the converged state x (K factorised there)."""
+        sign = self._factorise(x)
+        b = x.duplicate()
+        self._solve(self.f, b)
+        if self.control is not None:
+            bc = self._control_value(b)
+            dlam = self.control[1] * self.ds / bc if bc != 0 else 0.0
+        else:
+            dlam = self.ds / np.sqrt(b.dot(b) + self.psi**2 * self.f.dot(self.f))
+        if self._du_prev is None:
+            dlam = abs(dlam) * self.direction
+        else:  # keep going forward: the previous increment's direction
+            forward = self._du_prev.dot(b) + self.psi**2 * self.f.dot(self.f) * self._dlam_prev
+            dlam = abs(dlam) * (1.0 if forward >= 0 else -1.0)
+        b.scale(dlam)
+        return b, dlam, sign
+
+    def _constraint_root(self, du, dlam, a, b):
+        """dlam correction that keeps the constraint with ``du + a + dlam' b``; None if no real
+        root (the arc does not meet the linearised equilibrium)."""
+        if self.control is not None:
+            bc = self._control_value(b)
+            target = self.control[1] * self.ds - self._control_value(du) - self._control_value(a)
+            return target / bc if bc != 0 else None
+        w = self.psi**2 * self.f.dot(self.f)
+        ua = du.copy()
+        ua.axpy(1.0, a)
+        c1 = b.dot(b) + w
+        c2 = 2.0 * (ua.dot(b) + w * dlam)
+        c3 = ua.dot(ua) + w * dlam**2 - self.ds**2
+        disc = c2 * c2 - 4.0 * c1 * c3
+        if disc < 0.0:
+            ua.destroy()
+            return None
+        roots = [(-c2 + s * np.sqrt(disc)) / (2.0 * c1) for s in (1.0, -1.0)]
+        # forward: the smaller angle between the new increment and the current one
+        score = [ua.dot(du) + r * b.dot(du) + w * dlam * (dlam + r) for r in roots]
+        ua.destroy()
+        return roots[int(np.argmax(score))]
+
+    def _corrector(self, x0, du, dlam):
+        """Newton on (u, lam) under the constraint from x0 + du, lam + dlam. Returns the state x,
+        the increment (du, dlam), the iterations and |R|; raises _Failed with the reason."""
+        solver = self.solver
+        x = x0.copy()
+        x.axpy(1.0, du)
+        R, a, b = (x.duplicate() for _ in range(3))
+        e0 = rnorm_prev = None
+        energy, scale = 1.0, 0.0
+        try:
+            for it in range(self.max_it + 1):
+                self.load.value = self.lam + dlam
+                error = solver.residual(x, R)
+                if error:
+                    raise _Failed(error)
+                rnorm = R.norm()
+                if it == 0:  # (dead loads: the force scale of the start is the step's)
+                    scale = solver.force_scale(R)
+                stalled = rnorm_prev is not None and rnorm > 0.5 * rnorm_prev
+                if (rnorm <= solver.residual_rtol * scale or (it > 0 and energy <= self.energy_rtol)
+                        or (stalled and energy <= solver.roundoff_energy)):
+                    return x, du, dlam, it, rnorm
+                if it == self.max_it or not np.isfinite(rnorm):
+                    raise _Failed(f"no convergence in {self.max_it} corrector iterations "
+                                  f"(|R| = {rnorm:.3e} N)")
+                self._factorise(x)
+                R.scale(-1.0)
+                self._solve(R, a)
+                self._solve(self.f, b)
+                r = self._constraint_root(du, dlam, a, b)
+                if r is None:
+                    raise _Failed("the arc does not meet the linearised equilibrium path (no "
+                                  "real root of the constraint)")
+                a.axpy(r, b)  # the correction du = a + r b
+                step_energy = abs(R.dot(a))
+                e0 = step_energy if e0 is None else e0
+                energy = step_energy / e0 if e0 > 0 else 0.0
+                du.axpy(1.0, a)
+                x.axpy(1.0, a)
+                dlam += r
+                rnorm_prev = rnorm
+        finally:
+            for v in (R, a, b):
+                v.destroy()
+
+    def advance(self):
+        """One converged increment (cut back and retried as needed); the :class:`Increment`, or
+        None once the path cannot go on (:attr:`failed` says why)."""
+        u_vec = petsc_vec(self.solver.u)
+        x0 = u_vec.copy()
+        cuts = 0
+        while True:
+            try:
+                du, dlam, sign = self._predictor(x0)
+                x, du, dlam, its, rnorm = self._corrector(x0, du, dlam)
+                return self._accept(x, du, dlam, its, rnorm, sign)
+            except (_Failed, RuntimeError) as err:
+                self._restore(x0)
+                cuts += 1
+                if cuts > self.max_cutbacks or self.ds / 2.0 < self.ds_min:
+                    self.failed = (f"increment {len(self.path) + 1} failed at ds = {self.ds:.3g} "
+                                   f"after {cuts - 1} cut-backs: {err}")
+                    self.log(f"path: {self.failed}; stopping")
+                    return None
+                self.log(f"path: increment {len(self.path) + 1} failed ({err}); ds "
+                         f"{self.ds:.3g} -> {self.ds / 2:.3g}")
+                self.ds /= 2.0
+
+    def _restore(self, x0):
+        u_vec = petsc_vec(self.solver.u)
+        x0.copy(u_vec)
+        u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        self.load.value = self.lam
+        self.solver._have_eval = False
+        for m in self.solver.materials:
+            m.update(tangent=False)
+
+    def _accept(self, x, du, dlam, its, rnorm, sign):
+        """Commit a converged increment: history, path record, critical points, next ds."""
+        for m in self.solver.materials:
+            m.commit()
+        lam_before = self.lam
+        self.lam += dlam
+        self.load.value = self.lam
+        if self._det_sign and sign and sign != self._det_sign and self.path:
+            self._critical_point(dlam)
+        self._det_sign = sign or self._det_sign
+        if self._du_prev is not None:
+            self._du_prev.destroy()
+        self._du_prev, self._dlam_prev = du, dlam
+        inc = Increment(len(self.path) + 1, self.lam, dlam, self.ds, its, sign, du.norm(),
+                        self._control_value(x) if self.control is not None else None, rnorm)
+        self.path.append(inc)
+        x.destroy()
+        grow = np.sqrt(self.target_iterations / max(its, 1))
+        self.ds = min(self.ds * float(np.clip(grow, 0.5, 2.0)), self.ds_max)
+        return inc
+
+    def _critical_point(self, dlam):
+        """det K changed sign between the last two converged states: a critical point inside
+        the last increment; a limit point if the load turned back there (the increments before
+        and after it, or the last one itself, go opposite ways), else a bifurcation point."""
+        last = self.path[-1]
+        before = self.path[-2].dlam if len(self.path) > 1 else last.dlam
+        turned = np.sign(before) != np.sign(last.dlam) or np.sign(last.dlam) != np.sign(dlam)
+        lam_before = self.path[-2].lam if len(self.path) > 1 else last.lam - last.dlam
+        cp = CriticalPoint("limit" if turned else "bifurcation", last.step, lam_before, last.lam)
+        self.critical.append(cp)
+        self.log(f"path: det K changed sign in increment {cp.step}: a {cp.kind} point between "
+                 f"lam = {cp.lam_before:.6g} and {cp.lam_after:.6g}")
+
+    # -- the path ------------------------------------------------------------------------------
+
+    def run(self, max_steps=100, stop=None, on_converged=None) -> bool:
+        """Follow the path for at most ``max_steps`` increments; True unless it failed.
+
+        Args:
+            stop: ``stop(self) -> str | None``: a reason to stop after a converged increment
+                (see :func:`load_reaches`, :func:`unloaded_to`, :func:`control_reaches`).
+            on_converged: ``on_converged(increment)`` after each converged increment, with u
+                and the materials at the converged state; returning False stops the run.
+        """
+        self.stopped = None
+        for _ in range(int(max_steps)):
+            inc = self.advance()
+            if inc is None:
+                return False
+            if on_converged is not None and on_converged(inc) is False:
+                self.stopped = "asked to stop"
+                return True
+            reason = stop(self) if stop is not None else None
+            if reason:
+                self.stopped = reason
+                self.log(f"path: {reason}")
+                return True
+        self.stopped = f"{max_steps} increments"
+        return True
+
+    @property
+    def peak(self):
+        """The converged increment with the largest |lam| so far (None before the first)."""
+        return max(self.path, key=lambda inc: abs(inc.lam), default=None)
+
+    def destroy(self):
+        for v in (self.f, self._du_prev):
+            if v is not None:
+                v.destroy()
+
+
+class _Failed(Exception):
+    """An increment that did not converge (the reason in words)."""
+
+
+def load_reaches(target):
+    """Stop once lam has reached ``target`` from the side of zero (lam >= target for a positive
+    target, lam <= target for a negative one)."""
+    def stop(al):
+        if (al.lam - target) * np.sign(target) >= 0:
+            return f"the load parameter reached {al.lam:.6g} (target {target:g})"
+    return stop
+
+
+def unloaded_to(fraction):
+    """Stop once the load has fallen to ``fraction`` of its peak after a limit point."""
+    def stop(al):
+        peak = al.peak
+        if peak is not None and peak is not al.path[-1] and abs(al.lam) <= fraction * abs(peak.lam):
+            return (f"past the peak lam = {peak.lam:.6g} (increment {peak.step}) the load fell to "
+                    f"{abs(al.lam / peak.lam):.3f} of it")
+    return stop
+
+
+def control_reaches(target):
+    """Stop once the control dof's displacement has gone past ``target`` (m)."""
+    def stop(al):
+        value = al.path[-1].control
+        if value is not None and (value - target) * np.sign(target) >= 0:
+            return f"the control displacement reached {value:.6g} m (target {target:g} m)"
+    return stop

@@ -1,0 +1,116 @@
+"""Arc-length path following (dolfinx_granular.arclength) on the von Mises truss with a soft
+spring (tests/truss.py): the traced path lies on the exact equilibrium path through both load
+limit points and the snap-back, the limit points are found by the sign of det K, and failed
+increments leave the converged state as it was."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from dolfinx_granular.arclength import ArcLength, control_reaches, load_reaches, unloaded_to
+from truss import (P_MAX, H, deflections, load_of_apex, spring_compression, truss)
+
+
+def trace(model, ds=0.02, steps=200, stop=None, **kwargs):
+    """The converged states (lam, w, v) along the path."""
+    al = ArcLength(model.solver, model.load, model.external, ds, **kwargs)
+    states = []
+    al.run(steps, stop=stop, on_converged=lambda inc: states.append((inc.lam, *deflections(model))))
+    return al, np.array(states)
+
+
+@pytest.mark.mpi
+def test_truss_path_through_both_limit_points_and_the_snap_back():
+    model = truss(prefix="al_truss_")
+    al, s = trace(model, ds=0.02, ds_max=0.05, stop=lambda a: "past" if deflections(model)[0] > 2.2 * H
+                  else None)
+    lam, w, v = s.T
+    assert al.failed is None and al.stopped == "past"
+    # every converged state is on the exact path: P(w), and the spring's compression at that P
+    assert np.abs(lam - load_of_apex(w)).max() <= 1e-9 * P_MAX
+    c = np.array([spring_compression(p) for p in lam])
+    assert np.abs(v - w - c).max() <= 1e-9 * H
+    # the whole path: the peak, the valley (negative load), beyond the snap-through
+    assert lam[w < H].max() > 0.99 * P_MAX and lam.min() < -0.99 * P_MAX and w[-1] > 2 * H
+    # peak load to 1 % (the sampled maximum of an exact path: a step-size question); beyond the
+    # snap-through (w > 2 h) the bars are stretched and the load rises again
+    assert 0.99 * P_MAX <= lam[w < H].max() <= P_MAX * (1 + 1e-9)
+    # snap-back: the load point's deflection v turns back while the path goes on
+    dv = np.diff(v)
+    assert (dv < 0).any() and (dv > 0).any()
+    # det K changes sign at the two load limit points, not at the snap-back's turning points
+    kinds = [cp.kind for cp in al.critical]
+    assert kinds == ["limit", "limit"], al.critical
+    # ... inside the increments that hold the exact limit points w = h (1 -+ 1 / sqrt 3)
+    for cp, w_limit in zip(al.critical, H * (1 + np.array([-1, 1]) / np.sqrt(3))):
+        w_before = w[cp.step - 2] if cp.step > 1 else 0.0
+        assert w_before <= w_limit <= w[cp.step - 1], (cp, w_before, w[cp.step - 1])
+        assert (cp.lam_before, cp.lam_after) == (lam[cp.step - 2], lam[cp.step - 1])
+    model.solver.destroy()
+
+
+def test_cylindrical_and_spherical_and_dof_control_trace_the_same_curve():
+    """psi > 0 (spherical) and displacement control of the apex give states on the same exact
+    path; dof control stops where asked."""
+    for kwargs in ({"psi": 1.0}, {"control": "apex"}):
+        model = truss(prefix=f"al_{list(kwargs)[0]}_")
+        if kwargs.get("control"):
+            kwargs = {"control": (model.apex_dof, -1.0)}  # the apex moves down: u_y decreases
+        al, s = trace(model, ds=0.01 if "control" in kwargs else 0.02, steps=80,
+                      stop=load_reaches(-0.5 * P_MAX) if "psi" in kwargs
+                      else control_reaches(-1.5 * H), **kwargs)
+        lam, w, v = s.T
+        assert al.failed is None, al.failed
+        assert np.abs(lam - load_of_apex(w)).max() <= 1e-9 * P_MAX
+        assert lam.max() > 0.95 * P_MAX
+        if "control" in kwargs:  # each increment moved the apex by its ds exactly
+            ds = np.array([inc.ds for inc in al.path])
+            assert np.allclose(np.diff(np.concatenate([[0.0], w])), ds, rtol=1e-9, atol=0)
+        model.solver.destroy()
+
+
+def test_unloaded_to_stops_after_the_peak():
+    model = truss(prefix="al_unload_")
+    al, s = trace(model, ds=0.02, stop=unloaded_to(0.5))
+    lam = s[:, 0]
+    peak = int(np.argmax(lam))
+    assert 0 < peak < len(lam) - 1 and lam[-1] <= 0.5 * lam[peak] < lam[-2]
+    assert "fell to" in al.stopped
+    model.solver.destroy()
+
+
+def test_a_failed_increment_is_cut_back_from_the_converged_state():
+    """An arc far too long for Newton: the increment fails, the state is restored exactly and
+    the halved arcs reach the same path."""
+    model = truss(prefix="al_cut_")
+    al = ArcLength(model.solver, model.load, model.external, 0.02)
+    assert al.advance() is not None
+    u0, lam0 = model.u.x.array.copy(), al.lam
+    al.ds, al.max_it = 5.0, 6  # a jump over the whole path
+    before = len(al.path)
+    inc = al.advance()
+    assert inc is not None and al.ds < 5.0 and len(al.path) == before + 1
+    w = deflections(model)[0]
+    assert abs(inc.lam - load_of_apex(w)) <= 1e-9 * P_MAX
+    # and an increment that can never converge restores the state it started from
+    al2 = ArcLength(model.solver, model.load, model.external, 1.0, max_it=0, max_cutbacks=2)
+    u1 = model.u.x.array.copy()
+    assert al2.advance() is None and "failed" in al2.failed
+    assert np.array_equal(model.u.x.array, u1) and float(model.load.value) == inc.lam
+    assert lam0 != inc.lam and not np.array_equal(u0, u1)
+    model.solver.destroy()
+
+
+def test_residual_must_be_linear_in_the_load():
+    model = truss(prefix="al_bad_")
+    with pytest.raises(ValueError, match="not R\\(u\\) - lam"):
+        ArcLength(model.solver, model.load, 2.0 * model.external, 0.02)
+    model.solver.destroy()
+
+
+def test_serial_path_is_reproduced_on_every_rank_count():
+    """The traced states do not depend on the partition (MPI: the same path)."""
+    model = truss(MPI.COMM_WORLD, prefix="al_mpi_")
+    _, s = trace(model, ds=0.05, steps=12)
+    assert np.abs(s[:, 0] - load_of_apex(s[:, 1])).max() <= 1e-9 * P_MAX
+    model.solver.destroy()
