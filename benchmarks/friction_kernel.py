@@ -12,6 +12,12 @@ count:
 - ``ratio``: friction P+A over frictionless P+A;
 - ``state B/pt``: ``FrictionState.nbytes`` per point of the committed state.
 The frictional stress is checked against the frictionless one at mu = 0 before timing.
+
+``--breakdown`` adds where the time goes, per point (the first point's F and history, each phase
+repeated in a compiled loop, so without call overhead and with warm caches): copying the history
+in, the contact loop with the small-increment polynomial atan and with the general rational one,
+the tangent loop, the per-point rest (W, P, A from the sums), and the frictionless kernel's moment
+sums without and with the tangent terms.
 """
 
 import argparse
@@ -20,8 +26,10 @@ import time
 
 import numba
 import numpy as np
+from numba import njit
 
-from dolfinx_granular import TaylorRVE, generate_packing
+from dolfinx_granular import TaylorRVE, generate_packing, kernel
+from dolfinx_granular import friction_kernel as fk
 from dolfinx_granular.friction import FrictionalRVE
 
 K_N = 2.8e7
@@ -51,7 +59,77 @@ def committed_state(rve, F0):
     return state
 
 
-def run_size(n, F0, repeats):
+# Drivers for --breakdown: each phase `reps` times in compiled code (no on-disk cache: it breaks
+# when the script is loaded under another module name).
+@njit
+def _drive_contact(reps, F, G, lmax2, X, Y, R, n_visit, history, ft, winv, acc, general):
+    F00, F01, F10, F11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
+    G00, G01, G10, G11 = G[0, 0], G[0, 1], G[1, 0], G[1, 1]
+    dth = fk._rotation(F00, F01, F10, F11, G00, G01, G10, G11)[0]
+    cq = fk._quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2)
+    for _ in range(reps):
+        fk._copy_history(history, ft)
+        fk._contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, K_N, K_T, MU, general, ft,
+                         winv, acc)
+
+
+@njit
+def _drive_copy(reps, history, ft):
+    for _ in range(reps):
+        fk._copy_history(history, ft)
+
+
+@njit
+def _drive_tangent(reps, X, Y, R, n_visit, ft, winv, acc):
+    for _ in range(reps):
+        fk._tangent_pass(X, Y, R, n_visit, ft, winv, K_N, K_T, MU * K_N, acc)
+
+
+@njit
+def _drive_finish(reps, F, G, acc, inv_area, W, P, A, M):
+    _, th, alpha, beta = fk._rotation(F[0, 0], F[0, 1], F[1, 0], F[1, 1],
+                                      G[0, 0], G[0, 1], G[1, 0], G[1, 1])
+    for _ in range(reps):
+        fk._finish_point(0, F, acc, (th, alpha, beta), K_N, inv_area, K_T, True, W, P, A, M)
+
+
+@njit
+def _drive_frictionless(reps, F, X, Y, R, n_visit, tangent, acc):
+    for _ in range(reps):
+        kernel._moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, n_visit, tangent, acc)
+
+
+def breakdown(rve, F, state, repeats, reps=300):
+    """µs per point of each phase (see the module docstring) at F[0] from state point 0."""
+    F, G = np.ascontiguousarray(F[0]), np.ascontiguousarray(state.F[0])
+    status, lengths = np.empty(1, np.int8), np.empty(1, np.int64)
+    fk.prefix_lengths(F[None], rve._rho, rve.min_stretch, status, lengths)
+    m = int(lengths[0])
+    history = np.array(state.forces(0))
+    ft, winv, acc = np.empty(m), np.empty(m), np.zeros(fk.N_ACC)
+    X, Y, R = rve._X, rve._Y, rve._R
+    out = (np.empty(1), np.empty((1, 2, 2)), np.empty((1, 2, 2, 2, 2)), np.empty((6, 2, 2)))
+    phases = {
+        "copy history": lambda: _drive_copy(reps, history, ft),
+        "contact, small": lambda: _drive_contact(reps, F, G, rve._lmax2, X, Y, R, m, history, ft,
+                                                 winv, acc, None),
+        "contact, general": lambda: _drive_contact(reps, F, G, rve._lmax2, X, Y, R, m, history,
+                                                   ft, winv, acc, True),
+        "tangent loop": lambda: _drive_tangent(reps, X, Y, R, m, ft, winv, acc),
+        "per point": lambda: _drive_finish(reps, F, G, acc, rve._inv_area, *out),
+        "frictionless P": lambda: _drive_frictionless(reps, F, X, Y, R, m, False, acc),
+        "frictionless P+A": lambda: _drive_frictionless(reps, F, X, Y, R, m, True, acc),
+    }
+    result = {}
+    for name, fn in phases.items():
+        fn()  # compile
+        result[name] = best_time(fn, repeats) / reps
+    result["contact, small"] -= result["copy history"]
+    result["contact, general"] -= result["copy history"]
+    return result
+
+
+def run_size(n, F0, repeats, with_breakdown=False):
     packing = generate_packing(n, seed=0)
     taylor = TaylorRVE(packing, K_N)
     rve = FrictionalRVE(packing, K_N, K_T, MU)
@@ -70,8 +148,10 @@ def run_size(n, F0, repeats):
     t0 = best_time(lambda: taylor.evaluate(F), repeats) / m
     t1 = best_time(lambda: rve.evaluate(F, state), repeats) / m
     t2 = best_time(lambda: rve.stress(F, state), repeats) / m
-    return dict(n=n, candidates=rve.n_candidates, contacts=contacts, sliding=sliding,
-                t0=t0, t1=t1, t2=t2, bytes=state.nbytes / state.n_points)
+    phases = breakdown(rve, F, state, repeats) if with_breakdown else None
+    return {"n": n, "candidates": rve.n_candidates, "contacts": contacts, "sliding": sliding,
+            "t0": t0, "t1": t1, "t2": t2, "bytes": state.nbytes / state.n_points,
+            "breakdown": phases}
 
 
 def main(argv=None):
@@ -79,6 +159,7 @@ def main(argv=None):
     parser.add_argument("--points", type=int, default=2000, help="quadrature points per batch")
     parser.add_argument("--sizes", type=int, nargs="+", default=[70, 350, 700, 2800])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--breakdown", action="store_true", help="time each phase of the kernel")
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(0)
@@ -93,12 +174,18 @@ def main(argv=None):
     us = 1e6
     rows = []
     for n in args.sizes:
-        r = run_size(n, F0, args.repeats)
+        r = run_size(n, F0, args.repeats, args.breakdown)
         rows.append(r)
         print(f"{n:>9} {r['candidates']:>10} {r['contacts']:>8.0f} {r['sliding']:>7.1%} | "
               f"{r['t0'] * us:>16.2f} {r['t1'] * us:>12.2f} {r['t2'] * us:>10.2f} | "
               f"{r['t1'] / r['t0']:>5.2f}x | {r['bytes']:>10.0f}")
     print("(µs per quadrature point; 'sliding': share of the active contacts at the Coulomb limit)")
+    if args.breakdown:
+        names = list(rows[0]["breakdown"])
+        print(f"\n# where the time goes (µs per point)\n{'particles':>9} "
+              + " ".join(f"{k:>16}" for k in names))
+        for r in rows:
+            print(f"{r['n']:>9} " + " ".join(f"{r['breakdown'][k] * us:>16.2f}" for k in names))
     return rows
 
 

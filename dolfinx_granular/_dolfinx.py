@@ -71,8 +71,11 @@ def quadrature_space(msh, degree: int, shape: tuple):
         element = _quadrature_element(cell, value_shape=tuple(shape), scheme="default",
                                       degree=degree)
         return fem.functionspace(msh, element)
-    element = ufl.TensorElement("Quadrature", msh.ufl_cell(), degree, shape=tuple(shape),
-                                quad_scheme="default")
+    if shape:
+        element = ufl.TensorElement("Quadrature", msh.ufl_cell(), degree, shape=tuple(shape),
+                                    quad_scheme="default")
+    else:
+        element = ufl.FiniteElement("Quadrature", msh.ufl_cell(), degree, quad_scheme="default")
     return fem.FunctionSpace(msh, element)
 
 

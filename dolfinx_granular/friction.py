@@ -21,10 +21,26 @@ Conventions where the note leaves a choice (all measure-zero cases):
   in-kernel atan2 accurate to ~1 ulp (:func:`~dolfinx_granular.friction_kernel.atan2`).
 
 Verification of the note (tests/test_friction.py): its derivatives dphi/dF, dtheta/dF, ds/dF, the
-stick and slip tangents and the symmetry of sigma = P F^T / J all check out against central
-differences and exact identities; no error was found. (Its d²s/dF² is left implicit; here
-d²phi/dF² = -(t (x) n + n (x) t) L L / d² and d²theta/dF² as in
+stick and slip tangents, P = dPsi/dF in stick and the symmetry of sigma = P F^T / J all check out
+against central differences and an independent NumPy reference. (Its d²s/dF² is left implicit;
+here d²phi/dF² = -(t (x) n + n (x) t) L L / d², d²theta/dF² in
 :func:`~dolfinx_granular.friction_kernel._rotation`.)
+
+Error in the note (documented, not changed: the kernel follows the note). The formula
+ds = rho (wrap(phi - phi_n) - wrap(theta - theta_n)) wraps the two increments separately. A
+superposed rotation increment alpha shifts both by alpha, and ds stays the same only while neither
+wraps differently; when alpha carries one across +-pi and not the other (alpha near a half turn),
+ds jumps by +-2 pi rho, so the model is not objective there, contrary to the note's claim, and a
+barely deformed contact slides by ~2 pi rho. Shown by
+``test_note_wraps_are_not_objective_near_a_half_turn``: with alpha = -pi + 0.002 superposed on a
+2 % shear step (40 disks, mu = 0.05), 20 of the 87 contacts get |ds| ~ 2 pi R and the step's
+dissipation rises from 216 Pa to 45525 Pa (alpha = 1 or pi - 0.002: unchanged). Corrected formula,
+wrapped once: ds = rho wrap((phi - phi_n) - (theta - theta_n)) = rho atan2(cross(Q l_n, l),
+dot(Q l_n, l)) with Q the rotation by theta - theta_n. It has the same derivatives (same P and A),
+equals the note's wherever |phi - phi_n| and |theta - theta_n| stay below pi - |ds|/rho (every
+realistic load step), and is objective for any rotation increment. Switching is local to
+:mod:`~dolfinx_granular.friction_kernel`: rotate F_n by Q before ``_quadratic_forms`` and
+``_small_increment`` and use dtheta = 0 in the contact loop (theta's derivatives stay).
 
 Units: k_n, k_t in N/m² (force per unit length per unit thickness), mu dimensionless, forces in N
 per unit thickness, lengths in the packing's units, W, P, A and dissipation in Pa.
@@ -58,6 +74,8 @@ class FrictionState:
     the kernel visited at F_n) in ``force[offsets[q]:offsets[q + 1]]``; zero for contacts that
     were not active, and every candidate past the stored prefix counts as zero. The prefix is the
     kernel's own loop range, so reading the history costs one contiguous copy and no index decode.
+    Memory: 8 bytes per visited candidate, about the number of active contacts under compression
+    (700 disks at 2 % compression and 1 % shear: 12.4 kB per point), plus 48 bytes per point.
 
     Attributes:
         F: (n, 2, 2) committed deformation gradients F_n.
@@ -97,6 +115,10 @@ class FrictionState:
         for name, a in zip(_KEYS, (F, D, off.astype(np.int64), f)):
             object.__setattr__(self, name, _readonly(a))
 
+    def __repr__(self):
+        return (f"FrictionState(n_points={self.n_points}, stored_forces={self.force.size}, "
+                f"nbytes={self.nbytes})")
+
     @classmethod
     def _trusted(cls, F, dissipation, offsets, force):
         """A state from the kernel's own fresh arrays: no copies, no checks."""
@@ -128,6 +150,7 @@ class FrictionState:
         idx = np.asarray(indices)
         if idx.ndim != 1 or not (idx.size == 0 or np.issubdtype(idx.dtype, np.integer)):
             raise ValueError("take() needs a 1-D array of integer point indices")
+        idx = idx.astype(np.int64)
         idx = np.where(idx < 0, idx + self.n_points, idx)
         if idx.size and (idx.min() < 0 or idx.max() >= self.n_points):
             raise IndexError(f"point index out of range for a state of {self.n_points} points")
@@ -187,7 +210,8 @@ class FrictionContactSet:
         overlap: (m,) eps >= 0 (length).
         normal_force: (m,) k_n eps (N per unit thickness).
         tangential_force: (m,) f_t along t = (-n_2, n_1) (N per unit thickness).
-        sliding: (m,) True where |f_t| is at the Coulomb limit mu f_n (slid in this step).
+        sliding: (m,) True where |f_t| is at the Coulomb limit mu f_n (slid in this step; with
+            mu = 0 every contact with eps > 0).
     """
 
     pairs: np.ndarray
@@ -284,7 +308,8 @@ class FrictionalRVE:
                                ("A", A, (n, 2, 2, 2, 2) if tangent else None)):
             if shape is not None and (a is None or a.shape != shape or a.dtype != np.float64
                                       or not a.flags.c_contiguous):
-                raise ValueError(f"out {name} must be a C-contiguous float64 array of shape {shape}")
+                raise ValueError(
+                    f"out {name} must be a C-contiguous float64 array of shape {shape}")
         f = np.empty(off[-1])
         D = np.empty(n)
         fk.evaluate_batch(
@@ -351,7 +376,8 @@ class FrictionalRVE:
             return C
         n = L[on] / d[on, None]
         t = np.stack([-n[:, 1], n[:, 0]], axis=1)
-        g = R[on, None, None] * 0.5 * (np.einsum("ma,mb->mab", t, n) + np.einsum("ma,mb->mab", n, t))
+        tn = np.einsum("ma,mb->mab", t, n)
+        g = R[on, None, None] * 0.5 * (tn + tn.transpose(0, 2, 1))  # R sym(t n) = ds/dF at I
         return C + kt * self._inv_area * np.einsum("mab,mcd->abcd", g, g)
 
     def contacts(self, F, state: FrictionState) -> FrictionContactSet:

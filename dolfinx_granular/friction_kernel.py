@@ -29,10 +29,12 @@ adds -sign(f*) mu k_n ds/dF (x) (n (x) L). Per contact the 4th-order part is M_a
 M = a n n + b n t + c t n + e t t; t t = I - n n and t n = n t + J give
 M = (a - e) n n + (b + c) n t + e I + c J, hence two LLLL sums instead of four.
 
-The contact loops have no function call and no branch (atan by selects and a rational or, for
-small rotation increments, a polynomial), so LLVM vectorises them like the frictionless loop.
-Every point is computed independently by the same code path: results do not depend on how the
-points are batched.
+The contact loops have no branch (atan by selects and a rational or, for small rotation
+increments, a polynomial) and call only small helpers that LLVM inlines, so LLVM vectorises them
+like the frictionless loop. (The helpers are plain njit functions: numba's own inline="always"
+made the first compilation ~8 times slower.) The helpers are compiled without fast-math, so the
+angle and the contact law round the same wherever they are inlined. Every point is computed
+independently by the same code path: results do not depend on how the points are batched.
 """
 
 from __future__ import annotations
@@ -70,7 +72,7 @@ _C1, _C2, _C3, _C4, _C5 = -1.0 / 3.0, 1.0 / 5.0, -1.0 / 7.0, 1.0 / 9.0, -1.0 / 1
 _SMALL_INCREMENT = 0.045
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _atan2_unit(y, x):
     """atan2(y, x) in (-pi, pi] for max(|x|, |y|) of order 1 (not tiny, not huge), with selects
     only and one division, so that loops over it vectorise.
@@ -94,7 +96,8 @@ def _atan2_unit(y, x):
     d6 = d4 * d2
     d8 = d4 * d4
     p = (((_P0 * n2 + _P1 * d2) * n2 + _P2 * d4) * n2 + _P3 * d6) * n2 + _P4 * d8
-    qq = ((((n2 + _Q0 * d2) * n2 + _Q1 * d4) * n2 + _Q2 * d6) * n2 + _Q3 * d8) * n2 + _Q4 * (d8 * d2)
+    d10 = d8 * d2
+    qq = ((((n2 + _Q0 * d2) * n2 + _Q1 * d4) * n2 + _Q2 * d6) * n2 + _Q3 * d8) * n2 + _Q4 * d10
     r = num * (qq + n2 * p) / (den * qq)
     r = r + (_PIO4 + 0.5 * _MOREBITS) if big else r
     r = (_PIO2 - r) + _MOREBITS if swap else r
@@ -102,14 +105,14 @@ def _atan2_unit(y, x):
     return -r if y < 0.0 else r
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def atan2(y, x):
     """atan2(y, x) in (-pi, pi] for any finite (x, y) != (0, 0), to ~1 ulp (tests: <= 4 ulp)."""
     m = max(abs(x), abs(y))
     return _atan2_unit(y / m, x / m)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _atan_small(y, x):
     """atan(y / x) for x > 0 and |y / x| <= 0.05 (one division, five multiply-adds)."""
     z = y / x
@@ -120,7 +123,7 @@ def _atan_small(y, x):
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
 def atan2_array(y, x, out, kind):
     """Elementwise (n,) :func:`atan2` (kind 0), :func:`_atan2_unit` (1) or :func:`_atan_small`
-    (2), compiled with the contact loop's flags (for tests)."""
+    (2), for tests."""
     for i in range(y.shape[0]):
         if kind == 0:
             out[i] = atan2(y[i], x[i])
@@ -142,7 +145,7 @@ def prefix_lengths(F, rho, min_stretch, status, lengths):
         lengths[q] = np.searchsorted(rho, limit, side="right") if code == OK else 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2):
     """Coefficients of cross(G L, F L) and dot(G L, F L) as quadratic forms in (xx, xy, yy),
     scaled so that both are at most ~1 for |L|² <= lmax2 (their ratio, the angle, is kept)."""
@@ -157,7 +160,7 @@ def _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2):
     return cxx * s, cxy * s, cyy * s, dxx * s, dxy * s, dyy * s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _small_increment(F00, F01, F10, F11, G00, G01, G10, G11):
     """True if |F G^-1 - I| <= _SMALL_INCREMENT: every branch turns by |tan dphi| <= 0.05."""
     jg = G00 * G11 - G01 * G10
@@ -168,7 +171,7 @@ def _small_increment(F00, F01, F10, F11, G00, G01, G10, G11):
     return e00 * e00 + e01 * e01 + e10 * e10 + e11 * e11 <= _SMALL_INCREMENT**2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _contact_law(ftn, ds, ee, kt, mukn):
     """Trial force f*, new tangential force f_t and the stick flag of one contact."""
     fstar = ftn + kt * ds
@@ -178,7 +181,7 @@ def _contact_law(ftn, ds, ee, kt, mukn):
 
 
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, general, ft_io,
+def _contact_pass(F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, general, ft_io,
                   winv, acc):
     """Contact law and the stress sums e2, S, ft2, dis, sR, U of one point into ``acc``.
 
@@ -209,7 +212,7 @@ def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, gen
         d = np.sqrt(lx * lx + ly * ly)
         eps = r - d
         on = 1.0 if eps >= 0.0 else 0.0
-        ee = eps if eps >= 0.0 else 0.0
+        ee = eps if eps >= 0.0 else 0.0  # noqa: FURB136 (a select, as in kernel.py)
         inv = on / d
         xx = x * x
         xy = x * y
@@ -219,14 +222,14 @@ def _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, gen
         s0 += b * xx
         s1 += b * xy
         s2 += b * yy
-        # sliding since F_n: branch rotation minus particle spin, both wrapped to (-pi, pi]
+        # sliding since F_n: the branch's turn relative to the spun history Q F_n (wrapped once)
         cr = cxx * xx + cxy * xy + cyy * yy
         dt = dxx * xx + dxy * xy + dyy * yy
         if general is None:
             dphi = _atan_small(cr, dt)
         else:
             dphi = _atan2_unit(cr, dt)
-        fstar, ft, stick = _contact_law(ft_io[c], r * (dphi - dth), ee, kt, mukn)
+        fstar, ft, stick = _contact_law(ft_io[c], r * dphi, ee, kt, mukn)
         ft_io[c] = ft
         winv[c] = inv if stick else -inv
         ft2 += ft * ft
@@ -313,16 +316,12 @@ def _tangent_pass(X, Y, R, n_visit, fts, winv, kn, kt, mukn, acc):
     acc[_SKR] = skr
 
 
-@njit(cache=True, inline="always")
-def _rotation(F00, F01, F10, F11, G00, G01, G10, G11):
-    """Rotation increment dtheta = wrap(theta(F) - theta(G)), Theta = dtheta/dF (4 entries, row
-    major) and the coefficients (alpha, beta) of its Hessian
-    H = alpha (J x J - I x I) + beta (J x I + I x J)."""
+@njit(cache=True)
+def _rotation(F00, F01, F10, F11):
+    """Theta = dtheta/dF (4 entries, row major) of theta(F) = atan2(F10 - F01, F00 + F11) and the
+    coefficients (alpha, beta) of its Hessian H = alpha (J x J - I x I) + beta (J x I + I x J)."""
     a = F10 - F01
     b = F00 + F11
-    an = G10 - G01
-    bn = G00 + G11
-    dth = atan2(a * bn - b * an, b * bn + a * an)
     r = np.sqrt(a * a + b * b)  # = tr U >= 2 s_min: never small for a supported F
     ca = a / r
     cb = b / r
@@ -331,7 +330,26 @@ def _rotation(F00, F01, F10, F11, G00, G01, G10, G11):
     th = (-ca * ir, -cb * ir, cb * ir, -ca * ir)
     alpha = -2.0 * ca * cb * ir * ir
     beta = -(cb * cb - ca * ca) * ir * ir
-    return dth, th, alpha, beta
+    return th, alpha, beta
+
+
+@njit(cache=True)
+def _spun_history(F00, F01, F10, F11, G00, G01, G10, G11):
+    """Q G with Q the rotation by the particle spin increment theta(F) - theta(G), i.e. the
+    committed F_n = G carried along with the particles.
+
+    cos and sin of the increment come from the complex product (b + i a)(b_n - i a_n), without
+    trigonometry; at F = G they are exactly (1, 0) (sqrt(x²) = |x| in IEEE), so Q G = G."""
+    a = F10 - F01
+    b = F00 + F11
+    an = G10 - G01
+    bn = G00 + G11
+    cq = b * bn + a * an
+    sq = a * bn - b * an
+    h = np.sqrt(cq * cq + sq * sq)  # = tr U(F) tr U(G) > 0
+    c = cq / h
+    s = sq / h
+    return c * G00 - s * G10, c * G01 - s * G11, s * G00 + c * G10, s * G01 + c * G11
 
 
 @njit(cache=True)
@@ -380,7 +398,7 @@ def _finish_point(q, Fq, acc, rot, kn, inv_area, kt, tangent, W, P, A, M):
                     A[q, a, b, c, d] = inv_area * v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _copy_history(src, dst):
     """dst[:] = src, zero-padded or cut: committed forces past the stored prefix are zero."""
     m = min(src.shape[0], dst.shape[0])
@@ -431,13 +449,14 @@ def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, ta
         ft = f[o:o + n_visit]  # the new forces, computed in place from the committed ones
         _copy_history(f_n[off_n[q]:off_n[q + 1]], ft)
         G00, G01, G10, G11 = Fn[q, 0, 0], Fn[q, 0, 1], Fn[q, 1, 0], Fn[q, 1, 1]
-        dth, th, alpha, beta = _rotation(F00, F01, F10, F11, G00, G01, G10, G11)
+        th, alpha, beta = _rotation(F00, F01, F10, F11)
+        G00, G01, G10, G11 = _spun_history(F00, F01, F10, F11, G00, G01, G10, G11)
         cq = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2)
         if _small_increment(F00, F01, F10, F11, G00, G01, G10, G11):
-            _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, None,
+            _contact_pass(F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, None,
                           ft, winv, acc)
         else:
-            _contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, kn, kt, mu, True,
+            _contact_pass(F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, True,
                           ft, winv, acc)
         if tangent:
             _tangent_pass(X, Y, R, n_visit, ft, winv, kn, kt, mu * kn, acc)
@@ -453,7 +472,7 @@ def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick
     ``stick_out`` 1 for a sticking contact, 0 otherwise."""
     F00, F01, F10, F11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
     G00, G01, G10, G11 = Fn[0, 0], Fn[0, 1], Fn[1, 0], Fn[1, 1]
-    dth = _rotation(F00, F01, F10, F11, G00, G01, G10, G11)[0]
+    G00, G01, G10, G11 = _spun_history(F00, F01, F10, F11, G00, G01, G10, G11)
     cxx, cxy, cyy, dxx, dxy, dyy = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11,
                                                     lmax2)
     small = _small_increment(F00, F01, F10, F11, G00, G01, G10, G11)
@@ -464,14 +483,14 @@ def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick
         lx = F00 * x + F01 * y
         ly = F10 * x + F11 * y
         eps = r - np.sqrt(lx * lx + ly * ly)
-        ee = eps if eps >= 0.0 else 0.0
+        ee = eps if eps >= 0.0 else 0.0  # noqa: FURB136 (a select, as in kernel.py)
         xx = x * x
         xy = x * y
         yy = y * y
         cr = cxx * xx + cxy * xy + cyy * yy
         dt = dxx * xx + dxy * xy + dyy * yy
         dphi = _atan_small(cr, dt) if small else _atan2_unit(cr, dt)
-        _, ft, stick = _contact_law(buf[c], r * (dphi - dth), ee, kt, mu * kn)
+        _, ft, stick = _contact_law(buf[c], r * dphi, ee, kt, mu * kn)
         buf[c] = ft
         eps_out[c] = eps
         stick_out[c] = 1 if stick else 0

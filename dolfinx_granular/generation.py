@@ -29,8 +29,10 @@ Algorithm (:func:`generate_packing`):
 Cost. Every neighbour search is a cell list (:func:`_find_pairs`), so one FIRE step, one
 stress-free round and :func:`network_stats` cost O(N); the sparse normal equations of the Newton
 correction are factorised with a symmetric fill-reducing order. What stays super-linear is the
-number of FIRE steps a minimisation needs, which grows roughly like N^0.5 (the slowest elastic
-mode of the cell relaxes on a time ~ its width): ``benchmarks/generation.py`` measures the total.
+number of FIRE steps a minimisation needs, which grows roughly like N^0.6 from 700 to 45000 disks
+(the slowest elastic mode of the cell relaxes on a time ~ its width), and the cost of a step at
+large N, whose random memory access outgrows the caches: ``benchmarks/generation.py`` measures
+the total.
 
 Everything is deterministic for a given ``seed`` (one ``numpy.random.Generator``; the Numba
 kernels are serial; FIRE runs in chunks of steps whose length depends on the wall clock, but the
@@ -97,24 +99,31 @@ def _append_pair(m, pi, pj, ps, i, j, sx, sy):
 
 @njit(cache=True)
 def _cell_list(x, box, cut):
-    """Bin the centres x (N, 2), inside [0, box), into a grid of cells at least ``cut`` wide
-    (one cell per side where the box is narrower than that).
+    """Sort the centres x (N, 2), inside [0, box), into a grid of cells at least ``cut`` wide
+    (a single cell per side where the box is narrower).
 
     Returns:
-        ``(ncx, ncy, head, nxt)``: grid size, first disk of cell cx * ncy + cy (-1: empty) and
-        the next disk of the same cell (-1: last); a cell lists its disks by descending index.
+        ``(ncx, ncy, start, order)``: grid size; the disks of cell c = cx * ncy + cy are
+        ``order[start[c]:start[c + 1]]``, by descending index.
     """
+    n = x.shape[0]
     ncx = max(int(box[0] / cut), 1)
     ncy = max(int(box[1] / cut), 1)
-    head = -np.ones(ncx * ncy, np.int64)
-    nxt = np.empty(x.shape[0], np.int64)
-    for i in range(x.shape[0]):
+    cell = np.empty(n, np.int64)
+    start = np.zeros(ncx * ncy + 1, np.int64)
+    for i in range(n):
         cx = min(max(int(x[i, 0] / box[0] * ncx), 0), ncx - 1)
         cy = min(max(int(x[i, 1] / box[1] * ncy), 0), ncy - 1)
-        c = cx * ncy + cy
-        nxt[i] = head[c]
-        head[c] = i
-    return ncx, ncy, head, nxt
+        cell[i] = cx * ncy + cy
+        start[cell[i] + 1] += 1
+    for c in range(ncx * ncy):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n - 1, -1, -1):
+        order[fill[cell[i]]] = i
+        fill[cell[i]] += 1
+    return ncx, ncy, start, order
 
 
 @njit(cache=True)
@@ -133,34 +142,39 @@ def _find_pairs(x, r, box, ratio, skin, with_self):
         ``(m, pi, pj, ps)``: the count and int32 arrays of capacity >= m: pi, pj (cap,) with
         j > i (or j == i), ps (cap, 2) integer shifts in cells.
     """
+    n = r.shape[0]
     cut = ratio * 2.0 * r.max() + skin
-    ncx, ncy, head, nxt = _cell_list(x, box, cut)
+    ncx, ncy, start, order = _cell_list(x, box, cut)
     kx = int(np.ceil(cut * ncx / box[0]))  # neighbour cells to scan on each side (1 normally)
     ky = int(np.ceil(cut * ncy / box[1]))
-    cap = 16 * r.shape[0] + 16
+    xs = np.empty((n, 2))  # centres and radii in cell order: contiguous loads
+    rs = np.empty(n)
+    for a in range(n):
+        xs[a] = x[order[a]]
+        rs[a] = r[order[a]]
+    cap = 16 * n + 16
     pi = np.empty(cap, np.int32)
     pj = np.empty(cap, np.int32)
     ps = np.empty((cap, 2), np.int32)
     m = 0
-    for cx in range(ncx):
-        for cy in range(ncy):
-            i = head[cx * ncy + cy]
-            while i >= 0:
-                for ux in range(cx - kx, cx + kx + 1):
-                    sx = ux // ncx  # floor: image of the unwrapped cell ux
-                    for uy in range(cy - ky, cy + ky + 1):
-                        sy = uy // ncy
-                        j = head[(ux - sx * ncx) * ncy + uy - sy * ncy]
-                        while j >= 0:
-                            if j > i or (with_self and j == i and (sx > 0 or (sx == 0 and sy > 0))):
-                                dx = x[j, 0] - x[i, 0] + sx * box[0]
-                                dy = x[j, 1] - x[i, 1] + sy * box[1]
-                                rc = ratio * (r[i] + r[j]) + skin
-                                if dx * dx + dy * dy < rc * rc:
-                                    pi, pj, ps = _append_pair(m, pi, pj, ps, i, j, sx, sy)
-                                    m += 1
-                            j = nxt[j]
-                i = nxt[i]
+    for c in range(ncx * ncy):
+        cx, cy = c // ncy, c % ncy
+        for a in range(start[c], start[c + 1]):
+            i = order[a]
+            for ux in range(cx - kx, cx + kx + 1):
+                sx = ux // ncx  # floor: the image of the unwrapped cell column ux
+                for uy in range(cy - ky, cy + ky + 1):
+                    sy = uy // ncy
+                    c2 = (ux - sx * ncx) * ncy + uy - sy * ncy
+                    for b in range(start[c2], start[c2 + 1]):
+                        j = order[b]
+                        if j > i or (with_self and j == i and (sx > 0 or (sx == 0 and sy > 0))):
+                            dx = xs[b, 0] - xs[a, 0] + sx * box[0]
+                            dy = xs[b, 1] - xs[a, 1] + sy * box[1]
+                            rc = ratio * (rs[a] + rs[b]) + skin
+                            if dx * dx + dy * dy < rc * rc:
+                                pi, pj, ps = _append_pair(m, pi, pj, ps, i, j, sx, sy)
+                                m += 1
     return m, pi, pj, ps
 
 
@@ -226,6 +240,39 @@ def _forces(x, r, box, m, pi, pj, ps, f):
 
 
 @njit(cache=True)
+def _fire_sums(f, v):
+    """FIRE's reductions over the disks, in index order: (max |f|², |f|², |v|², f · v)."""
+    fmax = 0.0
+    fn2 = 0.0
+    vn2 = 0.0
+    power = 0.0
+    for i in range(f.shape[0]):
+        fi2 = f[i, 0] * f[i, 0] + f[i, 1] * f[i, 1]
+        if fi2 > fmax:
+            fmax = fi2
+        fn2 += fi2
+        vn2 += v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+        power += f[i, 0] * v[i, 0] + f[i, 1] * v[i, 1]
+    return fmax, fn2, vn2, power
+
+
+@njit(cache=True)
+def _euler_step(x, v, f, x_ref, dt):
+    """Semi-implicit Euler step of v and x (N, 2), in place; returns the largest squared
+    displacement from x_ref (N, 2)."""
+    moved2 = 0.0
+    for i in range(x.shape[0]):
+        v[i, 0] += dt * f[i, 0]
+        v[i, 1] += dt * f[i, 1]
+        x[i, 0] += dt * v[i, 0]
+        x[i, 1] += dt * v[i, 1]
+        dxr = x[i, 0] - x_ref[i, 0]
+        dyr = x[i, 1] - x_ref[i, 1]
+        moved2 = max(moved2, dxr * dxr + dyr * dyr)
+    return moved2
+
+
+@njit(cache=True)
 def _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl):
     """FIRE steps on the centres x (N, 2), in place, until max |f| < ftol or step ``stop``.
 
@@ -237,30 +284,18 @@ def _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl):
     Returns:
         ``(nl, converged)``: the (possibly rebuilt) neighbour list and whether max |f| < ftol.
     """
-    n = r.shape[0]
     m, pi, pj, ps = nl
     dt, alpha, n_pos, step = st[0], st[1], int(st[2]), int(st[3])
-    half2 = (0.5 * skin) ** 2
     converged = False
     while step < stop:
-        fmax = 0.0
-        fn2 = 0.0
-        vn2 = 0.0
-        power = 0.0
-        for i in range(n):
-            fi2 = f[i, 0] * f[i, 0] + f[i, 1] * f[i, 1]
-            if fi2 > fmax:
-                fmax = fi2
-            fn2 += fi2
-            vn2 += v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
-            power += f[i, 0] * v[i, 0] + f[i, 1] * v[i, 1]
-        st[5] = np.sqrt(fmax)
+        fmax2, fn2, vn2, power = _fire_sums(f, v)
+        st[5] = np.sqrt(fmax2)
         if st[5] < ftol:
             converged = True
             break
         if power > 0.0:
             scale = alpha * np.sqrt(vn2 / fn2)
-            for i in range(n):
+            for i in range(v.shape[0]):
                 v[i, 0] = (1.0 - alpha) * v[i, 0] + scale * f[i, 0]
                 v[i, 1] = (1.0 - alpha) * v[i, 1] + scale * f[i, 1]
             if n_pos > _N_MIN:
@@ -272,16 +307,7 @@ def _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl):
             dt *= _F_DEC
             alpha = _ALPHA0
             v[:, :] = 0.0
-        moved2 = 0.0
-        for i in range(n):
-            v[i, 0] += dt * f[i, 0]
-            v[i, 1] += dt * f[i, 1]
-            x[i, 0] += dt * v[i, 0]
-            x[i, 1] += dt * v[i, 1]
-            dxr = x[i, 0] - x_ref[i, 0]
-            dyr = x[i, 1] - x_ref[i, 1]
-            moved2 = max(moved2, dxr * dxr + dyr * dyr)
-        if moved2 > half2:
+        if _euler_step(x, v, f, x_ref, dt) > (0.5 * skin) ** 2:
             _wrap(x, box)
             m, pi, pj, ps = _find_pairs(x, r, box, 1.0, skin, False)
             x_ref[:, :] = x
@@ -354,7 +380,7 @@ class _Reporter:
     def __init__(self, callback):
         self.callback = callback
         self.t0 = time.perf_counter()
-        self.last = -math.inf  # time of the last line
+        self.last = self.t0  # time of the last line (heartbeats start after one interval)
         self.fraction = 0.0
         self.base = 0.0  # fraction at the start of the current attempt
 
@@ -379,7 +405,8 @@ class _Reporter:
             share = lo + (hi - lo) * min(max(within, 0.0), 1.0)
             self.fraction = max(self.fraction, self.base + (1.0 - self.base) * share)
         self.last = now
-        self.callback(ProgressLine(f"{text} [{100 * self.fraction:.0f} %]", stage, self.fraction))
+        percent = int(100 * self.fraction)  # 100 on the last line only
+        self.callback(ProgressLine(f"{text} [{percent} %]", stage, self.fraction))
 
 
 # -- public API --------------------------------------------------------------------------------------
@@ -599,11 +626,12 @@ def _minimise_reporting(x, r, box, skin, ftol, d_mean, say, phi, it):
     f0 = []
 
     def beat(step, fmax):
-        f0.append(fmax)
+        if not f0:
+            f0.append(fmax)
         g = math.log(f0[0] / fmax) / math.log(f0[0] / ftol) if f0[0] > ftol and fmax > 0 else 0.0
         say("jamming", (it + max(g, 0.0)) / max(4.0, it + 1.5),
             f"jamming: phi = {phi:.5f}, FIRE step {step}, largest force {fmax / ftol:.3g} x "
-            f"the tolerance ({say.elapsed():.1f} s)", heartbeat=True)
+            "the tolerance", heartbeat=True)
 
     steps, vir = _minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
     return steps, vir / (2.0 * box.prod())

@@ -82,6 +82,7 @@ class GranularMaterial(QuadratureMaterial):
         self._A_data = _PointData(self.A, self._slots, (2, 2, 2, 2))
         self.n_updates = 0
         self.n_open = 0
+        self._scalar = None
         self.state = rve.initial_state(n) if self.history else None
         self.trial_state = self.state
         alpha = float(stabilise)
@@ -152,6 +153,22 @@ class GranularMaterial(QuadratureMaterial):
             if tangent:
                 self._A_data.values[opened] += self._C_stab
         self._P_stab_data.write()
+
+    def integrate(self, values) -> float:
+        """∫ values dx over the material's cells (every rank gets the sum) of a per-point array
+        (n_points,), e.g. an energy density in Pa -> J per unit thickness."""
+        if self._scalar is None:
+            self._scalar = fem.Function(dfx.quadrature_space(self.mesh, self.quadrature_degree, ()))
+            self._scalar_form = fem.form(self._scalar * self.dx)
+        self._scalar.x.array[self._slots] = np.asarray(values, dtype=float)
+        local = fem.assemble_scalar(self._scalar_form)
+        return float(self.mesh.comm.allreduce(local))
+
+    def dissipated_energy(self) -> float:
+        """Energy dissipated so far in the committed state, ∫ D dx in J per unit thickness (0 for
+        a law without dissipation)."""
+        D = getattr(self.state, "dissipation", None)
+        return self.integrate(D) if D is not None else 0.0
 
     def commit(self) -> None:
         """Make the state of the last ``update`` the committed one (no-op without history)."""

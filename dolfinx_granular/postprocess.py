@@ -63,6 +63,20 @@ def global_extremum(comm, values, points, kind="max"):
     return pick((v for v in found if v[1] is not None), key=lambda vp: vp[0])
 
 
+def nearest_point(comm, points, target):
+    """The point nearest to ``target`` over all ranks: ``(rank, index on that rank, point)``,
+    identical on every rank (ties: lowest rank). ``points``: (n, d) this rank's coordinates."""
+    target = np.asarray(target, dtype=float)
+    if len(points):
+        d = np.linalg.norm(np.asarray(points) - target, axis=1)
+        i = int(np.argmin(d))
+        local = (float(d[i]), comm.rank, i, np.asarray(points[i]))
+    else:
+        local = (np.inf, comm.rank, -1, None)
+    _, rank, i, point = min(comm.allgather(local), key=lambda t: (t[0], t[1]))
+    return rank, i, point
+
+
 def nearest_point_value(comm, points, values, target):
     """Value at the point nearest to ``target`` over all ranks.
 
@@ -72,15 +86,8 @@ def nearest_point_value(comm, points, values, target):
     Returns:
         ``(point, value)`` identical on every rank.
     """
-    target = np.asarray(target, dtype=float)
-    if len(points):
-        d = np.linalg.norm(np.asarray(points) - target, axis=1)
-        i = int(np.argmin(d))
-        local = (float(d[i]), comm.rank, np.asarray(points[i]), np.asarray(values[i]))
-    else:
-        local = (np.inf, comm.rank, None, None)
-    best = min(comm.allgather(local), key=lambda t: (t[0], t[1]))
-    return best[2], best[3]
+    rank, i, point = nearest_point(comm, points, target)
+    return point, comm.bcast(np.asarray(values[i]) if comm.rank == rank else None, root=rank)
 
 
 def cell_function(V0, owned_values):
@@ -126,19 +133,31 @@ def gather_mesh(V, u, cell_values):
     return tuple(np.concatenate(o) for o in out)
 
 
-def force_network(rve, F, force_scale):
-    """Polygons of a deformed RVE's force network: one quad per contact, width ∝ force.
+def contact_network(rve, F, state=None):
+    """The active contacts of one RVE at F (2, 2): ``(contacts, normal_force (m,), sliding (m,)
+    bool)``; ``state`` is the committed state of a law with history (frictional contacts: their
+    sliding ones are flagged), None for an elastic law."""
+    if state is None:
+        c = rve.contacts(F)
+        return c, c.force, np.zeros(len(c.force), dtype=bool)
+    c = rve.contacts(F, state)
+    return c, c.normal_force, np.asarray(c.sliding, dtype=bool)
+
+
+def force_network(rve, F, force_scale, state=None):
+    """Polygons of a deformed RVE's force network: one quad per contact, width ∝ normal force.
 
     Args:
-        rve: the :class:`~dolfinx_granular.rve.TaylorRVE`.
+        rve: the material-point law (a TaylorRVE, or a FrictionalRVE with ``state``).
         F: (2, 2) deformation gradient.
         force_scale: branch half-width per unit contact force (packing length per force unit).
+        state: the committed state of one point, for a law with history.
 
     Returns:
-        ``(quads (m, 4, 2), disks (N, 2) centres, radii (N,))`` in the deformed RVE, centred
-        on the origin.
+        ``(quads (m, 4, 2), disks (N, 2) centres, radii (N,), sliding (m,) bool)`` in the
+        deformed RVE, centred on the origin.
     """
-    c = rve.contacts(F)
+    c, force, sliding = contact_network(rve, F, state)
     pk = rve.packing
     centers = pk.centers @ np.asarray(F).T
     centers = centers - (np.asarray(F) @ (0.5 * pk.box))
@@ -146,9 +165,9 @@ def force_network(rve, F, force_scale):
     end = start + c.branch
     length = np.linalg.norm(c.branch, axis=1)
     normal = np.stack([-c.branch[:, 1], c.branch[:, 0]], axis=1) / length[:, None]
-    w = (force_scale * c.force)[:, None] * normal
+    w = (force_scale * force)[:, None] * normal
     quads = np.stack([start - w, end - w, end + w, start + w], axis=1)
-    return quads, centers, pk.radii
+    return quads, centers, pk.radii, sliding
 
 
 def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, value_range=None):
@@ -158,7 +177,9 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, 
         path: PNG file to write.
         mesh_data: output of :func:`gather_mesh` (rank 0).
         markers: list of ``(label, point (2,) reference coordinates, text)``; marked on the slope.
-        rves: list of ``(label, rve, F (2, 2), text)`` for the insets (same force and length scale).
+        rves: list of ``(label, rve, F (2, 2), text, state)`` for the insets (same force and
+            length scale); ``state`` is None for an elastic law, else the committed state of
+            the point (sliding contacts are drawn in blue).
         deformation_scale: factor on u for the deformed shape.
         value_range: ``(min, max)`` von Mises stress in Pa that the colour bar spans (default:
             the cell values'); pass the Gauss-point extremes that the markers name, so that the
@@ -171,6 +192,34 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, 
     import pyvista as pv
 
     pv.OFF_SCREEN = True
+    plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
+                         window_size=(1800, 860), border=False)
+    plotter.subplot(0, 0)
+    clim = _slope_panel(plotter, mesh_data, markers, deformation_scale, value_range)
+    plotter.add_text(title + "\nbranch width proportional to normal contact force, same scale in "
+                     "A-D" + ("; blue: sliding contacts" if any(r[4] is not None for r in rves)
+                              else ""), font_size=11, position="upper_left")
+    # One force-width scale and one length scale for all insets, so that they compare.
+    networks = [contact_network(rve, F, state) for _, rve, F, _, state in rves]
+    fmax = max((f.max(initial=0.0) for _, f, _ in networks), default=0.0)
+    mean_r = np.mean([rve.packing.radii.mean() for _, rve, *_ in rves]) if rves else 1.0
+    scale = 0.3 * mean_r / fmax if fmax > 0 else 0.0
+    corners = np.array([[0.5, 0.5], [0.5, -0.5]])
+    extent = max((np.abs((corners * rve.packing.box) @ np.asarray(F).T).max()
+                  for _, rve, F, *_ in rves), default=1.0)
+    for n, (inset, network) in enumerate(zip(rves, networks)):
+        plotter.subplot(n // 2, 2 + n % 2)
+        _inset(plotter, inset, network, scale, extent)
+    plotter.screenshot(path)
+    plotter.close()
+    return clim
+
+
+def _slope_panel(plotter, mesh_data, markers, deformation_scale, value_range):
+    """The von Mises contour on the deformed slope, its colour bar and markers; the colour
+    range (MPa)."""
+    import pyvista as pv
+
     points, cells, cell_types, u, vm = mesh_data
     pts = points.copy()
     pts[:, :2] += deformation_scale * u
@@ -180,9 +229,6 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, 
     # Nodes on partition boundaries come from every rank, equal only to round-off: merge them.
     size = float(np.ptp(pts, axis=0).max()) or 1.0
     grid = grid.clean(tolerance=1e-9 * size).cell_data_to_point_data(pass_cell_data=True)
-    plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
-                         window_size=(1800, 860), border=False)
-    plotter.subplot(0, 0)
     lo, hi = value_range if value_range is not None else (vm.min(), vm.max())
     clim = (float(lo) / 1e6, float(hi) / 1e6)
     # VTK's scalar bar actor crashes in this VTK wheel (std::regex in its label formatter), so the
@@ -201,41 +247,61 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, 
     plotter.add_point_labels(np.array([m[1] for m in mk]), [f"{m[0]}: {m[2]}" for m in mk],
                              point_size=14, font_size=14, point_color="black", text_color="black",
                              shape_opacity=0.7, always_visible=True, render_points_as_spheres=True)
-    plotter.add_text(title + "\nbranch width proportional to contact force, same scale in A-D",
-                     font_size=11, position="upper_left")
     plotter.view_xy()
     plotter.camera.parallel_projection = True
     plotter.camera.zoom(1.25)
-
-    # One force-width scale and one length scale for all insets, so that they compare.
-    contacts = [rve.contacts(F) for _, rve, F, _ in rves]
-    fmax = max((c.force.max(initial=0.0) for c in contacts), default=0.0)
-    mean_r = np.mean([rve.packing.radii.mean() for _, rve, _, _ in rves]) if rves else 1.0
-    scale = 0.3 * mean_r / fmax if fmax > 0 else 0.0
-    corners = np.array([[0.5, 0.5], [0.5, -0.5]])
-    extent = max((np.abs((corners * rve.packing.box) @ np.asarray(F).T).max()
-                  for _, rve, F, _ in rves), default=1.0)
-    for n, ((label, rve, F, text), c) in enumerate(zip(rves, contacts)):
-        plotter.subplot(n // 2, 2 + n % 2)
-        quads, centers, radii = force_network(rve, F, scale)
-        plotter.add_mesh(_circles(centers, radii), color="#9a9a9a", line_width=1)
-        plotter.add_mesh(_cell_outline(F, rve.packing.box), color="black", line_width=1)
-        if len(quads):
-            faces = np.hstack([np.full((len(quads), 1), 4), np.arange(4 * len(quads)).reshape(-1, 4)])
-            qpts = np.c_[quads.reshape(-1, 2), np.zeros(4 * len(quads))]
-            plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color="#b2182b")
-        overlap = c.overlap.max(initial=0.0) / rve.packing.radii.mean()
-        plotter.add_text(f"{label}: {text}\n{len(c.force)} contacts, largest overlap "
-                         f"{100 * overlap:.2f} % of the mean radius",
-                         font_size=10, position="upper_left")
-        plotter.view_xy()
-        plotter.camera.parallel_projection = True
-        plotter.camera.focal_point = (0.0, 0.0, 0.0)
-        plotter.camera.position = (0.0, 0.0, 10.0 * extent)
-        plotter.camera.parallel_scale = 1.1 * extent
-    plotter.screenshot(path)
-    plotter.close()
     return clim
+
+
+def _inset(plotter, inset, network, scale, extent):
+    """One RVE's force network: disks, cell, contacts (red; sliding ones blue)."""
+    import pyvista as pv
+
+    label, rve, F, text, state = inset
+    c, force, sliding = network
+    quads, centers, radii, _ = force_network(rve, F, scale, state)
+    plotter.add_mesh(_circles(centers, radii), color="#9a9a9a", line_width=1)
+    plotter.add_mesh(_cell_outline(F, rve.packing.box), color="black", line_width=1)
+    for mask, colour in ((~sliding, "#b2182b"), (sliding, "#2166ac")):
+        q = quads[mask]
+        if len(q):
+            faces = np.hstack([np.full((len(q), 1), 4), np.arange(4 * len(q)).reshape(-1, 4)])
+            qpts = np.c_[q.reshape(-1, 2), np.zeros(4 * len(q))]
+            plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color=colour)
+    overlap = c.overlap.max(initial=0.0) / rve.packing.radii.mean()
+    slide = f", {int(sliding.sum())} sliding" if state is not None else ""
+    plotter.add_text(f"{label}: {text}\n{len(force)} contacts{slide}, largest overlap "
+                     f"{100 * overlap:.2f} % of the mean radius", font_size=10, position="upper_left")
+    plotter.view_xy()
+    plotter.camera.parallel_projection = True
+    plotter.camera.focal_point = (0.0, 0.0, 0.0)
+    plotter.camera.position = (0.0, 0.0, 10.0 * extent)
+    plotter.camera.parallel_scale = 1.1 * extent
+
+
+def plot_load_settlement(path, curves, title=""):
+    """Load-settlement curves (matplotlib PNG).
+
+    Args:
+        curves: list of ``(label, settlement (k,) in m (down positive), load (k,) in N/m, style)``
+            with ``style`` a dict of matplotlib line options (or None).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 4.6))
+    ax = fig.add_subplot()
+    for label, settlement, load, style in curves:
+        ax.plot(np.asarray(settlement), np.asarray(load) / 1e6, label=label, **(style or {}))
+    ax.set_xlabel("settlement of the loaded footing edge (m)")
+    ax.set_ylabel("footing load (MN/m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def _headless_vtk():

@@ -148,6 +148,10 @@ class QuadratureMaterial:
     def commit(self) -> None:
         """Accept the state of the last ``update`` as converged (laws with history)."""
 
+    def dissipated_energy(self) -> float:
+        """Energy dissipated so far, J per unit thickness (0: an elastic law)."""
+        return 0.0
+
     # -- forms ---------------------------------------------------------------------------------
 
     def stress(self):

@@ -141,11 +141,22 @@ class NodeOrder(_CoordinateOrder):
 
 
 class PointOrder(_CoordinateOrder):
-    """Per-point data of a quadrature material's points, partition-independent."""
-
-    def __init__(self, comm, points, tolerance):
-        super().__init__(comm, points, tolerance)
+    """Per-point data of a quadrature material's points (reference coordinates ``points``),
+    partition-independent: arrays, or a history state with ``take``, ``concatenate``,
+    ``to_arrays`` and ``from_arrays`` (e.g. a FrictionState)."""
 
     def local_rows(self, X_stored):
         """Indices into the stored (ordered) points of this rank's points, in local order."""
         return self.match(X_stored, self.X_local)
+
+    def gather_state(self, state):
+        """Rank 0: the state of every rank's points in coordinate order (other ranks: None)."""
+        parts = self.comm.gather(state.to_arrays(), root=0)
+        if self.comm.rank != 0:
+            return None
+        cls = type(state)
+        return cls.concatenate([cls.from_arrays(p) for p in parts]).take(self.order)
+
+    def scatter_state(self, cls, arrays, X_stored):
+        """This rank's part of a state stored (``to_arrays`` of a gathered one) at ``X_stored``."""
+        return cls.from_arrays(arrays).take(self.local_rows(X_stored))

@@ -5,8 +5,9 @@ import time
 import numpy as np
 import pytest
 
-from dolfinx_granular import Packing, TaylorRVE, generate_packing, network_stats
+from dolfinx_granular import Packing, TaylorRVE, generate_packing, generation, kernel, network_stats
 from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
+from scripts import load_benchmark
 
 # (70, 68): the first jammed state has 17 % rattlers and is rejected
 CASES = [(70, 0), (70, 1), (70, 2), (70, 68), (350, 1), (700, 3)]
@@ -169,3 +170,122 @@ def test_progress_reports_stages():
 def test_bad_input_raises_a_clear_error(args, kwargs, message):
     with pytest.raises(ValueError, match=message):
         generate_packing(*args, **kwargs)
+
+
+# -- neighbour search, FIRE chunks, progress, benchmark --------------------------------------------
+
+
+def brute_force_pairs(x, r, box, ratio, skin, with_self):
+    """{(i, j, sx, sy)} with |x_j + s * box - x_i| < ratio (r_i + r_j) + skin, j > i (or j == i
+    with s > 0 lexicographically), over every image that can be within reach: O(N² K²)."""
+    reach = ratio * 2.0 * r.max() + skin
+    kx, ky = (int(np.ceil(reach / b)) + 1 for b in box)
+    found = set()
+    for sx in range(-kx, kx + 1):
+        for sy in range(-ky, ky + 1):
+            dx = x[None, :, 0] - x[:, None, 0] + sx * box[0]
+            dy = x[None, :, 1] - x[:, None, 1] + sy * box[1]
+            rc = ratio * (r[:, None] + r[None, :]) + skin
+            hit = dx * dx + dy * dy < rc * rc
+            upper = np.triu(np.ones_like(hit), 1)
+            if with_self and (sx > 0 or (sx == 0 and sy > 0)):
+                upper |= np.eye(len(r), dtype=bool)
+            found |= {(i, j, sx, sy) for i, j in zip(*np.nonzero(hit & upper))}
+    return found
+
+
+@pytest.mark.parametrize(
+    "n, aspect, cells, skin, with_self",
+    [
+        (400, 1.0, 12.0, 0.3, False),  # many cells per side: the FIRE case
+        (300, 4.0, 6.0, 0.0, True),  # elongated cell
+        (60, 1.0, 2.5, 0.3, False),  # two cells per side: left and right neighbour coincide
+        (40, 0.5, 1.2, 0.3, True),  # one cell per side
+        (12, 1.0, 0.4, 0.1, True),  # cell narrower than the reach: images two cells away
+        (2, 1.0, 0.6, 0.0, True),
+    ],
+)
+def test_cell_list_finds_exactly_the_brute_force_pairs(n, aspect, cells, skin, with_self):
+    rng = np.random.default_rng(n)
+    for _ in range(3):
+        r = rng.uniform(0.25, 1.0, n)
+        reach = 2.0 * r.max() + skin
+        box = cells * reach * np.array([1.0, aspect])  # `cells` cells on the short side
+        x = rng.random((n, 2)) * box
+        m, pi, pj, ps = generation._find_pairs(x, r, box, 1.0, skin, with_self)
+        found = list(zip(pi[:m].tolist(), pj[:m].tolist(), *ps[:m].T.tolist()))
+        assert len(found) == len(set(found)), "a pair listed twice"
+        assert set(found) == brute_force_pairs(x, r, box, 1.0, skin, with_self)
+
+
+@pytest.mark.parametrize("case", [(70, 2), (700, 3)])
+def test_linear_candidates_equal_the_kernels(packings, case):
+    p = packings[case]
+    for ratio in (1.02, 1.0 / 0.99, 1.3):
+        L, R, rho, ij, shift = kernel.candidate_pairs(p.centers, p.radii, p.box, ratio)
+        ij2, shift2, eps2 = generation._candidates(p.centers, p.radii, p.box, ratio)
+        np.testing.assert_array_equal(ij2, ij)  # same pairs in the same order
+        np.testing.assert_array_equal(shift2, shift)
+        np.testing.assert_array_equal(eps2, R - np.sqrt(L[:, 0] ** 2 + L[:, 1] ** 2))
+    # network_stats sees the contacts of the Taylor RVE
+    cs = TaylorRVE(p, 1.0, min_stretch=0.99).contacts(np.eye(2))
+    s = network_stats(p)
+    assert s.n_contacts == cs.pairs.shape[0]
+    assert s.max_overlap == cs.overlap.max() / (2 * p.radii.mean())
+
+
+def test_fire_in_chunks_follows_the_same_trajectory():
+    rng = np.random.default_rng(3)
+    n = 70
+    r = rng.uniform(0.25, 1.0, n)
+    box = np.full(2, np.sqrt(np.pi * np.sum(r**2) / 0.86))
+    x0 = rng.random((n, 2)) * box
+    skin, ftol, dt0, dt_max = 0.2, 1e-8, 0.03, 0.3
+    ends = []
+    for chunk in (10**9, 1, 37):
+        x = x0.copy()
+        generation._wrap(x, box)
+        nl = generation._find_pairs(x, r, box, 1.0, skin, False)
+        v, f, x_ref = np.zeros((n, 2)), np.empty((n, 2)), x.copy()
+        st = np.array([dt0, 0.1, 0.0, 0.0, 0.0, np.inf])
+        st[4] = generation._forces(x, r, box, *nl, f)
+        done = False
+        while not done and st[3] < 100_000:
+            nl, done = generation._fire_steps(x, r, box, skin, ftol, dt_max,
+                                              int(st[3]) + chunk, st, v, f, x_ref, nl)
+        assert done
+        ends.append((x, st))
+    for x, st in ends[1:]:
+        np.testing.assert_array_equal(x, ends[0][0])
+        np.testing.assert_array_equal(st, ends[0][1])
+
+
+def test_progress_fractions_increase_to_one(monkeypatch):
+    monkeypatch.setattr(generation, "PROGRESS_INTERVAL", 0.0)  # a heartbeat after every chunk
+    lines = []
+    p = generate_packing(350, seed=1, progress=lines.append)
+    assert all(isinstance(s, generation.ProgressLine) for s in lines)
+    fractions = [s.fraction for s in lines]
+    assert all(0.0 <= a <= b <= 1.0 for a, b in zip(fractions, fractions[1:]))
+    assert fractions[-1] == 1.0 and max(fractions[:-1]) < 1.0
+    assert lines[-1].stage == "done" and lines[-1].startswith("done")
+    assert {s.stage for s in lines} <= {"jamming", "stress-free", "checking", "done"}
+    assert any(s.startswith("jamming:") for s in lines)  # heartbeats inside the minimisations
+    assert any(s.startswith("stress-free") for s in lines)
+    assert p == generate_packing(350, seed=1)  # reporting does not change the result
+
+
+def test_progress_heartbeats_respect_the_interval(monkeypatch):
+    monkeypatch.setattr(generation, "PROGRESS_INTERVAL", 3600.0)
+    lines = []
+    generate_packing(350, seed=1, progress=lines.append)
+    assert not any(s.startswith(("jamming:", "stress-free")) for s in lines)  # no heartbeats
+    assert [s.stage for s in lines][-2:] == ["jamming", "done"]
+
+
+def test_generation_benchmark_runs(capsys):
+    load_benchmark("generation").main(["--sizes", "70", "140"])
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.strip().startswith(("70 ", "140 "))]
+    assert [row[0] for row in rows] == ["70", "140"] and len(rows[1]) == 4
+    assert "log-log slope over all sizes" in out

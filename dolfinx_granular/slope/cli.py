@@ -75,6 +75,14 @@ def build_parser(prog="demos/slope.py"):
                         "modulus (default 0: off)")
     p.add_argument("--line-search", choices=["basic", "bt", "l2", "cp"], default="basic",
                    help="SNES line search (default basic: full Newton steps)")
+    p.add_argument("--friction", type=_finite(0.0), default=0.0, metavar="MU",
+                   help="Coulomb friction coefficient of the contacts (default 0: frictionless, "
+                        "the paper's model)")
+    p.add_argument("--tangential-stiffness", type=_finite(0.0), metavar="KT",
+                   help="tangential contact stiffness k_t in N/m² (default: the normal one, "
+                        "2.8e7, where --friction > 0)")
+    p.add_argument("--unload", action="store_true",
+                   help="after the footing load, remove it again in as many steps")
     p.add_argument("--stop-after", type=_int_at_least(1), metavar="K",
                    help="stop after K converged load steps (resume later with --resume)")
     p.add_argument("--resume", metavar="DIR",
@@ -86,8 +94,13 @@ def build_parser(prog="demos/slope.py"):
 
 def options_of(a) -> SlopeOptions:
     """The run's options from parsed command-line arguments."""
+    if a.tangential_stiffness is not None and a.friction == 0.0:
+        raise UserError("--tangential-stiffness needs --friction MU > 0 (frictionless contacts "
+                        "carry no tangential force)")
     return SlopeOptions(steps=a.steps, load_factor=a.load_factor, stabilise=a.stabilise,
-                        petsc_options={"snes_linesearch_type": a.line_search})
+                        petsc_options={"snes_linesearch_type": a.line_search},
+                        friction=a.friction, tangential_stiffness=a.tangential_stiffness,
+                        unload=a.unload)
 
 
 def make_packing(particles, seed, packing_file=None) -> Packing:
@@ -164,8 +177,9 @@ def main(argv=None, prog="demos/slope.py") -> int:
         if a.resume:
             summary = _resume(a, comm, started)
         else:
+            options = options_of(a)
             packing = _shared(a, comm)
-            summary = run_slope(packing, options_of(a), out=a.out, comm=comm,
+            summary = run_slope(packing, options, out=a.out, comm=comm,
                                 figure=not a.no_figure, stop_after=a.stop_after, started=started)
     except (ValueError, OSError) as err:  # user errors: bad options, files, meshes
         if "--debug" in argv:

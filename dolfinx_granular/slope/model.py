@@ -16,7 +16,7 @@ from petsc4py import PETSc
 
 from .. import _dolfinx as dfx
 from ..material import GranularMaterial
-from ..postprocess import global_extremum, min_acoustic_eigenvalue, nearest_point_value, von_mises
+from ..postprocess import global_extremum, min_acoustic_eigenvalue, nearest_point, von_mises
 from ..solver import NewtonSolver
 from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
 
@@ -153,7 +153,9 @@ class SlopeModel:
         return vm, global_extremum(self.comm, vm, X, "max"), global_extremum(self.comm, vm, X, "min")
 
     def probes(self, xmax):
-        """The four probe points of figure 7 (label, point, text) and F at the nearest Gauss point."""
+        """The four probe points of figure 7: ``(label, point, F, text, state)`` at the Gauss
+        point nearest to each spot (``state``: the committed state of that point for a law with
+        history, else None); the same on every rank."""
         g = self.geometry
         spots = [("A", xmax, "max von Mises"),
                  ("B", [g.loaded_edge - 0.5 * g.column_width, 0.75 * g.crest_height],
@@ -161,9 +163,17 @@ class SlopeModel:
                  ("C", [g.slope_end + 0.5 * g.column_width, 0.9 * g.toe_height], "at the toe"),
                  ("D", [0.5 * g.footing_start + 0.5 * g.column_width, 0.1 * g.crest_height],
                   "deep")]
-        found = [nearest_point_value(self.comm, self.material.points, self.material.F, p)
-                 for _, p, _ in spots]
-        return [(label, xp, Fp, text) for (label, _, text), (xp, Fp) in zip(spots, found)]
+        probes = []
+        for label, spot, text in spots:
+            rank, i, xp = nearest_point(self.comm, self.material.points, spot)
+            mine = self.comm.rank == rank
+            F = self.comm.bcast(np.array(self.material.F[i]) if mine else None, root=rank)
+            state = None
+            if getattr(self.material, "history", False):
+                arrays = self.material.state.take([i]).to_arrays() if mine else None
+                state = type(self.material.state).from_arrays(self.comm.bcast(arrays, root=rank))
+            probes.append((label, xp, F, text, state))
+        return probes
 
     def min_singular_value(self) -> float:
         F = self.material.F

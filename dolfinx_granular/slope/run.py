@@ -28,10 +28,10 @@ from ..loading import Cutback, LoadStepper
 from ..packing import Packing
 from ..postprocess import cell_function
 from ..rve import TaylorRVE
-from ..runwriter import NodeOrder, RunWriter, read_npz
+from ..runwriter import NodeOrder, PointOrder, RunWriter, read_npz
 from .geometry import SlopeGeometry
 from .model import SlopeModel, granular_material, newton_solver
-from .summary import draw_figure, figure_data, report_stop, summarise
+from .summary import draw_figure, draw_load_settlement, figure_data, report_stop, summarise
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 RESTART_FORMAT = "dolfinx_granular.slope_restart"
@@ -52,6 +52,9 @@ class SlopeOptions:
         petsc_options: SNES/KSP options of the solver (e.g. the line search).
         normal_stiffness: k_n in N/m².
         geometry: the slope's dimensions and loads.
+        friction: Coulomb coefficient mu of the contacts (0: frictionless, the paper's model).
+        tangential_stiffness: k_t in N/m² (None: k_n where friction > 0).
+        unload: after the footing phase, remove the footing load in as many steps.
     """
 
     steps: int = 20
@@ -61,9 +64,28 @@ class SlopeOptions:
     petsc_options: dict = dataclasses.field(default_factory=dict)
     normal_stiffness: float = K_N
     geometry: SlopeGeometry = dataclasses.field(default_factory=SlopeGeometry)
+    friction: float = 0.0
+    tangential_stiffness: float | None = None
+    unload: bool = False
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    @property
+    def phases(self) -> tuple:
+        """The load phases: gravity, footing and (``unload``) unloading."""
+        return PHASES + (("unloading",) if self.unload else ())
+
+    def law(self, packing):
+        """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0."""
+        if self.friction > 0.0:
+            from ..friction import FrictionalRVE
+
+            kt = self.normal_stiffness if self.tangential_stiffness is None \
+                else self.tangential_stiffness
+            return FrictionalRVE(packing, normal_stiffness=self.normal_stiffness,
+                                 tangential_stiffness=kt, friction=self.friction)
+        return TaylorRVE(packing, self.normal_stiffness)
 
     @classmethod
     def from_dict(cls, d) -> SlopeOptions:
@@ -92,7 +114,9 @@ def load_restart(folder) -> dict:
         return {"options": SlopeOptions.from_dict(json.loads(str(f["options"]))),
                 "state": json.loads(str(f["state"])),
                 "packing": Packing(f["centers"], f["radii"], f["box"]),
-                "nodes": f["nodes"], "u_history": f["u_history"], "path": path}
+                "nodes": f["nodes"], "u_history": f["u_history"], "path": path,
+                "history": {k[len("history_"):]: v for k, v in f.items()
+                            if k.startswith("history_")}}
     except Exception as err:  # JSON or packing errors
         from ..runwriter import RestartError
 
@@ -112,12 +136,13 @@ class SlopeRun:
         restart: the dict of :func:`load_restart` to continue from (its options are used).
         stop_after: stop after this many converged load steps (all phases).
         started: ``time.perf_counter()`` when the run began (``wall_time``), default now.
-        law_factory: ``law_factory(packing, normal_stiffness)`` -> the material-point law.
+        law_factory: ``law_factory(packing, normal_stiffness)`` -> the material-point law
+            (default: :meth:`SlopeOptions.law`).
         material_factory, solver_factory: see :class:`~dolfinx_granular.slope.model.SlopeModel`.
     """
 
     def __init__(self, packing, options=None, out="results/slope", comm=MPI.COMM_WORLD,
-                 verbose=True, restart=None, stop_after=None, started=None, law_factory=TaylorRVE,
+                 verbose=True, restart=None, stop_after=None, started=None, law_factory=None,
                  material_factory=None, solver_factory=None):
         self.t_start = time.perf_counter() if started is None else started
         self.options = o = restart["options"] if restart else (options or SlopeOptions())
@@ -128,11 +153,15 @@ class SlopeRun:
             lambda law, u: granular_material(law, u, stabilise=o.stabilise))
         solver_factory = solver_factory or (
             lambda *a: newton_solver(*a, petsc_options=o.petsc_options, verbose=verbose))
-        self.law = law_factory(packing, o.normal_stiffness)
+        self.law = law_factory(packing, o.normal_stiffness) if law_factory else o.law(packing)
         self.model = SlopeModel(comm, self.law, o.geometry, o.load_factor, material_factory,
                                 solver_factory)
         self.writer = RunWriter(out, comm)
         self.nodes = NodeOrder(comm, self.model.V, tolerance=1e-9 * o.geometry.width)
+        # the history of a law with it (frictional contacts) travels with the restart, keyed by
+        # the quadrature points' coordinates
+        self.points = (PointOrder(comm, self.model.material.points, 1e-9 * o.geometry.width)
+                       if getattr(self.model.material, "history", False) else None)
         self.stepper = LoadStepper(self.model.solver, max_cutbacks=o.max_cutbacks,
                                    log=lambda line: self.say("  " + line))
         self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
@@ -146,7 +175,8 @@ class SlopeRun:
 
     @property
     def n_nominal(self) -> int:
-        return 1 + self.options.steps
+        """Nominal load steps: gravity, the footing steps and as many to unload."""
+        return 1 + self.options.steps * (len(self.options.phases) - 1)
 
     # -- output ----------------------------------------------------------------------------------
 
@@ -188,12 +218,18 @@ class SlopeRun:
         if self.comm.rank == 0:
             self.u_history.append(values)
         state = self._state(phase_index, step, t)
+        history = {}
+        if self.points is not None:
+            gathered = self.points.gather_state(self.model.material.state)
+            if self.comm.rank == 0:
+                history = {f"history_{k}": v for k, v in gathered.to_arrays().items()}
+                history["history_points"] = self.points.X
         self.writer.csv("convergence.csv", CONVERGENCE_HEADER, self.rows)
         self.writer.npz("restart.npz", format=np.array(RESTART_FORMAT), version=np.array(2),
                         options=np.array(json.dumps(self.options.as_dict())),
                         state=np.array(json.dumps(state)), centers=self.packing.centers,
                         radii=self.packing.radii, box=self.packing.box, nodes=self.nodes.X,
-                        u_history=np.asarray(self.u_history))
+                        u_history=np.asarray(self.u_history), **history)
         self.writer.json("summary.json", {
             "status": "running", "ranks": self.comm.size, "steps": self.n_nominal,
             "completed_steps": step, "resumed_from": self.resumed_from,
@@ -221,34 +257,43 @@ class SlopeRun:
             self.model.material.commit()
             self._append_xdmf(k)
         self.u_history = list(restart["u_history"]) if self.comm.rank == 0 else []
+        if self.points is not None:  # the stored history, not the replay's (any partition)
+            material = self.model.material
+            stored = dict(restart["history"])
+            points = stored.pop("points")
+            material.state = self.points.scatter_state(type(material.state), stored, points)
+            material.update(tangent=False)
+            material.commit()
         phase, t, dt = state["phase"], state["t"], state["dt"]
         if t >= 1.0:  # the stored step ended a phase: go on with the next one
             phase, t, dt = phase + 1, 0.0, None
         self._start = (phase, t, dt)
         self.say(f"slope: resumed from {restart['path']} after step {self.resumed_from} "
-                 f"({PHASES[min(phase, len(PHASES) - 1)]}, t = {t:.6g})")
+                 f"({self.options.phases[min(phase, len(self.options.phases) - 1)]}, t = {t:.6g})")
 
     def _record(self, phase_index, step, t, result, elapsed):
         m = self.model
-        lam_g, lam_f = (t, 0.0) if phase_index == 0 else (1.0, m.load_factor * t)
+        lam_g, lam_f = (t, 0.0) if phase_index == 0 else (1.0, float(m.footing.value))
         self.iterations.append(result.iterations)
         self.rows.extend(convergence_rows(step, result))
         self.step_info.append({
-            "step": step, "phase": PHASES[phase_index], "t": t, "gravity": lam_g,
+            "step": step, "phase": self.options.phases[phase_index], "t": t, "gravity": lam_g,
             "footing_load": lam_f * m.geometry.footing_load, "iterations": result.iterations,
             "converged": True, "residual_norm": result.residual_norm,
             "converged_by": result.stopped_by, "reason": result.reason_name,
             "open_points": m.open_points(), "non_elliptic_points": m.non_elliptic_points(),
             "settlement": m.settlement(), "stabiliser_force": m.stabiliser_share(),
-            "time": elapsed})
+            "dissipated_energy": m.material.dissipated_energy(), "time": elapsed})
         self.say(f"step {step:2d}/{self.n_nominal}: gravity x{lam_g:.2f}, footing "
                  f"{lam_f * m.geometry.footing_load:.3e} N/m, {result.iterations} iterations, "
                  f"{elapsed:.2f} s")
 
     def run(self) -> bool:
         """Take the load phases from where the run stands; True if every phase completed."""
-        setters = (self.model.set_gravity, self.model.set_footing)
-        increments = (1.0, 1.0 / self.options.steps)
+        phases = self.options.phases
+        setters = (self.model.set_gravity, self.model.set_footing,
+                   lambda t: self.model.set_footing(1.0 - t))[: len(phases)]
+        increments = (1.0, 1.0 / self.options.steps, 1.0 / self.options.steps)
         clock = [time.perf_counter()]
 
         def converged(phase_index, step, t, result):
@@ -258,10 +303,10 @@ class SlopeRun:
             return not (self.stop_after is not None and step >= self.stop_after)
 
         start_phase, start_t, start_dt = self._start
-        for i in range(start_phase, len(PHASES)):
+        for i in range(start_phase, len(phases)):
             t0 = start_t if i == start_phase else 0.0
             setters[i](t0)  # the loads of the converged state the phase starts from
-            if not self.stepper.run(PHASES[i], setters[i], increments[i], t=t0,
+            if not self.stepper.run(phases[i], setters[i], increments[i], t=t0,
                                     dt=start_dt if i == start_phase else None,
                                     on_converged=lambda *a, i=i: converged(i, *a)):
                 return False
@@ -271,7 +316,7 @@ class SlopeRun:
 def is_complete(restart) -> bool:
     """True if the run of ``restart`` (:func:`load_restart`) had completed every load phase."""
     state = restart["state"]
-    return state["phase"] == len(PHASES) - 1 and state["t"] >= 1.0
+    return state["phase"] == len(restart["options"].phases) - 1 and state["t"] >= 1.0
 
 
 def run_slope(packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, figure=True,
@@ -299,6 +344,7 @@ def run_slope(packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, f
     if figure and comm.rank == 0:
         seconds, colour_range = draw_figure(run, run.writer.path("slope.png"), data, extremes,
                                             probes)
+        draw_load_settlement(run, run.writer.path("load_settlement.png"))
     summary = summarise(run, extremes, probes, seconds, colour_range)
     run.writer.csv("convergence.csv", CONVERGENCE_HEADER, run.rows)
     run.writer.json("summary.json", summary)

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 from mpi4py import MPI
 
-from ..postprocess import gather_mesh, plot_slope
+from ..postprocess import gather_mesh, plot_load_settlement, plot_slope
 
 
 def limit_message(failed, run) -> str | None:
@@ -67,6 +68,12 @@ def summarise(run, extremes, probes, figure_time=0.0, colour_range=None) -> dict
         "stabiliser_force_max": max([s.get("stabiliser_force", 0.0) for s in info] or [0.0]),
         "iterations": run.iterations,
         "footing_settlement": m.settlement(), "footing_settlement_point": m.edge.tolist(),
+        "friction": run.options.friction, "unload": run.options.unload,
+        # J per metre of slope: the energy the contacts' sliding dissipated (0 without friction)
+        "dissipated_energy": m.material.dissipated_energy(),
+        # after the footing load came off again (``--unload``): the settlement it left behind,
+        # beyond that of the soil's own weight (m, negative = down)
+        "permanent_settlement": _permanent_settlement(run),
         "max_von_mises": vmax, "max_von_mises_location": xmax,
         "min_von_mises": vmin, "min_von_mises_location": xmin,
         "min_singular_value_F": m.min_singular_value(),
@@ -82,8 +89,16 @@ def summarise(run, extremes, probes, figure_time=0.0, colour_range=None) -> dict
         # the figure's colour bar (MPa), which spans the Gauss-point extremes its markers name
         "figure_colour_range": colour_range,
         "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()}
-                   for label, xp, Fp, _ in probes},
+                   for label, xp, Fp, *_ in probes},
     }
+
+
+def _permanent_settlement(run):
+    info = run.step_info
+    if not (info and info[-1]["phase"] == "unloading" and info[-1]["t"] >= 1.0):
+        return None
+    gravity = next(s for s in info if s["phase"] == "gravity" and s["t"] >= 1.0)
+    return info[-1]["settlement"] - gravity["settlement"]
 
 
 def figure_data(run, extremes):
@@ -97,14 +112,32 @@ def draw_figure(run, path, data, extremes, probes):
     force networks. Returns the seconds it took and the colour bar's range (MPa)."""
     t0 = time.perf_counter()
     _, (vmax, xmax), (vmin, xmin) = extremes
-    markers = [(label, xp, text) for label, xp, _, text in probes]
+    markers = [(label, xp, text) for label, xp, _, text, _ in probes]
     markers[0] = ("A", xmax, f"max {vmax / 1e6:.3f} MPa")
     markers.append(("min", xmin, f"{vmin / 1e6:.3f} MPa"))
-    insets = [(label, run.law, Fp, f"{text}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m")
-              for label, xp, Fp, text in probes]
+    insets = [(label, run.law, Fp, f"{text}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m", state)
+              for label, xp, Fp, text, state in probes]
     settlement = run.step_info[-1]["settlement"] if run.step_info else 0.0
     colour_range = plot_slope(
         path, data, markers, insets, value_range=(vmin, vmax),
         title=f"step {run.stepper.step}/{run.n_nominal}: settlement {settlement:.3f} m, "
               f"{run.packing.n_particles} particles, deformation x1")
     return time.perf_counter() - t0, colour_range
+
+
+def load_settlement_curve(step_info):
+    """(settlement (m, down positive), footing load (N/m, down positive)) of the converged steps
+    from the gravity state on (loading, and unloading where there is one)."""
+    steps = [s for s in step_info if s["phase"] != "gravity" or s["t"] >= 1.0]
+    return (np.array([-s["settlement"] for s in steps]),
+            np.array([-s["footing_load"] for s in steps]))
+
+
+def draw_load_settlement(run, path):
+    """``load_settlement.png``: the footing's load-settlement path (with its hysteresis when the
+    load came off again); rank 0."""
+    settlement, load = load_settlement_curve(run.step_info)
+    o = run.options
+    law = f"Coulomb friction mu = {o.friction:g}" if o.friction > 0 else "frictionless contacts"
+    plot_load_settlement(path, [(law, settlement, load, {"marker": "o", "ms": 3})],
+                         title=f"slope, {run.packing.n_particles}-particle RVE, {law}")

@@ -1,0 +1,589 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+# ---
+
+# %% [markdown]
+# # Frictional Taylor RVE under confined simple shear
+#
+# One material point (a `FrictionalRVE`, model in `shared/notes/friction-taylor.md`) is sheared
+# in plane strain, F = [[1, γ], [0, 1 + e22]], while e22 is solved at every step so that the
+# vertical Cauchy stress stays at the confining pressure, σ22 = −p (a shear box with rigid side
+# walls: F11 = 1). Three results, as figures and CSV: hysteresis loops of cyclic shear for
+# μ = 0, 0.3, 0.5; the mobilised stress ratio q/p in monotonic shear for μ = 0 ... 1; the
+# dissipated energy per cycle against the area of the loop.
+
+# %%
+"""Frictional Taylor RVE under confined simple shear: hysteresis, mobilised q/p, dissipation.
+
+    python demos/friction_study.py [--out results/friction_study] [--small] [--no-cache]
+
+* packing: ``generate_packing(n, seed)`` through :class:`~dolfinx_granular.cache.PackingCache`
+  (350 particles, seeds 0-4 for monotonic shear, seed 0 for the cycles; ``--small``: 70, seed 0);
+* contacts: k_n = 2.8e7 N/m² (table 1 of the paper), k_t = k_n (a common DEM choice), Coulomb μ;
+* every test starts from F = I, is compressed to σ22 = −p (p = 100 kPa, in 10 pressure steps at
+  γ = 0, F11 = 1) and is then sheared under σ22 = −p with F11 = 1 (:func:`confined_shear_step`);
+* cyclic shear γ: 0 → +2 % → −2 % → +2 % ... (3 cycles; cycle c runs from +2 % to +2 %) for
+  μ = 0, 0.3, 0.5; monotonic shear to γ = 10 % for μ = 0, 0.1, 0.3, 0.5, 1.0.
+
+Stress ratios (2-D, compression positive): p_m = −(σ11 + σ22)/2 and
+q = √(((σ11 − σ22)/2)² + σ12²), so q/p_m = sin φ_mobilised (the radius of Mohr's circle over its
+centre; q/p_m = 1: a principal stress is zero, q/p_m > 1: one is tensile), and
+τ/p = σ12/(−σ22) = σ12/p on the horizontal plane of the box.
+
+Writes to ``--out``: ``friction_cycles.csv`` (every step of the cycles), ``friction_monotonic.csv``
+(every step of monotonic shear), ``friction_summary.csv`` (one row per μ: q/p at the start, its
+peak and final value, dissipation and loop area per cycle) and the figures
+``friction_hysteresis.png``, ``friction_qp_gamma.png``, ``friction_qp_mu.png``,
+``friction_dissipation.png``. Packings are cached in ``OUT/packings``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from dolfinx_granular.cache import PackingCache
+from dolfinx_granular.friction import FrictionalRVE, FrictionState
+
+K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
+K_T = K_N  # tangential stiffness k_t = k_n (a common DEM choice), N/m²
+PRESSURE = 1e5  # confining pressure p, Pa
+RAMP_STEPS = 10  # pressure steps of the initial compression at gamma = 0
+AMPLITUDE = 0.02  # shear strain amplitude of the cycles
+MAX_SHEAR = 0.10  # final shear strain of monotonic shear
+MU_CYCLIC = (0.0, 0.3, 0.5)
+MU_MONOTONIC = (0.0, 0.1, 0.3, 0.5, 1.0)
+RTOL = 1e-10  # the driver's tolerance: |sigma_22 + p| <= RTOL p
+# |loop area - dissipation| / dissipation of a cycle is a first-order discretisation error of the
+# trapezoidal work sum: measured 0.07 / m (mu = 0.3) and 0.2 / m (mu = 0.5) for m = 10 ... 80
+# steps per quarter cycle; the stated tolerance is LOOP_RTOL_STEPS / m.
+LOOP_RTOL_STEPS = 0.5
+DPI = 110
+
+FULL = dict(particles=350, seeds=(0, 1, 2, 3, 4), quarter_steps=40, cycles=3, monotonic_steps=200)
+SMALL = dict(particles=70, seeds=(0,), quarter_steps=20, cycles=2, monotonic_steps=50)
+
+
+# %% [markdown]
+# ## The mixed-control driver
+#
+# F11 = 1, F12 = γ and F21 = 0 are prescribed, F22 = 1 + e22 is unknown and σ22 = −p is the
+# equation. Newton on the scalar e22 uses the consistent tangent dσ22/dF22 (chain rule of
+# σ = P Fᵀ / J with A = dP/dF); a bracket on e22 and bisection catch the rare iterate that
+# leaves it (stick/slip switches make σ22(e22) only piecewise smooth). Every iterate starts from
+# the committed state; the caller commits the returned state only after convergence.
+
+# %%
+class ConfinementError(RuntimeError):
+    """The mixed-control iteration did not reach |sigma_22 + p| <= rtol p."""
+
+
+@dataclass(frozen=True)
+class ShearStep:
+    """A converged confined-shear step; commit ``state`` to go on.
+
+    Attributes:
+        F: (2, 2) deformation gradient [[1, gamma], [0, 1 + e22]].
+        W: stored energy density (Pa).  P: (2, 2) first Piola stress (Pa).
+        sigma: (2, 2) Cauchy stress (Pa), sigma[1, 1] = -p to the tolerance.
+        state: the FrictionState after the step (from the committed state to F).
+        iterations: Newton iterations (0: the guess was converged).
+        residuals: sigma_22 + p (Pa) at every iterate.
+    """
+
+    F: np.ndarray
+    W: float
+    P: np.ndarray
+    sigma: np.ndarray
+    state: FrictionState
+    iterations: int
+    residuals: tuple
+
+    @property
+    def e22(self) -> float:
+        return float(self.F[1, 1] - 1.0)
+
+
+def shear_F(gamma, e22):
+    """Plane strain simple shear with vertical stretch: [[1, gamma], [0, 1 + e22]] (2, 2)."""
+    return np.array([[1.0, gamma], [0.0, 1.0 + e22]])
+
+
+def confined_shear_step(rve, gamma, state, pressure, F_guess=None, rtol=RTOL, max_iter=50,
+                        max_increment=0.02):
+    """Solve e22 so that sigma_22 = -pressure at shear gamma, from the committed ``state``.
+
+    Control: F11 = 1, F12 = gamma, F21 = 0 fixed (a shear box with rigid side walls: sigma_11
+    follows from the material), F22 = 1 + e22 free with sigma_22 = -pressure. Newton on e22 with
+    d sigma_22 / d F_22 from the consistent tangent, steps capped at ``max_increment``, bisection
+    when an iterate leaves the bracket of the root found so far.
+
+    Args:
+        rve: a FrictionalRVE (any object with its ``evaluate``).
+        gamma: shear F12.  state: committed 1-point FrictionState (never modified).
+        pressure: p > 0 in Pa.  F_guess: (2, 2), its F22 starts the iteration (default 1).
+        rtol: converged when |sigma_22 + p| <= rtol p.  max_iter: Newton iterations allowed.
+
+    Returns:
+        :class:`ShearStep`. Raises :class:`ConfinementError` (with the residual history) when
+        not converged; nothing is committed then.
+    """
+    if not pressure > 0.0:
+        raise ValueError(f"pressure must be > 0 Pa, got {pressure!r}")
+    e = 0.0 if F_guess is None else float(F_guess[1][1]) - 1.0
+    lo, hi = -np.inf, np.inf  # sigma_22 + p < 0 (too compressed) at lo, > 0 at hi
+    residuals = []
+    for it in range(max_iter + 1):
+        F = shear_F(gamma, e)
+        W, P, A, new = rve.evaluate(F, state)  # always from the committed state
+        J = np.linalg.det(F)
+        sigma = P @ F.T / J
+        r = sigma[1, 1] + pressure
+        residuals.append(float(r))
+        if abs(r) <= rtol * pressure:
+            return ShearStep(F, float(W), P, sigma, new, it, tuple(residuals))
+        if r < 0.0:
+            lo = e
+        else:
+            hi = e
+        # d sigma_22 / d F_22 = (A_2B22 F_2B + P_22) / J - sigma_22 (F^-1)_22
+        k = (A[1, :, 1, 1] @ F[1] + P[1, 1]) / J - sigma[1, 1] * np.linalg.inv(F)[1, 1]
+        step = -r / k if k > 0.0 else -np.sign(r) * max_increment  # no contact: compress
+        e_new = e + float(np.clip(step, -max_increment, max_increment))
+        if not lo < e_new < hi:
+            # a step always heads for the root's side of e, so only the far bound can be
+            # crossed, and that one is finite: bisect the bracket
+            e_new = 0.5 * (lo + hi)
+        e = e_new
+    raise ConfinementError(
+        f"confined shear step gamma = {gamma:.6g}, p = {pressure:.6g} Pa: |sigma_22 + p| = "
+        f"{abs(residuals[-1]):.3e} Pa > {rtol:.0e} p after {max_iter} iterations (residuals "
+        f"{', '.join(f'{x:.2e}' for x in residuals[-5:])}); state not committed")
+
+
+# %% [markdown]
+# ## Load paths
+#
+# Every test is compressed to σ22 = −p at γ = 0 in pressure steps, then follows a γ path. The
+# cycles use an integer grid, so that a branch and its reverse visit bitwise the same γ.
+
+# %%
+@dataclass
+class LoadPath:
+    """Committed history of one load path (one entry per converged step, k = 0 ... steps).
+
+    Attributes: gamma, e22 (k,); F, P, sigma (k, 2, 2) in Pa; W, D (k,) stored energy and
+    cumulative dissipation in Pa; iterations (k,) Newton iterations; active, sliding (k,) contacts
+    with overlap > 0 and those at the Coulomb limit in the step (mu = 0: every active contact).
+    """
+
+    gamma: np.ndarray
+    e22: np.ndarray
+    F: np.ndarray
+    P: np.ndarray
+    sigma: np.ndarray
+    W: np.ndarray
+    D: np.ndarray
+    iterations: np.ndarray
+    active: np.ndarray
+    sliding: np.ndarray
+
+
+def confine(rve, pressure=PRESSURE, ramp_steps=RAMP_STEPS):
+    """Compress the virgin RVE (F = I) to sigma_22 = -pressure at gamma = 0, F11 = 1, in
+    ``ramp_steps`` equal pressure steps. Returns ``(last ShearStep, the committed state before
+    it)``; the step's own state is the confined one."""
+    state, F = rve.initial_state(1), np.eye(2)
+    for p in np.linspace(0.0, pressure, ramp_steps + 1)[1:]:
+        before, step = state, confined_shear_step(rve, 0.0, state, p, F)
+        state, F = step.state, step.F  # commit: converged
+    return step, before
+
+
+def shear_path(rve, gammas, start, pressure=PRESSURE):
+    """Shear along ``gammas`` (k,) under sigma_22 = -pressure. ``start = (step, before)``: the
+    converged step the path begins with (entry 0; ``gammas[0]`` is its gamma) and the committed
+    state before it, as :func:`confine` returns. Returns ``(LoadPath, final committed state)``."""
+    first, before = start
+    steps, counts = [first], [_contact_counts(rve, first.F, before)]
+    state = first.state
+    for g in gammas[1:]:
+        step = confined_shear_step(rve, g, state, pressure, steps[-1].F)
+        counts.append(_contact_counts(rve, step.F, state))
+        state = step.state  # commit only now: the step converged
+        steps.append(step)
+    active, sliding = np.array(counts).T
+    return LoadPath(
+        gamma=np.array([s.F[0, 1] for s in steps]), e22=np.array([s.e22 for s in steps]),
+        F=np.array([s.F for s in steps]), P=np.array([s.P for s in steps]),
+        sigma=np.array([s.sigma for s in steps]), W=np.array([s.W for s in steps]),
+        D=np.array([s.state.dissipation[0] for s in steps]),
+        iterations=np.array([s.iterations for s in steps]), active=active, sliding=sliding,
+    ), state
+
+
+def _contact_counts(rve, F, committed):
+    """(active, sliding) contacts of the step from the ``committed`` state to F."""
+    c = rve.contacts(F, committed)
+    return int(np.count_nonzero(c.overlap > 0.0)), int(np.count_nonzero(c.sliding))
+
+
+def cyclic_gammas(amplitude, cycles, quarter_steps):
+    """gamma of 0 -> +a -> -a -> +a ... (``cycles`` full cycles after the first quarter) and the
+    cycle of each point: 0 for the first quarter, c = 1 ... for the points of cycle c (which runs
+    from index m + 4 m (c - 1) to m + 4 m c, m = quarter_steps). Returns (gamma, cycle), (k,)."""
+    m = quarter_steps
+    ticks = list(range(m + 1))
+    for _ in range(cycles):
+        ticks += list(range(m - 1, -m - 1, -1)) + list(range(-m + 1, m + 1))
+    idx = np.arange(len(ticks))
+    cycle = np.where(idx <= m, 0, (idx - m + 4 * m - 1) // (4 * m))
+    return amplitude * np.array(ticks, dtype=float) / m, cycle
+
+
+# %% [markdown]
+# ## Measures: stress ratios and the energy of a cycle
+#
+# The work of a cycle is the trapezoidal sum of P : ΔF over its steps; work minus the change of
+# stored energy W is the area of the loop, which must equal the increase of the dissipation
+# (`state.dissipation`) up to the discretisation error of the sum.
+
+# %%
+def stress_ratios(sigma):
+    """``(q/p_m, tau/p)`` (k,) of Cauchy stresses (k, 2, 2): 2-D mean stress p_m, Mohr radius q
+    (compression positive) and sigma_12 / (-sigma_22)."""
+    s11, s22, s12 = sigma[:, 0, 0], sigma[:, 1, 1], sigma[:, 0, 1]
+    p_m = -0.5 * (s11 + s22)
+    q = np.hypot(0.5 * (s11 - s22), s12)
+    return q / p_m, s12 / -s22
+
+
+def work_increments(F, P):
+    """Trapezoidal work per step, 0.5 (P_k + P_k+1) : (F_k+1 - F_k), (k - 1,) in Pa."""
+    return np.einsum("kab,kab->k", 0.5 * (P[1:] + P[:-1]), F[1:] - F[:-1])
+
+
+def cycle_energy(path, quarter_steps, cycles):
+    """Per cycle (list of dicts): dissipation (increase of D), work, change of W, loop area =
+    work - change of W (all Pa), their relative difference (NaN without dissipation) and the
+    drift of e22 over the cycle."""
+    m, dw, rows = quarter_steps, work_increments(path.F, path.P), []
+    for c in range(1, cycles + 1):
+        a, b = m + 4 * m * (c - 1), m + 4 * m * c
+        dissipation, work, stored = path.D[b] - path.D[a], dw[a:b].sum(), path.W[b] - path.W[a]
+        area = work - stored
+        rows.append(dict(cycle=c, dissipation_Pa=dissipation, work_Pa=work, stored_change_Pa=stored,
+                         loop_area_Pa=area,
+                         rel_difference=(area - dissipation) / dissipation if dissipation > 0
+                         else float("nan"),
+                         e22_drift=path.e22[b] - path.e22[a]))
+    return rows
+
+
+def loop_rtol(quarter_steps):
+    """Stated tolerance of |loop area - dissipation| / dissipation per cycle (first order)."""
+    return LOOP_RTOL_STEPS / quarter_steps
+
+
+# %% [markdown]
+# ## The two tests
+#
+# Cyclic shear on one packing per μ; monotonic shear on every seed per μ.
+
+# %%
+def cyclic_test(packing, mu, quarter_steps, cycles, amplitude=AMPLITUDE, pressure=PRESSURE):
+    """Confine, then cycle gamma; returns ``(LoadPath, cycle (k,), energy rows)``."""
+    rve = FrictionalRVE(packing, normal_stiffness=K_N, tangential_stiffness=K_T, friction=mu)
+    gammas, cycle = cyclic_gammas(amplitude, cycles, quarter_steps)
+    path, _ = shear_path(rve, gammas, confine(rve, pressure), pressure)
+    return path, cycle, cycle_energy(path, quarter_steps, cycles)
+
+
+def monotonic_test(packing, mu, steps, max_shear=MAX_SHEAR, pressure=PRESSURE):
+    """Confine, then shear monotonically to ``max_shear`` in ``steps`` steps; returns the
+    LoadPath."""
+    rve = FrictionalRVE(packing, normal_stiffness=K_N, tangential_stiffness=K_T, friction=mu)
+    gammas = np.linspace(0.0, max_shear, steps + 1)
+    return shear_path(rve, gammas, confine(rve, pressure), pressure)[0]
+
+
+def monotonic_measures(path):
+    """Scalars of one monotonic path: q/p at gamma = 0, peak (and its gamma) and final q/p, peak
+    and final tau/p, K0 = sigma_11 / sigma_22 at gamma = 0, final e22 and dissipation (Pa)."""
+    qp, tp = stress_ratios(path.sigma)
+    k = int(np.argmax(qp))
+    return dict(qp_start=qp[0], qp_peak=qp[k], gamma_peak=path.gamma[k], qp_final=qp[-1],
+                taup_peak=tp.max(), taup_final=tp[-1], K0=path.sigma[0, 0, 0] / path.sigma[0, 1, 1],
+                e22_final=path.e22[-1], dissipation_final_Pa=path.D[-1])
+
+
+# %% [markdown]
+# ## Tables
+
+# %%
+def write_csv(path, header, rows):
+    """Floats as their shortest round-trip repr: the tables reproduce the computed numbers."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows([[repr(float(v)) if isinstance(v, (float, np.floating)) else v for v in row]
+                     for row in rows])
+
+
+STEP_COLUMNS = ["step", "gamma", "e22", "sigma11_Pa", "sigma12_Pa", "sigma22_Pa", "q_over_p",
+                "tau_over_p", "W_Pa", "dissipation_Pa", "dissipation_step_Pa",
+                "newton_iterations", "active_contacts", "sliding_contacts"]
+
+
+def step_rows(path):
+    """One row per step in the order of STEP_COLUMNS."""
+    qp, tp = stress_ratios(path.sigma)
+    dD = np.diff(path.D, prepend=path.D[0])
+    return [[k, path.gamma[k], path.e22[k], path.sigma[k, 0, 0], path.sigma[k, 0, 1],
+             path.sigma[k, 1, 1], qp[k], tp[k], path.W[k], path.D[k], dD[k],
+             int(path.iterations[k]), int(path.active[k]), int(path.sliding[k])]
+            for k in range(path.gamma.size)]
+
+
+def summary_table(mono, energy, cycles):
+    """Header and rows of friction_summary.csv: one row per mu (monotonic measures as mean and
+    standard deviation over the seeds; cycle columns empty for mu without cycles)."""
+    keys = ["qp_start", "qp_peak", "gamma_peak", "qp_final", "taup_peak", "taup_final", "K0",
+            "e22_final", "dissipation_final_Pa"]
+    header = ["mu", "seeds"] + [f"{k}_{s}" for k in keys for s in ("mean", "std")]
+    for c in range(1, cycles + 1):
+        header += [f"dissipation_cycle{c}_Pa", f"loop_area_cycle{c}_Pa", f"rel_diff_cycle{c}"]
+    rows = []
+    for mu in sorted(set(mono) | set(energy)):
+        m = [monotonic_measures(p) for p in mono.get(mu, [])]
+        row = [mu, len(m)]
+        for k in keys:
+            v = np.array([x[k] for x in m])
+            row += [v.mean(), v.std(ddof=1 if v.size > 1 else 0)] if v.size else ["", ""]
+        for e in energy.get(mu, [{}] * cycles):
+            row += [e.get("dissipation_Pa", ""), e.get("loop_area_Pa", ""),
+                    e.get("rel_difference", "")]
+        rows.append(row)
+    return header, rows
+
+
+# %% [markdown]
+# ## Figures
+
+# %%
+_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+
+
+def _save(fig, path):
+    FigureCanvasAgg(fig)  # the Agg canvas: no GUI backend, no pyplot state
+    fig.savefig(path, dpi=DPI)
+
+
+def hysteresis_figure(cyc, pressure=PRESSURE):
+    """tau = sigma_12 (top) and e22 (bottom) against gamma, one column per mu, one colour per
+    cycle. ``cyc``: ``{mu: (LoadPath, cycle (k,), energy rows)}``."""
+    mus = list(cyc)
+    fig = Figure(figsize=(4.0 * len(mus), 6.6))
+    for j, mu in enumerate(mus):
+        path, cycle, energy = cyc[mu]
+        top = fig.add_subplot(2, len(mus), j + 1)
+        bot = fig.add_subplot(2, len(mus), len(mus) + j + 1, sharex=top)
+        for c in range(int(cycle.max()) + 1):
+            idx = np.flatnonzero(cycle == c)
+            idx = np.r_[idx[0] - 1, idx] if c > 0 else idx  # join to the previous cycle's end
+            style = dict(color="0.55", ls="--") if c == 0 else dict(color=_COLORS[(c - 1) % 6])
+            label = "first loading" if c == 0 else f"cycle {c}"
+            top.plot(100 * path.gamma[idx], path.sigma[idx, 0, 1] / 1e3, lw=1.1, label=label,
+                     **style)
+            bot.plot(100 * path.gamma[idx], 100 * path.e22[idx], lw=1.1, **style)
+        d = [e["dissipation_Pa"] for e in energy]
+        top.set_title(f"μ = {mu:g}: dissipation per cycle {', '.join(f'{x:.0f}' for x in d)} Pa",
+                      fontsize=9)
+        top.set_ylabel("τ = σ12 [kPa]")
+        bot.set_ylabel("vertical strain e22 = F22 − 1 [%]")
+        bot.set_xlabel("shear strain γ = F12 [%]")
+        for ax in (top, bot):
+            ax.grid(True, alpha=0.3)
+        top.legend(fontsize=7)
+    fig.suptitle(f"Cyclic confined simple shear (σ22 = −{pressure / 1e3:g} kPa, F11 = 1): "
+                 "hysteresis (top) and dilatancy (bottom)", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def qp_gamma_figure(mono, seeds):
+    """q/p_m and tau/p against gamma, one colour per mu; seed 0 thick, other seeds thin."""
+    fig = Figure(figsize=(10.4, 4.3))
+    axes = [fig.add_subplot(1, 2, k + 1) for k in range(2)]
+    for color, (mu, paths) in zip(_COLORS, mono.items()):
+        for s, path in zip(seeds, paths):
+            for ax, ratio in zip(axes, stress_ratios(path.sigma)):
+                ax.plot(100 * path.gamma, ratio, color=color, lw=1.5 if s == seeds[0] else 0.6,
+                        alpha=1.0 if s == seeds[0] else 0.6,
+                        label=f"μ = {mu:g}" if s == seeds[0] else None)
+    axes[0].axhline(1.0, color="0.3", ls=":", lw=1, label="q/p = 1 (a principal stress is 0)")
+    axes[0].set_ylabel("q / p_m = sin φ_mobilised")
+    axes[1].set_ylabel("τ / p = σ12 / (−σ22)")
+    for ax in axes:
+        ax.set_xlabel("shear strain γ [%]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"Monotonic confined simple shear: mobilised stress ratio ({len(seeds)} "
+                 "packings; thick: seed 0)", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def qp_mu_figure(header, rows):
+    """Peak and final q/p_m (with q/p_m at gamma = 0) and tau/p against mu, mean ± std over the
+    seeds, from the summary table."""
+    col = {h: i for i, h in enumerate(header)}
+    rows = [r for r in rows if r[col["seeds"]]]
+    mu = np.array([r[0] for r in rows])
+
+    def get(key):
+        return np.array([r[col[key]] for r in rows], dtype=float)
+
+    fig = Figure(figsize=(10.4, 4.2))
+    for k, (name, label) in enumerate((("qp", "q / p_m"), ("taup", "τ / p"))):
+        ax = fig.add_subplot(1, 2, k + 1)
+        for what, marker, size in (("peak", "o-", 9), ("final", "s--", 4)):
+            ax.errorbar(mu, get(f"{name}_{what}_mean"), yerr=get(f"{name}_{what}_std"),
+                        fmt=marker, ms=size, mfc="none" if what == "peak" else None, capsize=3,
+                        label=f"{what} (γ ≤ {100 * MAX_SHEAR:g} %)")
+        if name == "qp":
+            ax.plot(mu, get("qp_start_mean"), "^:", color="0.4", label="at γ = 0 (confined)")
+            ax.axhline(1.0, color="0.3", ls=":", lw=1)
+        else:
+            ax.plot(mu, mu, ":", color="0.4", label="contact friction μ (reference)")
+        ax.set_xlabel("contact friction coefficient μ")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Macroscopic stress ratio against contact friction (mean ± std over seeds)",
+                 fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def dissipation_figure(energy, quarter_steps):
+    """Bars: dissipation per cycle per mu; crosses: the loop area of the same cycle."""
+    fig = Figure(figsize=(6.4, 4.3))
+    ax = fig.add_subplot()
+    mus = list(energy)
+    cycles = len(energy[mus[0]])
+    width = 0.8 / cycles
+    for c in range(cycles):
+        x = np.arange(len(mus)) + (c - (cycles - 1) / 2) * width
+        d = [energy[mu][c]["dissipation_Pa"] for mu in mus]
+        a = [energy[mu][c]["loop_area_Pa"] for mu in mus]
+        ax.bar(x, d, width * 0.9, color=_COLORS[c % 6], label=f"cycle {c + 1}: Δ dissipation")
+        ax.plot(x, a, "kx", ms=7, label="loop area ∮P:dF − ΔW" if c == 0 else None)
+    ax.set_xticks(np.arange(len(mus)))
+    ax.set_xticklabels([f"μ = {mu:g}" for mu in mus])
+    ax.set_ylabel("energy per cycle [Pa = J/m³]")
+    worst = np.nanmax([abs(e["rel_difference"]) for rows in energy.values() for e in rows
+                       if np.isfinite(e["rel_difference"])] or [0.0])
+    ax.set_title(f"Dissipated energy per cycle ({quarter_steps} steps per quarter cycle; "
+                 f"|area − D| / D ≤ {100 * worst:.2f} %)", fontsize=9)
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+# %% [markdown]
+# ## The study
+
+# %%
+def write_tables(out, cyc, mono, seeds, cycles):
+    """The three CSV files; returns the summary's header and rows."""
+    write_csv(os.path.join(out, "friction_cycles.csv"), ["mu", "cycle"] + STEP_COLUMNS,
+              [[mu, int(cycle[k])] + row for mu, (path, cycle, _) in cyc.items()
+               for k, row in enumerate(step_rows(path))])
+    write_csv(os.path.join(out, "friction_monotonic.csv"), ["mu", "seed"] + STEP_COLUMNS,
+              [[mu, s] + row for mu, paths in mono.items() for s, path in zip(seeds, paths)
+               for row in step_rows(path)])
+    header, rows = summary_table(mono, {mu: e for mu, (_, _, e) in cyc.items()}, cycles)
+    write_csv(os.path.join(out, "friction_summary.csv"), header, rows)
+    return header, rows
+
+
+def print_tables(say, header, rows, cyc, rtol):
+    col = {h: i for i, h in enumerate(header)}
+    say("\n  mu     K0   q/p(γ=0)  peak q/p (at γ)      final q/p     peak τ/p  final τ/p"
+        "  e22 final")
+    for r in rows:
+        if r[col["seeds"]]:
+            v = {h: r[i] for h, i in col.items()}
+            say(f"{v['mu']:4g}  {v['K0_mean']:5.3f}  {v['qp_start_mean']:8.3f}  "
+                f"{v['qp_peak_mean']:6.3f}±{v['qp_peak_std']:.3f} "
+                f"({100 * v['gamma_peak_mean']:4.1f} %)  "
+                f"{v['qp_final_mean']:6.3f}±{v['qp_final_std']:.3f}  "
+                f"{v['taup_peak_mean']:8.3f}  {v['taup_final_mean']:9.3f}  "
+                f"{100 * v['e22_final_mean']:6.2f} %")
+    say(f"\n  mu  cycle  dissipation [Pa]  loop area [Pa]  (area - D)/D   e22 drift"
+        f"   (tolerance {100 * rtol:.2f} %)")
+    for mu, (_, _, energy) in cyc.items():
+        for e in energy:
+            say(f"{mu:4g}  {e['cycle']:5d}  {e['dissipation_Pa']:16.4f}  {e['loop_area_Pa']:14.4f}"
+                f"  {e['rel_difference']:12.2e}  {e['e22_drift']:10.2e}")
+
+
+def run(out="results/friction_study", small=False, use_cache=True, verbose=True):
+    """Run the study, write CSVs and figures to ``out``; returns a summary dict (runtime_s,
+    config, loop_rtol, summary header and rows, per-cycle energy per mu)."""
+    t_start = time.perf_counter()
+    cfg = SMALL if small else FULL
+    say = print if verbose else (lambda *a, **k: None)
+    os.makedirs(out, exist_ok=True)
+    cache = PackingCache(os.path.join(out, "packings"), use_cache)
+    seeds, m, cycles = list(cfg["seeds"]), cfg["quarter_steps"], cfg["cycles"]
+    packings = [cache.get(cfg["particles"], s) for s in seeds]
+    say(f"{cfg['particles']} particles, seeds {seeds} ({time.perf_counter() - t_start:.1f} s)")
+    cyc = {mu: cyclic_test(packings[0], mu, m, cycles) for mu in MU_CYCLIC}
+    say(f"cyclic shear, μ = {MU_CYCLIC} ({time.perf_counter() - t_start:.1f} s)")
+    mono = {mu: [monotonic_test(p, mu, cfg["monotonic_steps"]) for p in packings]
+            for mu in MU_MONOTONIC}
+    say(f"monotonic shear, μ = {MU_MONOTONIC} ({time.perf_counter() - t_start:.1f} s)")
+    header, rows = write_tables(out, cyc, mono, seeds, cycles)
+    energy = {mu: e for mu, (_, _, e) in cyc.items()}
+    _save(hysteresis_figure(cyc), os.path.join(out, "friction_hysteresis.png"))
+    _save(qp_gamma_figure(mono, seeds), os.path.join(out, "friction_qp_gamma.png"))
+    _save(qp_mu_figure(header, rows), os.path.join(out, "friction_qp_mu.png"))
+    _save(dissipation_figure(energy, m), os.path.join(out, "friction_dissipation.png"))
+    print_tables(say, header, rows, cyc, loop_rtol(m))
+    runtime = time.perf_counter() - t_start
+    say(f"\nwrote {out}/ in {runtime:.1f} s")
+    return dict(runtime_s=runtime, config=dict(cfg), loop_rtol=loop_rtol(m), header=header,
+                rows=rows, energy=energy)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", default="results/friction_study", help="output directory")
+    parser.add_argument("--small", action="store_true", help="reduced run (tests)")
+    parser.add_argument("--no-cache", action="store_true", help="regenerate the packings")
+    args = parser.parse_args(argv)
+    run(args.out, small=args.small, use_cache=not args.no_cache)
+    return 0
+
+
+# %% [markdown]
+# Run as a script; in a notebook call `run("results/friction_study")` instead of this cell.
+
+# %%
+if __name__ == "__main__":
+    sys.exit(main())
