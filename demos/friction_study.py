@@ -64,7 +64,7 @@ RAMP_STEPS = 10  # pressure steps of the initial compression at gamma = 0
 AMPLITUDE = 0.02  # shear strain amplitude of the cycles
 MAX_SHEAR = 0.10  # final shear strain of monotonic shear
 MU_CYCLIC = (0.0, 0.3, 0.5)
-MU_MONOTONIC = (0.0, 0.1, 0.3, 0.5, 1.0)
+MU_MONOTONIC = (0.0, 0.1, 0.3, 0.5, 1.0, 2.0, 5.0, 10.0)  # large mu: does q/p saturate?
 RTOL = 1e-10  # the driver's tolerance: |sigma_22 + p| <= RTOL p
 # |loop area - dissipation| / dissipation of a cycle is a first-order discretisation error of the
 # trapezoidal work sum: measured 0.07 / m (mu = 0.3) and 0.2 / m (mu = 0.5) for m = 10 ... 80

@@ -49,7 +49,9 @@ class Increment:
     det_sign: int  # sign of det K at the start of the increment (0: unknown)
     increment_norm: float  # |Du| over all dofs (m)
     control: float | None = None  # value of the control dof at the end (m), if any
-    residual_norm: float = float("nan")
+    residual_norm: float = float("nan")  # |R| at the end (N)
+    history: list = None  # (iteration, |R| at its start (N), relative energy norm) per step
+    converged_by: str = ""  # "energy norm" or "round-off"
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -76,7 +78,8 @@ class ArcLength:
             LU solver are used; converged increments commit the materials' history).
         load: the Constant lam in the residual.
         external: the load pattern f (UFL linear form; the residual is ``... - lam * f``).
-        ds: first arc length (m of |Du|, plus psi-weighted load).
+        ds: first arc length (m of |Du|, plus psi-weighted load); or None with ``dlam``: the
+            arc of a first load increment ``dlam`` (its linearised |Du| at the start).
         psi: load weight of the constraint (0: cylindrical).
         control: ``(dof, sign)``: constrain the increment of this local dof (owned by one rank,
             -1 on the others) instead of |Du|; its increment has the sign of ``sign``.
@@ -95,29 +98,33 @@ class ArcLength:
         failed: None, or the reason the path ended early.
     """
 
-    def __init__(self, solver, load, external, ds, *, psi=0.0, control=None, direction=1.0,
-                 max_it=15, target_iterations=5, ds_max=None, ds_min=None, max_cutbacks=8,
-                 energy_rtol=1e-20, log=None):
+    def __init__(self, solver, load, external, ds=None, *, dlam=None, psi=0.0, control=None,
+                 direction=1.0, max_it=15, target_iterations=5, ds_max=None, ds_min=None,
+                 max_cutbacks=8, energy_rtol=1e-20, log=None):
         self.solver, self.load = solver, load
-        self.ds = float(ds)
         self.psi = float(psi)
         self.control = control
         self.direction = 1.0 if direction >= 0 else -1.0
         self.max_it, self.target_iterations = int(max_it), int(target_iterations)
-        self.ds_max = float(ds_max) if ds_max else 10.0 * self.ds
-        self.ds_min = float(ds_min) if ds_min else 1e-4 * self.ds
         self.max_cutbacks = int(max_cutbacks)
         self.energy_rtol = float(energy_rtol)
         self.log = log or (lambda line: None)
         self.lam = float(load.value)
         self.path: list[Increment] = []
         self.critical: list[CriticalPoint] = []
-        self.failed = None
+        self.failed = self.stopped = None
         self._du_prev = None  # the last converged increment Du (a vector) and Dlam
         self._dlam_prev = 0.0
         self._det_sign = 0
         self.f = self._load_vector(external)
         self._check_form(external)
+        if ds is None:
+            if dlam is None:
+                raise ValueError("give the first arc length ds or the first load increment dlam")
+            ds = self._arc_of(float(dlam))
+        self.ds = float(ds)
+        self.ds_max = float(ds_max) if ds_max else 10.0 * self.ds
+        self.ds_min = float(ds_min) if ds_min else 1e-4 * self.ds
 
     # -- set-up ----------------------------------------------------------------------------------
 
@@ -150,6 +157,37 @@ class ArcLength:
                              f"{scale:.3g}); pass the load pattern that the load Constant scales")
         for v in (x, r0, r1):
             v.destroy()
+
+    def _arc_of(self, dlam):
+        """The arc of a load increment dlam from the current state: |dlam| |K^-1 f| (+ psi)."""
+        x = petsc_vec(self.solver.u).copy()
+        b = x.duplicate()
+        self._factorise(x)
+        self._solve(self.f, b)
+        ds = abs(dlam) * np.sqrt(b.dot(b) + self.psi**2 * self.f.dot(self.f))
+        for v in (x, b):
+            v.destroy()
+        return float(ds)
+
+    # -- restarts ------------------------------------------------------------------------------
+
+    def state(self) -> dict:
+        """What continues the path after a restart (JSON), beside u and the last increment Du."""
+        return {"lam": self.lam, "ds": self.ds, "dlam_prev": self._dlam_prev,
+                "det_sign": self._det_sign, "path": [p.as_dict() for p in self.path],
+                "critical": [c.as_dict() for c in self.critical], "stopped": self.stopped}
+
+    def resume(self, state, du_prev):
+        """Continue from :meth:`state` at the converged state in ``solver.u``; ``du_prev``: its
+        last increment Du (a vector like u's; None at the start of the path)."""
+        self.lam = float(state["lam"])
+        self.load.value = self.lam
+        self.ds, self._dlam_prev = float(state["ds"]), float(state["dlam_prev"])
+        self._det_sign = int(state["det_sign"])
+        self.path = [Increment(**p) for p in state["path"]]
+        self.critical = [CriticalPoint(**c) for c in state["critical"]]
+        self.stopped = state.get("stopped")
+        self._du_prev = du_prev
 
     # -- linear algebra ------------------------------------------------------------------------
 
@@ -235,29 +273,24 @@ class ArcLength:
 
     def _corrector(self, x0, du, dlam):
         """Newton on (u, lam) under the constraint from x0 + du, lam + dlam. Returns the state x,
-        the increment (du, dlam), the iterations and |R|; raises _Failed with the reason."""
+        the increment (du, dlam) and the :class:`_Newton` record; raises _Failed with the
+        reason (no convergence, stagnation, no real root, an RVE outside its range)."""
         solver = self.solver
         x = x0.copy()
         x.axpy(1.0, du)
         R, a, b = (x.duplicate() for _ in range(3))
-        e0 = rnorm_prev = None
-        energy, scale = 1.0, 0.0
+        newton = _Newton(solver, self.energy_rtol)
         try:
             for it in range(self.max_it + 1):
                 self.load.value = self.lam + dlam
                 error = solver.residual(x, R)
                 if error:
                     raise _Failed(error)
-                rnorm = R.norm()
-                if it == 0:  # (dead loads: the force scale of the start is the step's)
-                    scale = solver.force_scale(R)
-                stalled = rnorm_prev is not None and rnorm > 0.5 * rnorm_prev
-                if (rnorm <= solver.residual_rtol * scale or (it > 0 and energy <= self.energy_rtol)
-                        or (stalled and energy <= solver.roundoff_energy)):
-                    return x, du, dlam, it, rnorm
-                if it == self.max_it or not np.isfinite(rnorm):
+                if newton.converged(it, R):
+                    return x, du, dlam, newton
+                if it == self.max_it:
                     raise _Failed(f"no convergence in {self.max_it} corrector iterations "
-                                  f"(|R| = {rnorm:.3e} N)")
+                                  f"(|R| = {newton.rnorm:.3e} N)")
                 self._factorise(x)
                 R.scale(-1.0)
                 self._solve(R, a)
@@ -267,13 +300,10 @@ class ArcLength:
                     raise _Failed("the arc does not meet the linearised equilibrium path (no "
                                   "real root of the constraint)")
                 a.axpy(r, b)  # the correction du = a + r b
-                step_energy = abs(R.dot(a))
-                e0 = step_energy if e0 is None else e0
-                energy = step_energy / e0 if e0 > 0 else 0.0
+                newton.step(abs(R.dot(a)))
                 du.axpy(1.0, a)
                 x.axpy(1.0, a)
                 dlam += r
-                rnorm_prev = rnorm
         finally:
             for v in (R, a, b):
                 v.destroy()
@@ -287,8 +317,8 @@ class ArcLength:
         while True:
             try:
                 du, dlam, sign = self._predictor(x0)
-                x, du, dlam, its, rnorm = self._corrector(x0, du, dlam)
-                return self._accept(x, du, dlam, its, rnorm, sign)
+                x, du, dlam, newton = self._corrector(x0, du, dlam)
+                return self._accept(x, du, dlam, newton, sign)
             except (_Failed, RuntimeError) as err:
                 self._restore(x0)
                 cuts += 1
@@ -310,7 +340,7 @@ class ArcLength:
         for m in self.solver.materials:
             m.update(tangent=False)
 
-    def _accept(self, x, du, dlam, its, rnorm, sign):
+    def _accept(self, x, du, dlam, newton, sign):
         """Commit a converged increment: history, path record, critical points, next ds."""
         for m in self.solver.materials:
             m.commit()
@@ -323,8 +353,10 @@ class ArcLength:
         if self._du_prev is not None:
             self._du_prev.destroy()
         self._du_prev, self._dlam_prev = du, dlam
+        its = len(newton.history)
         inc = Increment(len(self.path) + 1, self.lam, dlam, self.ds, its, sign, du.norm(),
-                        self._control_value(x) if self.control is not None else None, rnorm)
+                        self._control_value(x) if self.control is not None else None,
+                        newton.rnorm, newton.history, newton.stopped_by)
         self.path.append(inc)
         x.destroy()
         grow = np.sqrt(self.target_iterations / max(its, 1))
@@ -360,13 +392,12 @@ class ArcLength:
             inc = self.advance()
             if inc is None:
                 return False
+            self.stopped = stop(self) if stop is not None else None  # (known to on_converged)
             if on_converged is not None and on_converged(inc) is False:
-                self.stopped = "asked to stop"
+                self.stopped = self.stopped or "asked to stop"
                 return True
-            reason = stop(self) if stop is not None else None
-            if reason:
-                self.stopped = reason
-                self.log(f"path: {reason}")
+            if self.stopped:
+                self.log(f"path: {self.stopped}")
                 return True
         self.stopped = f"{max_steps} increments"
         return True
@@ -384,6 +415,49 @@ class ArcLength:
 
 class _Failed(Exception):
     """An increment that did not converge (the reason in words)."""
+
+
+class _Newton:
+    """The corrector's convergence record and tests, as NewtonSolver's: the relative energy
+    norm of each step, the residual at round-off of the forces, and stagnation (Newton cycling
+    between contact sets: |R| not below its best value for ``stagnation_it`` steps)."""
+
+    def __init__(self, solver, energy_rtol, stagnation_it=4):
+        self.solver, self.energy_rtol, self.stagnation_it = solver, energy_rtol, stagnation_it
+        self.history, self.e0, self.energy = [], None, 1.0
+        self.rnorm = self.best = float("inf")
+        self.scale, self.no_progress, self.stopped_by = 0.0, 0, ""
+
+    def converged(self, it, R) -> bool:
+        """Tests at iterate ``it`` with residual R; raises _Failed on stagnation."""
+        rnorm, previous = R.norm(), self.rnorm
+        if not np.isfinite(rnorm):
+            raise _Failed("NaN residual")
+        if it == 0:  # (dead loads: the force scale of the start is the step's)
+            self.scale = self.solver.force_scale(R)
+        self.rnorm = rnorm
+        stalled = it > 0 and rnorm > 0.5 * previous
+        if rnorm <= self.solver.residual_rtol * self.scale or (stalled and self.energy
+                                                                  <= self.solver.roundoff_energy):
+            self.stopped_by = "round-off"
+        elif it > 0 and self.energy <= self.energy_rtol:
+            self.stopped_by = "energy norm"
+        if self.stopped_by:
+            return True
+        if it > 1 and rnorm >= self.best:
+            self.no_progress += 1
+            if self.no_progress >= self.stagnation_it:
+                raise _Failed(f"stagnation: |R| = {rnorm:.3e} N has not gone below its best "
+                              f"value {self.best:.3e} N for {self.no_progress} corrector steps")
+        else:
+            self.best, self.no_progress = min(self.best, rnorm), 0
+        return False
+
+    def step(self, energy):
+        """Record a Newton step of energy |R . du| (from the residual of the current iterate)."""
+        self.e0 = energy if self.e0 is None else self.e0
+        self.energy = energy / self.e0 if self.e0 > 0 else 0.0
+        self.history.append((len(self.history) + 1, self.rnorm, self.energy))
 
 
 def load_reaches(target):

@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from ..packing import Packing, PackingFileError
 from ..runwriter import RestartError
+from .geometry import SlopeGeometry
 from .run import SlopeOptions, is_complete, load_restart, run_slope
 
 
@@ -83,6 +84,13 @@ def build_parser(prog="demos/slope.py"):
                         "2.8e7, where --friction > 0)")
     p.add_argument("--unload", action="store_true",
                    help="after the footing load, remove it again in as many steps")
+    p.add_argument("--path-following", action="store_true",
+                   help="take the footing load by arc length (Riks/Crisfield): through the limit "
+                        "load and down the softening branch to 0.9 x the peak")
+    p.add_argument("--max-increments", type=_int_at_least(1), default=100, metavar="N",
+                   help="most arc-length increments with --path-following (default 100)")
+    p.add_argument("--refine", type=_int_at_least(1), default=1, metavar="K",
+                   help="mesh refinement: K times the columns and rows (K² x 380 cells)")
     p.add_argument("--stop-after", type=_int_at_least(1), metavar="K",
                    help="stop after K converged load steps (resume later with --resume)")
     p.add_argument("--resume", metavar="DIR",
@@ -97,10 +105,16 @@ def options_of(a) -> SlopeOptions:
     if a.tangential_stiffness is not None and a.friction == 0.0:
         raise UserError("--tangential-stiffness needs --friction MU > 0 (frictionless contacts "
                         "carry no tangential force)")
-    return SlopeOptions(steps=a.steps, load_factor=a.load_factor, stabilise=a.stabilise,
-                        petsc_options={"snes_linesearch_type": a.line_search},
-                        friction=a.friction, tangential_stiffness=a.tangential_stiffness,
-                        unload=a.unload)
+    g = SlopeGeometry()
+    geometry = SlopeGeometry(column_width=g.column_width / a.refine, rows=g.rows * a.refine)
+    try:
+        return SlopeOptions(steps=a.steps, load_factor=a.load_factor, stabilise=a.stabilise,
+                            petsc_options={"snes_linesearch_type": a.line_search},
+                            friction=a.friction, tangential_stiffness=a.tangential_stiffness,
+                            unload=a.unload, path_following=a.path_following,
+                            max_increments=a.max_increments, geometry=geometry)
+    except ValueError as err:
+        raise UserError(str(err)) from None
 
 
 def make_packing(particles, seed, packing_file=None) -> Packing:

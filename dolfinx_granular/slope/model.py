@@ -66,8 +66,9 @@ class SlopeModel:
         self.footing = fem.Constant(self.mesh, PETSc.ScalarType(0.0))
         q = g.footing_pressure_on_strip(ufl.SpatialCoordinate(self.mesh)[0])
         ds = ufl.Measure("ds", domain=self.mesh, subdomain_data=self.facets)
+        self.footing_pattern = q * v[1] * ds(FOOTING)  # the footing load per unit factor
         self.f_ext = (self.gravity * (-g.density * g.gravity) * v[1] * ufl.dx
-                      + self.footing * q * v[1] * ds(FOOTING))
+                      + self.footing * self.footing_pattern)
         residual = self.material.residual_form(v) - self.f_ext
         self.bcs = self._supports()
         self.solver = solver_factory(residual, self.material.jacobian_form(du, v), self.u,

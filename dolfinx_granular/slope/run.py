@@ -31,6 +31,7 @@ from ..rve import TaylorRVE
 from ..runwriter import NodeOrder, PointOrder, RunWriter, read_npz
 from .geometry import SlopeGeometry
 from .model import SlopeModel, granular_material, newton_solver
+from .path import follow_footing_path
 from .summary import draw_figure, draw_load_settlement, figure_data, report_stop, summarise
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
@@ -55,6 +56,9 @@ class SlopeOptions:
         friction: Coulomb coefficient mu of the contacts (0: frictionless, the paper's model).
         tangential_stiffness: k_t in N/m² (None: k_n where friction > 0).
         unload: after the footing phase, remove the footing load in as many steps.
+        path_following: take the footing phase by arc length (past a limit load): it stops
+            once the load has fallen to ``unload_fraction`` of its peak, once the full load is
+            carried, or after ``max_increments``; ``steps`` sets the first increment.
     """
 
     steps: int = 20
@@ -67,6 +71,14 @@ class SlopeOptions:
     friction: float = 0.0
     tangential_stiffness: float | None = None
     unload: bool = False
+    path_following: bool = False
+    max_increments: int = 100
+    unload_fraction: float = 0.9
+
+    def __post_init__(self):
+        if self.path_following and self.unload:
+            raise ValueError("path following ends past the limit load, where unloading has no "
+                             "meaning: choose --path-following or --unload")
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -165,6 +177,7 @@ class SlopeRun:
         self.stepper = LoadStepper(self.model.solver, max_cutbacks=o.max_cutbacks,
                                    log=lambda line: self.say("  " + line))
         self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
+        self.arclength, self.restart_state = None, None  # the path of path_following
         self.resumed_from, self.time_output = None, 0.0
         self._V0 = dfx.function_space(self.model.mesh, "DG", 0)
         self._start = (0, 0.0, None)  # phase, t, dt
@@ -176,6 +189,8 @@ class SlopeRun:
     @property
     def n_nominal(self) -> int:
         """Nominal load steps: gravity, the footing steps and as many to unload."""
+        if self.options.path_following:
+            return 1 + self.options.max_increments
         return 1 + self.options.steps * (len(self.options.phases) - 1)
 
     # -- output ----------------------------------------------------------------------------------
@@ -208,7 +223,8 @@ class SlopeRun:
         return {"step": step, "phase": phase_index, "t": t, "dt": self.stepper.dt,
                 "iterations": self.iterations, "step_info": self.step_info, "rows": self.rows,
                 "cutbacks": [c.as_dict() for c in self.stepper.cutbacks],
-                "path": self.stepper.path}
+                "path": self.stepper.path,
+                "arclength": self.arclength.state() if self.arclength is not None else None}
 
     def _write_step(self, phase_index, step, t):
         """Everything of a converged step on disk (XDMF appended, the rest replaced)."""
@@ -257,6 +273,8 @@ class SlopeRun:
             self.model.material.commit()
             self._append_xdmf(k)
         self.u_history = list(restart["u_history"]) if self.comm.rank == 0 else []
+        self.restart_u, self.restart_nodes = restart["u_history"], restart["nodes"]
+        self.restart_state = state.get("arclength")
         if self.points is not None:  # the stored history, not the replay's (any partition)
             material = self.model.material
             stored = dict(restart["history"])
@@ -305,6 +323,11 @@ class SlopeRun:
         start_phase, start_t, start_dt = self._start
         for i in range(start_phase, len(phases)):
             t0 = start_t if i == start_phase else 0.0
+            if i == 1 and self.options.path_following:
+                resumed = self.restart_state if i == start_phase else None
+                if not follow_footing_path(self, i, converged, resumed):
+                    return False
+                continue
             setters[i](t0)  # the loads of the converged state the phase starts from
             if not self.stepper.run(phases[i], setters[i], increments[i], t=t0,
                                     dt=start_dt if i == start_phase else None,
@@ -316,6 +339,9 @@ class SlopeRun:
 def is_complete(restart) -> bool:
     """True if the run of ``restart`` (:func:`load_restart`) had completed every load phase."""
     state = restart["state"]
+    path = state.get("arclength") or {}
+    if path.get("stopped") and path["stopped"] != "asked to stop":
+        return True  # a path that reached its end (past the peak, or the full load)
     return state["phase"] == len(restart["options"].phases) - 1 and state["t"] >= 1.0
 
 

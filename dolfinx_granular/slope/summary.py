@@ -13,6 +13,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..postprocess import gather_mesh, plot_load_settlement, plot_slope
+from .path import path_summary
 
 
 def limit_message(failed, run) -> str | None:
@@ -31,8 +32,15 @@ def limit_message(failed, run) -> str | None:
 
 
 def report_stop(run):
-    """Log how the run ended (failure, limit load, a requested stop)."""
+    """Log how the run ended (failure, limit load, the end of a path, a requested stop)."""
     failed, stepper = run.stepper.failed, run.stepper
+    path = path_summary(run)
+    if path is not None and path["peak"] is not None:
+        peak = path["peak"]
+        run.say(f"slope: path: {len(run.arclength.path)} increments, peak footing load "
+                f"{abs(peak['footing_load']):.4g} N/m ({abs(peak['load_factor']):.4g} x the "
+                f"nominal load) at a settlement of {peak['settlement']:.4f} m"
+                + (f"; stopped: {path['stopped']}" if path["stopped"] else ""))
     if failed is not None:
         run.say(f"slope: load step {failed['step']} ({failed['phase']}, t = {failed['t']:.6g} "
                 f"reached) did not converge: {failed['reason']}; stopping.")
@@ -90,6 +98,8 @@ def summarise(run, extremes, probes, figure_time=0.0, colour_range=None) -> dict
         "figure_colour_range": colour_range,
         "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()}
                    for label, xp, Fp, *_ in probes},
+        # path following (SlopeOptions.path_following): the peak, the critical points, the path
+        "path_following": path_summary(run),
     }
 
 
