@@ -28,12 +28,12 @@ def _stop(load_factor, fraction):
     return stop
 
 
-def follow_footing_path(run, phase_index, converged, restart_state=None):
-    """Drive the footing phase of ``run`` (a SlopeRun) by arc length; True unless the path
-    failed. ``converged(phase_index, step, t, result)`` records and writes an increment."""
+def follow_footing_path(run, phase_index, converged, t0=0.0, restart_state=None):
+    """Drive the footing phase of ``run`` (a SlopeRun) by arc length from t0 (a converged state);
+    True unless the path failed. ``converged(phase_index, step, t, result)`` records and writes
+    an increment."""
     m, o = run.model, run.options
-    if restart_state is None:
-        m.set_footing(0.0)
+    m.set_footing(t0)  # the loads of the converged state: the weight and the footing at t0
     al = ArcLength(m.solver, m.footing, m.footing_pattern, dlam=o.load_factor / o.steps,
                    direction=np.sign(o.load_factor) or 1.0, max_it=15,
                    log=lambda line: run.say("  " + line))

@@ -325,7 +325,7 @@ class SlopeRun:
             t0 = start_t if i == start_phase else 0.0
             if i == 1 and self.options.path_following:
                 resumed = self.restart_state if i == start_phase else None
-                if not follow_footing_path(self, i, converged, resumed):
+                if not follow_footing_path(self, i, converged, t0, resumed):
                     return False
                 continue
             setters[i](t0)  # the loads of the converged state the phase starts from

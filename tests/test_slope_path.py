@@ -1,0 +1,95 @@
+"""The slope past its limit load (--path-following, 70-particle RVE): through the peak and down the
+softening branch, every increment on disk, the same path on two ranks and after a restart, and the
+uplift case stopping with its reason."""
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from scripts import MPI_ENV, ROOT, read_outputs, slope_command
+
+SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure", "--path-following"]
+
+
+def demo(out, *args, ranks=1, status=0):
+    proc = subprocess.run(slope_command(*SMALL, "--out", out, *args, ranks=ranks), cwd=ROOT,
+                          env=MPI_ENV, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == status, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc.stdout, *read_outputs(out)
+
+
+@pytest.fixture(scope="module")
+def doubled(tmp_path_factory):
+    return demo(tmp_path_factory.mktemp("doubled"), "--load-factor", "2")
+
+
+def footing_path(summary):
+    steps = [s for s in summary["step_info"] if s["phase"] == "footing"]
+    return np.array([[s["footing_load"], s["settlement"]] for s in steps])
+
+
+@pytest.mark.slow
+def test_doubled_load_passes_the_peak_and_softens(doubled):
+    stdout, s, rows = doubled
+    path = s["path_following"]
+    assert s["status"] == "converged" and path["failed"] is None
+    peak, loads = path["peak"], -footing_path(s)[:, 0]
+    # the peak lies past the nominal load, below the doubled one, and the path goes on after it
+    assert 1.0 < peak["load_factor"] < 2.0
+    k = int(np.argmax(loads))
+    assert 0 < k < len(loads) - 1 and loads[k] == pytest.approx(-peak["footing_load"], rel=1e-12)
+    assert loads[-1] <= 0.9 * loads[k] < loads[-2]  # down to 0.9 x the peak, no further
+    assert "fell to" in path["stopped"]
+    # det K changed sign at the peak: a limit point inside the increment that holds it
+    # (the sampled peak is an end of the increment that holds the true one)
+    limits = [c for c in path["critical_points"] if c["kind"] == "limit"]
+    assert limits, path["critical_points"]
+    ends = max(abs(limits[0]["lam_before"]), abs(limits[0]["lam_after"]))
+    assert ends == pytest.approx(abs(peak["load_factor"]), rel=1e-12)
+    # every increment on disk, and the path's record matches the step records
+    assert len(path["path"]) == len(loads) == s["completed_steps"] - 1 <= 100
+    assert sorted({int(r["step"]) for r in rows}) == list(range(1, s["completed_steps"] + 1))
+    assert all(r["converged_by"] in ("energy norm", "round-off") for r in rows if r["converged_by"])
+    # the softening branch: RVEs under the footing have lost strong ellipticity along the path
+    assert max(p["non_elliptic_points"] for p in path["path"]) > 0
+    assert "peak footing load" in stdout
+
+
+@pytest.mark.slow
+def test_path_is_the_same_on_two_ranks(tmp_path, doubled):
+    """Every increment converges to round-off (|R| <= 1e-12 of the forces), so the two
+    partitions' states differ by round-off amplified by the conditioning, far below 1e-8; the
+    step sizes follow integer iteration counts, which agree."""
+    _, two, _ = demo(tmp_path, "--load-factor", "2", ranks=2)
+    a, b = footing_path(doubled[1]), footing_path(two)
+    assert a.shape == b.shape
+    assert np.abs(a - b).max(axis=0).tolist() <= (1e-8 * np.abs(a).max(axis=0)).tolist()
+
+
+@pytest.mark.slow
+def test_resume_continues_the_path(tmp_path, doubled):
+    out = tmp_path / "run"
+    demo(out, "--load-factor", "2", "--stop-after", "5")
+    proc = subprocess.run(slope_command("--resume", out, "--no-figure"), cwd=ROOT, env=MPI_ENV,
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary, _ = read_outputs(out)
+    assert summary["resumed_from"] == 5
+    a, b = footing_path(doubled[1]), footing_path(summary)
+    assert a.shape == b.shape and np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
+    assert summary["path_following"]["critical_points"] == doubled[1]["path_following"][
+        "critical_points"]
+
+
+@pytest.mark.slow
+def test_uplift_stops_where_no_equilibrium_path_continues(tmp_path):
+    stdout, s, _ = demo(tmp_path, "--load-factor", "-0.25", status=1)
+    path = s["path_following"]
+    assert s["status"] == "failed" and path["failed"]
+    assert "lost every contact" in s["failed"]["reason"]
+    assert "no equilibrium path continues" in stdout
+    # it got past its small peak uplift load first (a limit point), then the soil let go
+    assert 0 < -path["peak"]["load_factor"] < 0.05  # an uplift: a negative load factor
+    assert path["critical_points"][0]["kind"] == "limit"
+    assert abs(footing_path(s)[-1, 0]) < abs(path["peak"]["footing_load"])
