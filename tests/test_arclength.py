@@ -114,3 +114,64 @@ def test_serial_path_is_reproduced_on_every_rank_count():
     _, s = trace(model, ds=0.05, steps=12)
     assert np.abs(s[:, 0] - load_of_apex(s[:, 1])).max() <= 1e-9 * P_MAX
     model.solver.destroy()
+
+
+def snes_newtonal_final_state(model, target, step_size):
+    """PETSc's own arc length (SNESNEWTONAL, in recent PETSc) on the same residual and Jacobian:
+    lam from 0 to 1 of the load ``target``, through every limit point; returns (w, v)."""
+    from petsc4py import PETSc
+
+    from dolfinx_granular._dolfinx import petsc_vec
+
+    solver = model.solver
+    f = ArcLength(solver, model.load, model.external, 0.02).f  # the assembled load pattern
+    snes = PETSc.SNES().create(solver.comm)
+    snes.setOptionsPrefix("test_newtonal_")
+    opts = PETSc.Options()
+    settings = {"snes_type": "newtonal", "snes_newtonal_step_size": step_size,
+                "snes_newtonal_psisq": 0.0, "snes_newtonal_lambda_min": -2.0,
+                "snes_newtonal_max_continuation_steps": 500, "snes_max_it": 30,
+                "snes_rtol": 1e-12, "ksp_type": "preonly", "pc_type": "lu"}
+    for key, value in settings.items():
+        opts["test_newtonal_" + key] = value
+    b = petsc_vec(model.u).duplicate()
+
+    def residual(snes_, x, out):
+        model.load.value = snes_.getNewtonALLoadParameter() * target
+        solver.residual(x, out)
+
+    def tangent_load(snes_, x, q):  # Q = -dF/dlam
+        q.set(0.0)
+        q.axpy(target, f)
+
+    snes.setFunction(residual, b)
+    snes.setJacobian(lambda snes_, x, A, P: solver.jacobian(x, A), solver.A)
+    snes.setFromOptions()
+    snes.setNewtonALFunction(tangent_load)
+    x = petsc_vec(model.u).copy()
+    snes.solve(None, x)
+    assert snes.getConvergedReason() > 0 and snes.getNewtonALLoadParameter() == 1.0
+    solver.residual(x, b)  # u = x
+    for key in settings:
+        opts.delValue("test_newtonal_" + key)
+    return deflections(model)
+
+
+def test_same_far_branch_as_petsc_snes_newtonal():
+    """Where PETSc has SNESNEWTONAL: 1.5 x the peak load is carried only on the far branch, past
+    both limit points; PETSc's arc length and this package's reach the same state there."""
+    from petsc4py import PETSc
+
+    if not hasattr(PETSc.SNES.Type, "NEWTONAL"):
+        pytest.skip("this PETSc has no SNESNEWTONAL: nothing to compare with")
+
+    target = 1.5 * P_MAX
+    theirs = snes_newtonal_final_state(truss(prefix="al_petsc_"), target, 0.05)
+    model = truss(prefix="al_ours_")
+    al, s = trace(model, ds=0.02, stop=load_reaches(target))
+    assert al.stopped and s[-1, 1] > 2 * H  # on the far branch
+    model.load.value = target  # from the path's last state, Newton at exactly the target load
+    assert model.solver.solve().converged
+    ours = deflections(model)
+    assert np.allclose(ours, theirs, rtol=1e-10, atol=0), (ours, theirs)
+    assert abs(load_of_apex(ours[0]) - target) <= 1e-9 * P_MAX
