@@ -59,12 +59,15 @@ class Increment:
 
 @dataclass
 class CriticalPoint:
-    """A sign change of det K between two converged states."""
+    """A critical point crossed between two converged states: det K changed sign there, or the
+    load turned back with det K keeping its sign (``det_change`` False: a non-smooth limit point,
+    where the contact set changed rather than the tangent of one contact set went singular)."""
 
     kind: str  # "limit" (the load turns back) or "bifurcation"
     step: int  # the increment that ended past it
     lam_before: float
     lam_after: float
+    det_change: bool = True
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -349,6 +352,11 @@ class ArcLength:
         self.load.value = self.lam
         if self._det_sign and sign and sign != self._det_sign and self.path:
             self._critical_point(dlam)
+        elif self.path and np.sign(dlam) != np.sign(self.path[-1].dlam):
+            cp = CriticalPoint("limit", len(self.path) + 1, self.path[-1].lam, self.lam, False)
+            self.critical.append(cp)
+            self.log(f"path: the load turned back in increment {cp.step} (from lam = "
+                     f"{cp.lam_before:.6g}) with det K keeping its sign: a non-smooth limit point")
         self._det_sign = sign or self._det_sign
         if self._du_prev is not None:
             self._du_prev.destroy()
@@ -372,6 +380,8 @@ class ArcLength:
         turned = np.sign(before) != np.sign(last.dlam) or np.sign(last.dlam) != np.sign(dlam)
         lam_before = self.path[-2].lam if len(self.path) > 1 else last.lam - last.dlam
         cp = CriticalPoint("limit" if turned else "bifurcation", last.step, lam_before, last.lam)
+        if self.critical and self.critical[-1].step == cp.step and not self.critical[-1].det_change:
+            self.critical.pop()  # the turn of the load reported there is this one
         self.critical.append(cp)
         self.log(f"path: det K changed sign in increment {cp.step}: a {cp.kind} point between "
                  f"lam = {cp.lam_before:.6g} and {cp.lam_after:.6g}")
@@ -406,6 +416,21 @@ class ArcLength:
     def peak(self):
         """The converged increment with the largest |lam| so far (None before the first)."""
         return max(self.path, key=lambda inc: abs(inc.lam), default=None)
+
+    def peak_estimate(self):
+        """The largest |lam| of the parabola through the sampled maximum and its neighbours
+        (lam against the cumulative arc length): where the true peak lies between samples.
+        None unless the maximum has a converged increment on each side."""
+        k = max(range(len(self.path)), key=lambda i: abs(self.path[i].lam), default=None)
+        if k is None or not 0 < k < len(self.path) - 1:
+            return None
+        s = np.cumsum([inc.ds for inc in self.path])[k - 1:k + 2]
+        lam = np.array([inc.lam for inc in self.path[k - 1:k + 2]])
+        a, b, _ = np.polyfit(s, lam, 2)
+        if a * np.sign(lam[1]) >= 0:  # not a maximum of |lam|
+            return None
+        s_top = float(np.clip(-b / (2 * a), s[0], s[2]))
+        return float(np.polyval([a, b, _], s_top))
 
     def destroy(self):
         for v in (self.f, self._du_prev):

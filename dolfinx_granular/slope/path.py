@@ -37,7 +37,7 @@ def follow_footing_path(run, phase_index, converged, t0=0.0, restart_state=None)
     al = ArcLength(m.solver, m.footing, m.footing_pattern, dlam=o.load_factor / o.steps,
                    direction=np.sign(o.load_factor) or 1.0, max_it=15,
                    log=lambda line: run.say("  " + line))
-    al.ds_max = 4.0 * al.ds  # several times the nominal step, no more: the path bends
+    al.ds_max = al.ds  # the arc of the first (nominal) step at most: the softening branch bends
     if restart_state is not None:
         al.resume(restart_state, _last_increment(run))
     run.arclength = al
@@ -85,8 +85,12 @@ def path_summary(run) -> dict | None:
         return None
     footing = [s for s in run.step_info if s["phase"] == "footing"]
     peak = max(footing, key=lambda s: abs(s["footing_load"]), default=None)
+    estimate = al.peak_estimate()
     return {
         "increments": len(al.path), "stopped": al.stopped, "failed": al.failed,
+        # the parabola through the sampled peak and its neighbours: the peak footing load
+        # between the samples, in units of the nominal load (lam is the footing Constant)
+        "peak_estimate": estimate,
         "peak": None if peak is None else {"footing_load": peak["footing_load"],
                                           "settlement": peak["settlement"], "step": peak["step"],
                                           "load_factor": peak["footing_load"]
