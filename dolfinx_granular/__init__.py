@@ -15,12 +15,13 @@ if _importlib_util.find_spec("dolfinx_solver") is not None:
 from .packing import Packing, PackingFileError
 from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
 from .gsd import SieveCurve, cen_standard_sand
-from .generation import NetworkStats, generate_packing, network_stats
+from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
 from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
 from .levels import AdaptiveRVE, SmallStrainRVE
 
 __all__ = ["Packing", "PackingFileError", "TaylorRVE", "ContactSet", "UnsupportedDeformationError",
            "SieveCurve", "cen_standard_sand", "generate_packing", "network_stats", "NetworkStats",
+           "relax_overlaps",
            "contact_angles", "normal_density", "fabric_tensor", "anisotropy", "density_deviation",
            "SmallStrainRVE", "AdaptiveRVE"]
 __version__ = "0.2.0"

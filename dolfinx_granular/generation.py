@@ -513,7 +513,7 @@ def generate_packing(
     n, curve = _check_arguments(n_particles, gsd, aspect, pressure, max_rattlers, max_attempts,
                                 contact_overlap)
     say = _Reporter(progress)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(_seed(seed))
     diam = curve.sample_diameters(n, rng, d_min=d_min)
     rng.shuffle(diam)
     r0 = 0.5 * diam
@@ -551,6 +551,30 @@ def generate_packing(
     return packing
 
 
+def relax_overlaps(packing: Packing, contact_overlap: float = 1e-11, progress=None) -> Packing:
+    """A stress-free packing next to ``packing``: the generator's last stage applied to it.
+
+    The disks that overlap at F = I form the contact network (disks with fewer than three of its
+    contacts are rattlers and are moved clear); centres and radii move by the least amount
+    (minimum-norm Newton steps) that makes every network contact overlap by ``contact_overlap``
+    of the mean diameter, the cell unchanged. The reference stress P(I) then vanishes to
+    ~1e-11 of the modulus, as for a generated packing.
+
+    Args:
+        packing: a packing whose disks overlap (a prestressed reference state).
+        contact_overlap: overlap of every network contact, relative to the mean diameter.
+        progress: callable receiving :class:`ProgressLine` s, or None.
+    """
+    if not isinstance(packing, Packing):
+        raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
+    if not (0.0 < contact_overlap <= 1e-8):
+        raise ValueError(f"contact_overlap must lie in (0, 1e-8], got {contact_overlap!r}")
+    delta = contact_overlap * 2.0 * float(packing.radii.mean())
+    centers, radii, box = _stress_free(packing.centers.copy(), packing.radii.copy(),
+                                       packing.box.copy(), delta, _Reporter(progress))
+    return Packing(centers, radii, box)
+
+
 def _check_arguments(n_particles, gsd, aspect, pressure, max_rattlers, max_attempts,
                      contact_overlap):
     """Validate the arguments of :func:`generate_packing`; returns ``(n, sieve curve)``."""
@@ -572,6 +596,15 @@ def _check_arguments(n_particles, gsd, aspect, pressure, max_rattlers, max_attem
     if not (0.0 < contact_overlap <= 1e-8):
         raise ValueError(f"contact_overlap must lie in (0, 1e-8], got {contact_overlap}")
     return n, curve
+
+
+def _seed(seed):
+    """``seed`` for numpy's generator: None or an integer >= 0 (a clear error otherwise)."""
+    if seed is None:
+        return None
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0 (or None for a fresh one), got {seed!r}")
+    return int(seed)
 
 
 # -- stage 2: jamming --------------------------------------------------------------------------------

@@ -101,3 +101,19 @@ def test_help_is_plain_text_and_names_the_default_file(capsys):
         out = capsys.readouterr().out
         assert "``" not in out and ":func:" not in out, out
     assert "default packing.npz" in " ".join(out.split())
+
+
+def test_relax_command_makes_a_packing_stress_free(tmp_path, monkeypatch, capsys):
+    import warnings
+
+    from dolfinx_granular import TaylorRVE
+
+    monkeypatch.chdir(tmp_path)
+    p = generate_packing(40, seed=2)
+    Packing(p.centers, 1.02 * p.radii, p.box).save("swollen.npz")
+    assert main(["relax", "swollen.npz", "-o", "relaxed.npz"]) == 0
+    assert "|P(I)| / |C| = " in capsys.readouterr().out
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert TaylorRVE(Packing.load("relaxed.npz"), 2.8e7).prestress_ratio < 1e-9
+    assert main(["relax", "swollen.npz", "-o", "relaxed.npz"]) == 2  # kept unless --force

@@ -289,3 +289,33 @@ def test_generation_benchmark_runs(capsys):
     rows = [line.split() for line in out.splitlines() if line.strip().startswith(("70 ", "140 "))]
     assert [row[0] for row in rows] == ["70", "140"] and len(rows[1]) == 4
     assert "log-log slope over all sizes" in out
+
+
+def test_bad_seed_names_the_parameter():
+    for seed in ("x", -1, 1.5, True):
+        with pytest.raises(ValueError, match="seed must be an integer >= 0"):
+            generate_packing(20, seed=seed)
+
+
+def test_relax_overlaps_makes_a_prestressed_packing_stress_free():
+    """Radii x 1.02 prestress a generated packing (a PrestressWarning); relaxed, it is stress-free
+    as a generated one, its disks moved by a few % of a radius."""
+    import warnings
+
+    from dolfinx_granular import relax_overlaps
+    from dolfinx_granular.rve import PrestressWarning
+
+    p = generate_packing(70, seed=1)
+    swollen = Packing(p.centers, 1.02 * p.radii, p.box)
+    with pytest.warns(PrestressWarning):
+        TaylorRVE(swollen, 2.8e7)
+    relaxed = relax_overlaps(swollen)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PrestressWarning)
+        rve = TaylorRVE(relaxed, 2.8e7)
+    assert rve.prestress_ratio < 1e-9 and np.array_equal(relaxed.box, swollen.box)
+    assert 0 < np.abs(relaxed.radii / swollen.radii - 1).max() < 0.1
+    stats = network_stats(relaxed)
+    assert stats.max_overlap < 1e-9 and stats.coordination > 3
+    with pytest.raises(ValueError, match="contact_overlap"):
+        relax_overlaps(swollen, contact_overlap=0.1)
