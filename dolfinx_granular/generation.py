@@ -26,7 +26,7 @@ Algorithm (:func:`generate_packing`):
    coordination of the non-rattlers below 3.8 is rejected and the same disks are jammed again
    from new random centres (a few percent of 70-disk cells need this).
 
-Cost. Every neighbour search is a cell list (:func:`_find_pairs`), so one FIRE step, one
+Cost. Every neighbour search is a cell list (:func:`dolfinx_granular.kernel.find_pairs`), so one FIRE step, one
 stress-free round and :func:`network_stats` cost O(N); the sparse normal equations of the Newton
 correction are factorised with a symmetric fill-reducing order. What stays super-linear is the
 number of FIRE steps a minimisation needs, which grows roughly like N^0.6 from 700 to 45000 disks
@@ -51,6 +51,7 @@ import scipy.sparse.linalg as spla
 from numba import njit
 
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
+from . import kernel
 from .packing import Packing
 
 # FIRE parameters of Bitzek et al. (2006).
@@ -79,133 +80,17 @@ def _wrap(x, box):
                 x[i, a] -= box[a]
 
 
-@njit(cache=True)
-def _append_pair(m, pi, pj, ps, i, j, sx, sy):
-    """Store pair number m (i, j, shift (sx, sy)), doubling the buffers when full; returns them."""
-    if m == pi.shape[0]:
-        pi2 = np.empty(2 * m, np.int32)
-        pj2 = np.empty(2 * m, np.int32)
-        ps2 = np.empty((2 * m, 2), np.int32)
-        pi2[:m] = pi
-        pj2[:m] = pj
-        ps2[:m] = ps
-        pi, pj, ps = pi2, pj2, ps2
-    pi[m] = i
-    pj[m] = j
-    ps[m, 0] = sx
-    ps[m, 1] = sy
-    return pi, pj, ps
-
-
-@njit(cache=True)
-def _cell_list(x, box, cut):
-    """Sort the centres x (N, 2), inside [0, box), into a grid of cells at least ``cut`` wide
-    (a single cell per side where the box is narrower).
-
-    Returns:
-        ``(ncx, ncy, start, order)``: grid size; the disks of cell c = cx * ncy + cy are
-        ``order[start[c]:start[c + 1]]``, by descending index.
-    """
-    n = x.shape[0]
-    ncx = max(int(box[0] / cut), 1)
-    ncy = max(int(box[1] / cut), 1)
-    cell = np.empty(n, np.int64)
-    start = np.zeros(ncx * ncy + 1, np.int64)
-    for i in range(n):
-        cx = min(max(int(x[i, 0] / box[0] * ncx), 0), ncx - 1)
-        cy = min(max(int(x[i, 1] / box[1] * ncy), 0), ncy - 1)
-        cell[i] = cx * ncy + cy
-        start[cell[i] + 1] += 1
-    for c in range(ncx * ncy):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(n - 1, -1, -1):
-        order[fill[cell[i]]] = i
-        fill[cell[i]] += 1
-    return ncx, ncy, start, order
-
-
-@njit(cache=True)
-def _find_pairs(x, r, box, ratio, skin, with_self):
-    """All pairs (i, j, image shift s) with |x_j + s * box - x_i| < ratio (r_i + r_j) + skin.
-
-    A cell list: O(N) for cells wider than a few diameters, and exact for any cell (narrow cells
-    scan more neighbour cells, so every periodic image within reach is found once).
-
-    Args:
-        x: (N, 2) centres inside [0, box) (mm); r: (N,) radii (mm); box: (2,) cell lengths (mm).
-        ratio, skin: reach factor (>= 0) and added distance (mm, >= 0).
-        with_self: also list a disk and its own images (j == i, one of each +-s).
-
-    Returns:
-        ``(m, pi, pj, ps)``: the count and int32 arrays of capacity >= m: pi, pj (cap,) with
-        j > i (or j == i), ps (cap, 2) integer shifts in cells.
-    """
-    n = r.shape[0]
-    cut = ratio * 2.0 * r.max() + skin
-    ncx, ncy, start, order = _cell_list(x, box, cut)
-    kx = int(np.ceil(cut * ncx / box[0]))  # neighbour cells to scan on each side (1 normally)
-    ky = int(np.ceil(cut * ncy / box[1]))
-    xs = np.empty((n, 2))  # centres and radii in cell order: contiguous loads
-    rs = np.empty(n)
-    for a in range(n):
-        xs[a] = x[order[a]]
-        rs[a] = r[order[a]]
-    cap = 16 * n + 16
-    pi = np.empty(cap, np.int32)
-    pj = np.empty(cap, np.int32)
-    ps = np.empty((cap, 2), np.int32)
-    m = 0
-    for c in range(ncx * ncy):
-        cx, cy = c // ncy, c % ncy
-        for a in range(start[c], start[c + 1]):
-            i = order[a]
-            for ux in range(cx - kx, cx + kx + 1):
-                sx = ux // ncx  # floor: the image of the unwrapped cell column ux
-                for uy in range(cy - ky, cy + ky + 1):
-                    sy = uy // ncy
-                    c2 = (ux - sx * ncx) * ncy + uy - sy * ncy
-                    for b in range(start[c2], start[c2 + 1]):
-                        j = order[b]
-                        if j > i or (with_self and j == i and (sx > 0 or (sx == 0 and sy > 0))):
-                            dx = xs[b, 0] - xs[a, 0] + sx * box[0]
-                            dy = xs[b, 1] - xs[a, 1] + sy * box[1]
-                            rc = ratio * (rs[a] + rs[b]) + skin
-                            if dx * dx + dy * dy < rc * rc:
-                                pi, pj, ps = _append_pair(m, pi, pj, ps, i, j, sx, sy)
-                                m += 1
-    return m, pi, pj, ps
-
-
 def _candidates(centers, radii, box, max_ratio):
-    """Pairs with |L| <= max_ratio (r_i + r_j) and their overlap at F = I, in linear time.
-
-    The same pairs, order and arithmetic as :func:`dolfinx_granular.kernel.candidate_pairs`
-    (L = X_j + shift * box - X_i, sorted by |L| / R, ties in scan order), so the overlaps
-    eps = R - |L| decide "active" exactly as the Taylor RVE does.
-
-    Args:
-        centers: (N, 2) centres inside [0, box) (mm); radii: (N,) (mm); box: (2,) (mm).
-        max_ratio: >= 1.
+    """Pairs with |L| <= max_ratio (r_i + r_j) and their overlap at F = I, in linear time: those
+    of :func:`dolfinx_granular.kernel.candidate_pairs`, so that eps = R - |L| decides "active"
+    exactly as the Taylor RVE does.
 
     Returns:
         ``(ij, shift, eps)``: ij (M, 2) int64 disk indices, shift (M, 2) int64 image offsets in
         cells, eps (M,) overlaps in mm (negative: a gap).
     """
-    m, pi, pj, ps = _find_pairs(centers, radii, box, max_ratio * (1.0 + 1e-9), 0.0, True)
-    i, j = pi[:m].astype(np.int64), pj[:m].astype(np.int64)
-    s = ps[:m].astype(np.int64)
-    lx = centers[j, 0] + s[:, 0] * box[0] - centers[i, 0]
-    ly = centers[j, 1] + s[:, 1] * box[1] - centers[i, 1]
-    d2 = lx * lx + ly * ly
-    rsum = radii[i] + radii[j]
-    keep = d2 <= (max_ratio * rsum) ** 2
-    scan = np.lexsort((s[keep, 1], s[keep, 0], j[keep], i[keep]))
-    idx = np.flatnonzero(keep)[scan]
-    order = idx[np.argsort(np.sqrt(d2[idx]) / rsum[idx], kind="stable")]
-    ij = np.stack([i[order], j[order]], axis=1)
-    return ij, s[order], rsum[order] - np.sqrt(d2[order])
+    L, R, _, ij, shift = kernel.candidate_pairs(centers, radii, box, max_ratio)
+    return ij, shift, R - np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
 
 
 # -- FIRE --------------------------------------------------------------------------------------------
@@ -309,7 +194,7 @@ def _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl):
             v[:, :] = 0.0
         if _euler_step(x, v, f, x_ref, dt) > (0.5 * skin) ** 2:
             _wrap(x, box)
-            m, pi, pj, ps = _find_pairs(x, r, box, 1.0, skin, False)
+            m, pi, pj, ps = kernel.find_pairs(x, r, box, 1.0, skin, False)
             x_ref[:, :] = x
         st[4] = _forces(x, r, box, m, pi, pj, ps, f)
         step += 1
@@ -328,7 +213,7 @@ def _minimise(x, r, box, skin, ftol, dt0, dt_max, max_steps, beat):
     """
     n = r.shape[0]
     _wrap(x, box)
-    nl = _find_pairs(x, r, box, 1.0, skin, False)
+    nl = kernel.find_pairs(x, r, box, 1.0, skin, False)
     v = np.zeros((n, 2))
     f = np.empty((n, 2))
     x_ref = x.copy()
@@ -696,7 +581,7 @@ def _next_phi(phi, jammed, lo, hi, p_target):
 def _pressure(x, r, box):
     """Virial pressure p / k of the centres x (N, 2) (wrapped in place) at radii r (N,)."""
     _wrap(x, box)
-    m, pi, pj, ps = _find_pairs(x, r, box, 1.0, 0.0, False)
+    m, pi, pj, ps = kernel.find_pairs(x, r, box, 1.0, 0.0, False)
     return _forces(x, r, box, m, pi, pj, ps, np.empty_like(x)) / (2.0 * box.prod())
 
 

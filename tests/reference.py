@@ -72,3 +72,28 @@ def central_differences(model, F, h):
             dW[:, c, d] = (Wp - Wm) / (2 * h)
             dP[..., c, d] = (Pp - Pm) / (2 * h)
     return dW, dP
+
+
+def brute_force_candidates(centers, radii, box, max_ratio):
+    """kernel.candidate_pairs the slow way: every pair i <= j and every image within reach,
+    scanned in (i, j, sx, sy) order, kept where |L| <= max_ratio (r_i + r_j), then sorted stably
+    by |L| / (r_i + r_j). Returns ``(L, R, rho, ij, shift)``."""
+    n = len(radii)
+    k = [int(np.ceil(2.0 * radii.max() * max_ratio / b)) for b in box]
+    rows = []
+    for i in range(n):
+        for j in range(i, n):
+            rsum = radii[i] + radii[j]
+            for sx in range(-k[0], k[0] + 1):
+                for sy in range(-k[1], k[1] + 1):
+                    if i == j and (sx < 0 or (sx == 0 and sy <= 0)):
+                        continue
+                    lx = centers[j, 0] + sx * box[0] - centers[i, 0]
+                    ly = centers[j, 1] + sy * box[1] - centers[i, 1]
+                    d2 = lx * lx + ly * ly
+                    if d2 <= (max_ratio * rsum) ** 2:
+                        rows.append((lx, ly, rsum, np.sqrt(d2) / rsum, i, j, sx, sy))
+    a = np.array(rows)
+    order = np.argsort(a[:, 3], kind="stable")
+    a = a[order]
+    return a[:, :2], a[:, 2], a[:, 3], a[:, 4:6].astype(np.int64), a[:, 6:8].astype(np.int64)
