@@ -91,6 +91,8 @@ class ArcLength:
         target_iterations: the iterations an increment should take; ds grows or shrinks by
             sqrt(target / iterations), within a factor 2.
         ds_max, ds_min: bounds of ds; an increment below ds_min that fails ends the path.
+        peak_refinement: near a limit point the arc shrinks with the load's rate, to
+            ``ds_max / peak_refinement`` at most (1: off).
         max_cutbacks: most halvings of one increment in a row.
         log: callable taking one progress line, or None.
 
@@ -103,7 +105,7 @@ class ArcLength:
 
     def __init__(self, solver, load, external, ds=None, *, dlam=None, psi=0.0, control=None,
                  direction=1.0, max_it=15, target_iterations=5, ds_max=None, ds_min=None,
-                 max_cutbacks=8, energy_rtol=1e-20, log=None):
+                 max_cutbacks=8, energy_rtol=1e-20, peak_refinement=1.0, log=None):
         self.solver, self.load = solver, load
         self.psi = float(psi)
         self.control = control
@@ -111,6 +113,7 @@ class ArcLength:
         self.max_it, self.target_iterations = int(max_it), int(target_iterations)
         self.max_cutbacks = int(max_cutbacks)
         self.energy_rtol = float(energy_rtol)
+        self.peak_refinement = float(peak_refinement)
         self.log = log or (lambda line: None)
         self.lam = float(load.value)
         self.path: list[Increment] = []
@@ -176,7 +179,8 @@ class ArcLength:
 
     def state(self) -> dict:
         """What continues the path after a restart (JSON), beside u and the last increment Du."""
-        return {"lam": self.lam, "ds": self.ds, "dlam_prev": self._dlam_prev,
+        return {"lam": self.lam, "ds": self.ds, "ds_max": self.ds_max, "ds_min": self.ds_min,
+                "dlam_prev": self._dlam_prev,
                 "det_sign": self._det_sign, "path": [p.as_dict() for p in self.path],
                 "critical": [c.as_dict() for c in self.critical], "stopped": self.stopped}
 
@@ -186,6 +190,7 @@ class ArcLength:
         self.lam = float(state["lam"])
         self.load.value = self.lam
         self.ds, self._dlam_prev = float(state["ds"]), float(state["dlam_prev"])
+        self.ds_max, self.ds_min = float(state["ds_max"]), float(state["ds_min"])
         self._det_sign = int(state["det_sign"])
         self.path = [Increment(**p) for p in state["path"]]
         self.critical = [CriticalPoint(**c) for c in state["critical"]]
@@ -367,9 +372,22 @@ class ArcLength:
                         newton.rnorm, newton.history, newton.stopped_by)
         self.path.append(inc)
         x.destroy()
-        grow = np.sqrt(self.target_iterations / max(its, 1))
-        self.ds = min(self.ds * float(np.clip(grow, 0.5, 2.0)), self.ds_max)
+        self.ds = self._next_ds(its)
         return inc
+
+    def _next_ds(self, iterations):
+        """The next arc: grown or shrunk by sqrt(target / iterations) (within a factor 2), and
+        on the way to the first limit point, where the load levels off, at most ds_max times the
+        load's rate |dlam / ds| relative to the first increment's (down to ds_max /
+        peak_refinement): finer increments sample the peak."""
+        grow = np.sqrt(self.target_iterations / max(iterations, 1))
+        ds = self.ds * float(np.clip(grow, 0.5, 2.0))
+        rates = [abs(inc.dlam) / inc.ds for inc in self.path]
+        cap = self.ds_max
+        before_peak = not any(c.kind == "limit" for c in self.critical)
+        if self.peak_refinement > 1 and before_peak and len(rates) > 1 and rates[0] > 0:
+            cap *= float(np.clip(rates[-1] / rates[0], 1.0 / self.peak_refinement, 1.0))
+        return min(ds, cap)
 
     def _critical_point(self, dlam):
         """det K changed sign between the last two converged states: a critical point inside

@@ -35,7 +35,7 @@ def follow_footing_path(run, phase_index, converged, t0=0.0, restart_state=None)
     m, o = run.model, run.options
     m.set_footing(t0)  # the loads of the converged state: the weight and the footing at t0
     al = ArcLength(m.solver, m.footing, m.footing_pattern, dlam=o.load_factor / o.steps,
-                   direction=np.sign(o.load_factor) or 1.0, max_it=15,
+                   direction=np.sign(o.load_factor) or 1.0, max_it=15, peak_refinement=16.0,
                    log=lambda line: run.say("  " + line))
     al.ds_max = al.ds  # the arc of the first (nominal) step at most: the softening branch bends
     if restart_state is not None:
