@@ -62,10 +62,19 @@ def measure(seconds=0.01, repeats=30, lanes=LANES):
     """
     if not getattr(numba.core.config, "SLP_VECTORIZE", True):
         env = dict(os.environ, NUMBA_SLP_VECTORIZE="1")
-        code = (f"import json, flops; print(json.dumps(flops.measure({seconds!r}, {repeats!r}, "
-                f"{lanes!r})))")
-        proc = subprocess.run([sys.executable, "-c", code], cwd=os.path.dirname(__file__),
-                              env=env, capture_output=True, text=True, timeout=600, check=True)
+        code = (
+            f"import json, flops; print(json.dumps(flops.measure({seconds!r}, {repeats!r}, "
+            f"{lanes!r})))"
+        )
+        proc = subprocess.run(
+            [sys.executable, "-c", code],
+            cwd=os.path.dirname(__file__),
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            check=True,
+        )
         return json.loads(proc.stdout.strip().splitlines()[-1])
     if lanes not in _LOOPS:
         _LOOPS[lanes] = _make_loop(lanes)
@@ -90,8 +99,14 @@ def measure(seconds=0.01, repeats=30, lanes=LANES):
     assert np.isfinite(out).all()
     g = flops_per_call(steps, lanes) / best / 1e9
     cores = os.cpu_count() or 1
-    return {"gflops_per_core": g, "cores": cores, "gflops_machine": g * cores, "steps": steps,
-            "lanes": lanes, "seconds": best}
+    return {
+        "gflops_per_core": g,
+        "cores": cores,
+        "gflops_machine": g * cores,
+        "steps": steps,
+        "lanes": lanes,
+        "seconds": best,
+    }
 
 
 def main(argv=None):
@@ -100,9 +115,11 @@ def main(argv=None):
     p.add_argument("--repeats", type=int, default=30, help="timed runs (the best counts)")
     a = p.parse_args(argv)
     m = measure(a.seconds, a.repeats)
-    print(f"measured peak: {m['gflops_per_core']:.1f} GFLOP/s per core (FMA = 2 flops, {m['lanes']} "
-          f"independent accumulators, best of {a.repeats} runs of {m['seconds'] * 1e3:.0f} ms); "
-          f"x {m['cores']} cores = {m['gflops_machine']:.1f} GFLOP/s")
+    print(
+        f"measured peak: {m['gflops_per_core']:.1f} GFLOP/s per core (FMA = 2 flops, {m['lanes']} "
+        f"independent accumulators, best of {a.repeats} runs of {m['seconds'] * 1e3:.0f} ms); "
+        f"x {m['cores']} cores = {m['gflops_machine']:.1f} GFLOP/s"
+    )
     return m
 
 

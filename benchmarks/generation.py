@@ -14,10 +14,10 @@ import platform
 import sys
 import time
 
+from dolfinx_granular import generate_packing
+
 import numba
 import numpy as np
-
-from dolfinx_granular import generate_packing
 
 
 def time_sizes(sizes, seed=0, progress=None):
@@ -49,14 +49,16 @@ def main(argv=None):
     def show(line):
         print(f"    {line}", file=sys.stderr, flush=True)
 
-    print(f"generate_packing, seed {args.seed}: Python {platform.python_version()}, numba "
-          f"{numba.__version__}, numpy {np.__version__}")
+    print(
+        f"generate_packing, seed {args.seed}: Python {platform.python_version()}, numba "
+        f"{numba.__version__}, numpy {np.__version__}"
+    )
     print(f"{'n':>8} {'seconds':>10} {'phi':>8} {'slope':>7}")
     seconds = []
     for k, n in enumerate(sizes):
         t, (p,) = time_sizes([n], args.seed, show if args.progress else None)
         seconds.append(t[0])
-        slope = f"{loglog_slope(sizes[k - 1:k + 1], seconds[-2:]):7.2f}" if k else ""
+        slope = f"{loglog_slope(sizes[k - 1 : k + 1], seconds[-2:]):7.2f}" if k else ""
         print(f"{n:8d} {t[0]:10.2f} {p.volume_fraction:8.4f} {slope}", flush=True)
     print(f"log-log slope over all sizes: {loglog_slope(sizes, seconds):.2f}")
     return 0

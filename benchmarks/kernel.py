@@ -15,13 +15,13 @@ All three are checked to agree before timing (:func:`compare`, which the perform
 import argparse
 import platform
 
-import numba
-import numpy as np
-from numba import njit
-
 from dolfinx_granular import TaylorRVE, generate_packing
 from dolfinx_granular.levels import singular_values_2x2
 from dolfinx_granular.timing import time_per_point
+
+import numba
+import numpy as np
+from numba import njit
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 
@@ -95,11 +95,16 @@ def compare(rve, F, repeats=5, numpy_points=50):
     numba_loop(F, L, R, K, P1, A1)
     P2, A2 = numpy_vectorised(F[:m], L, R, K)
     scale_P, scale_A = np.abs(P).max(), np.abs(A).max()
-    agree = max(np.abs(P1 - P).max() / scale_P, np.abs(A1 - A).max() / scale_A,
-                np.abs(P2 - P[:m]).max() / scale_P, np.abs(A2 - A[:m]).max() / scale_A)
+    agree = max(
+        np.abs(P1 - P).max() / scale_P,
+        np.abs(A1 - A).max() / scale_A,
+        np.abs(P2 - P[:m]).max() / scale_P,
+        np.abs(A2 - A[:m]).max() / scale_A,
+    )
     if not agree < 1e-12:
-        raise AssertionError(f"kernel implementations disagree ({rve.packing.n_particles} "
-                             f"particles): {agree:.2e}")
+        raise AssertionError(
+            f"kernel implementations disagree ({rve.packing.n_particles} particles): {agree:.2e}"
+        )
     smin = singular_values_2x2(F)[1]
     return {
         "candidates": rve.n_candidates,
@@ -121,17 +126,23 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     F = deformations(args.points)
-    print(f"# kernel benchmark: {platform.processor() or platform.machine()}, "
-          f"numba {numba.__version__}, numpy {np.__version__}, 1 thread, {args.points} points "
-          f"at ~2 % isotropic compression")
-    header = (f"{'particles':>9} {'candidates':>10} {'contacts':>8} | {'taylor P+A':>10} "
-              f"{'taylor P':>9} {'numba loop':>10} {'numpy':>9} | {'speed-up vs loop':>16}")
+    print(
+        f"# kernel benchmark: {platform.processor() or platform.machine()}, "
+        f"numba {numba.__version__}, numpy {np.__version__}, 1 thread, {args.points} points "
+        f"at ~2 % isotropic compression"
+    )
+    header = (
+        f"{'particles':>9} {'candidates':>10} {'contacts':>8} | {'taylor P+A':>10} "
+        f"{'taylor P':>9} {'numba loop':>10} {'numpy':>9} | {'speed-up vs loop':>16}"
+    )
     print(header + "\n" + "-" * len(header))
     for n in args.sizes:
         r = compare(TaylorRVE(generate_packing(n, seed=0), K_N), F, args.repeats)
-        print(f"{n:>9} {r['candidates']:>10} {r['active']:>8.0f} | {r['us_pa']:>10.2f} "
-              f"{r['us_p']:>9.2f} {r['us_loop']:>10.2f} {r['us_numpy']:>9.1f} | "
-              f"{r['us_loop'] / r['us_pa']:>15.1f}x")
+        print(
+            f"{n:>9} {r['candidates']:>10} {r['active']:>8.0f} | {r['us_pa']:>10.2f} "
+            f"{r['us_p']:>9.2f} {r['us_loop']:>10.2f} {r['us_numpy']:>9.1f} | "
+            f"{r['us_loop'] / r['us_pa']:>15.1f}x"
+        )
     print("(µs per quadrature point; results of all implementations agree to < 1e-12 relative)")
 
 

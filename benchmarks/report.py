@@ -40,53 +40,72 @@ import tempfile
 import time
 
 import dolfinx_granular  # noqa: F401  (first: loads the MPI library of DOLFINx's PyPI wheel)
+from dolfinx_granular._dolfinx import mpi_command
+from dolfinx_granular.cache import PackingCache
+from dolfinx_granular.levels import isotropic_lame
 
 import report_figures
 import report_markdown
 import report_measure
 import report_studies
 import report_tables
-from dolfinx_granular._dolfinx import mpi_command
-from dolfinx_granular.cache import PackingCache
-from dolfinx_granular.levels import isotropic_lame
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 FULL = dict(
-    kernel_sizes=(70, 350, 700, 1400, 2800), kernel_points=2000, kernel_repeats=5,
-    error_sizes=(70, 350, 700, 1400, 2800), seeds=5, steps=20, particles=700,
-    refinements=(1, 2, 4), repeats=3, level_tols=(1e-3, 1e-2),
+    kernel_sizes=(70, 350, 700, 1400, 2800),
+    kernel_points=2000,
+    kernel_repeats=5,
+    error_sizes=(70, 350, 700, 1400, 2800),
+    seeds=5,
+    steps=20,
+    particles=700,
+    refinements=(1, 2, 4),
+    repeats=3,
+    level_tols=(1e-3, 1e-2),
 )
 TINY = dict(
-    kernel_sizes=(70, 140), kernel_points=20, kernel_repeats=1,
-    error_sizes=(70, 140), seeds=1, steps=2, particles=70,
-    refinements=(1, 2), repeats=1, level_tols=(1e-2,),
+    kernel_sizes=(70, 140),
+    kernel_points=20,
+    kernel_repeats=1,
+    error_sizes=(70, 140),
+    seeds=1,
+    steps=2,
+    particles=70,
+    refinements=(1, 2),
+    repeats=1,
+    level_tols=(1e-2,),
 )
 
 
 def run_all(cfg, log=print) -> dict:
     """Every measurement of the report; returns a dict of results (plain data)."""
-    res = {"config": {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items()},
-           "load_start": os.getloadavg()}
+    res = {
+        "config": {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items()},
+        "load_start": os.getloadavg(),
+    }
     with tempfile.TemporaryDirectory(prefix="perf_report_") as tmp:
         packings = PackingCache(tmp)  # fresh: generation times are this machine's
         log("peak ...")
         res["peak"] = report_measure.peak()
         log(f"  {res['peak']['gflops_per_core']:.1f} GFLOP/s per core")
         log("kernel ...")
-        res["kernel"] = report_measure.kernel_rows(cfg["kernel_sizes"], cfg["kernel_points"],
-                                                   cfg["kernel_repeats"], packings, res["peak"])
+        res["kernel"] = report_measure.kernel_rows(
+            cfg["kernel_sizes"], cfg["kernel_points"], cfg["kernel_repeats"], packings, res["peak"]
+        )
         n0 = cfg["particles"]
         pk0 = packings.get(n0, 0)
         runs = report_studies.iteration_runs(cfg, pk0, log)
         res["iteration"] = report_tables.iteration_summary(runs)
-        res["matched_linear"] = report_tables.matched_linear(res["iteration"]["taylor"],
-                                                             res["iteration"]["ufl_linear"])
+        res["matched_linear"] = report_tables.matched_linear(
+            res["iteration"]["taylor"], res["iteration"]["ufl_linear"]
+        )
         lame = isotropic_lame(runs["taylor"][0]["_rve"].small_strain_modulus())
         res["ufl_lame"] = [float(x) for x in lame]  # (lam, mu) in Pa of the UFL yardstick
         final = runs["taylor"][0]  # its final state: F at every point and the law
-        res.update(report_measure.final_state_costs(final["_rve"], final["_F"],
-                                                    cfg["kernel_repeats"]))
+        res.update(
+            report_measure.final_state_costs(final["_rve"], final["_F"], cfg["kernel_repeats"])
+        )
         res["ranks"] = report_studies.rank_runs(cfg, packings.path(n0, 0), log)
         res["refinement"] = report_studies.refinement_runs(cfg, pk0, log)
         res["sizes"] = report_studies.size_runs(cfg, packings, log)
@@ -99,11 +118,15 @@ def run_all(cfg, log=print) -> dict:
 def describe(res, command, elapsed):
     """Add the machine, the versions, the date and the command line to the results."""
     launcher = mpi_command(2)
-    res.update(versions=report_measure.versions(), cpu=report_measure.cpu_model(),
-               lu=report_measure.lu_solver(),
-               mpi_launcher=os.path.basename(launcher[0]) if launcher else "mpirun",
-               date=datetime.datetime.now().strftime("%Y-%m-%d %H:%M"),
-               command=command, elapsed=elapsed)
+    res.update(
+        versions=report_measure.versions(),
+        cpu=report_measure.cpu_model(),
+        lu=report_measure.lu_solver(),
+        mpi_launcher=os.path.basename(launcher[0]) if launcher else "mpirun",
+        date=datetime.datetime.now().strftime("%Y-%m-%d %H:%M"),
+        command=command,
+        elapsed=elapsed,
+    )
 
 
 def render(res, out) -> str:
@@ -112,8 +135,9 @@ def render(res, out) -> str:
     paths = report_figures.make_figures(res, out)
     res["targets"] = report_tables.targets(res)
     path = os.path.join(out, "performance.md")
-    report_markdown.write(path, report_markdown.markdown(res, paths, res["command"],
-                                                         res["elapsed"]))
+    report_markdown.write(
+        path, report_markdown.markdown(res, paths, res["command"], res["elapsed"])
+    )
     return path
 
 
@@ -130,11 +154,18 @@ def parse(argv):
     p.add_argument("--repeats", type=int, help="repeats of the timed slope runs (default 3)")
     p.add_argument("--tiny", action="store_true", help="reduced sizes for the tests")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.add_argument("--json", help="raw results of the run (default: results/performance.json "
-                   "for the report in docs/, else OUT/performance.json, so that `make "
-                   "bench-current` keeps `make bench`'s)")
-    p.add_argument("--render", metavar="JSON", help="only redraw figures and markdown from the "
-                   "performance.json of an earlier run (no measurement)")
+    p.add_argument(
+        "--json",
+        help="raw results of the run (default: results/performance.json "
+        "for the report in docs/, else OUT/performance.json, so that `make "
+        "bench-current` keeps `make bench`'s)",
+    )
+    p.add_argument(
+        "--render",
+        metavar="JSON",
+        help="only redraw figures and markdown from the "
+        "performance.json of an earlier run (no measurement)",
+    )
     a = p.parse_args(argv)
     if a.json is None:
         docs = os.path.realpath(a.out) == os.path.realpath(os.path.join(ROOT, "docs"))
@@ -152,8 +183,9 @@ def main(argv=None) -> int:
         render(res, a.out)
         return 0
     cfg = dict(TINY if a.tiny else FULL, tiny=a.tiny)
-    cfg.update({k: getattr(a, k) for k in ("seeds", "steps", "repeats")
-                if getattr(a, k) is not None})
+    cfg.update(
+        {k: getattr(a, k) for k in ("seeds", "steps", "repeats") if getattr(a, k) is not None}
+    )
     log = (lambda *x: None) if a.quiet else (lambda *x: print(*x, flush=True))
     t0 = time.perf_counter()
     res = run_all(cfg, log)

@@ -12,18 +12,26 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
-from report_tables import (LEVEL_NAMES, level_label, per_iteration, rank_speedups, ranks_ok,
-                           speed_error_table)
+from report_tables import (
+    LEVEL_NAMES,
+    level_label,
+    per_iteration,
+    rank_speedups,
+    ranks_ok,
+    speed_error_table,
+)
 
 DPI = 110
 
 
 def make_figures(res, out) -> dict:
     """Draw every figure into the folder ``out``; returns ``{name: file name}``."""
-    return {"kernel": _save(kernel_figure(res), out, "perf_kernel.png"),
-            "iteration": _save(iteration_figure(res), out, "perf_iteration.png"),
-            "scaling": _save(scaling_figure(res), out, "perf_scaling.png"),
-            "speed_error": _save(speed_error_figure(res), out, "perf_speed_error.png")}
+    return {
+        "kernel": _save(kernel_figure(res), out, "perf_kernel.png"),
+        "iteration": _save(iteration_figure(res), out, "perf_iteration.png"),
+        "scaling": _save(scaling_figure(res), out, "perf_scaling.png"),
+        "speed_error": _save(speed_error_figure(res), out, "perf_speed_error.png"),
+    }
 
 
 def _save(fig, out, name) -> str:
@@ -37,10 +45,12 @@ def kernel_figure(res):
     n = [r["particles"] for r in k]
     fig = Figure(figsize=(11, 4.2))
     ax = fig.subplots(1, 2)
-    for key, label, style in (("us_pa", "Taylor kernel, P and tangent", "o-"),
-                              ("us_p", "Taylor kernel, P only", "s-"),
-                              ("us_loop", "straightforward Numba loop (P and A)", "^--"),
-                              ("us_numpy", "NumPy, vectorised over contacts (P and A)", "v:")):
+    for key, label, style in (
+        ("us_pa", "Taylor kernel, P and tangent", "o-"),
+        ("us_p", "Taylor kernel, P only", "s-"),
+        ("us_loop", "straightforward Numba loop (P and A)", "^--"),
+        ("us_numpy", "NumPy, vectorised over contacts (P and A)", "v:"),
+    ):
         ax[0].loglog(n, [r[key] for r in k], style, label=label)
     ax[0].set_xlabel("particles per RVE")
     ax[0].set_ylabel("µs per quadrature point")
@@ -48,8 +58,7 @@ def kernel_figure(res):
     ax[1].semilogx(n, [100 * r["peak_frac_pa"] for r in k], "o-", label="P and tangent")
     ax[1].semilogx(n, [100 * r["peak_frac_p"] for r in k], "s-", label="P only")
     ax[1].set_xlabel("particles per RVE")
-    ax[1].set_ylabel(f"% of measured peak ({res['peak']['gflops_per_core']:.1f} GFLOP/s per "
-                     "core)")
+    ax[1].set_ylabel(f"% of measured peak ({res['peak']['gflops_per_core']:.1f} GFLOP/s per core)")
     ax[1].set_title("fraction of the FMA peak")
     ax[1].set_ylim(bottom=0)
     for a in ax:
@@ -63,8 +72,13 @@ def iteration_figure(res):
     """Stacked bars: CPU ms per Newton iteration by category, per model level."""
     it = res["iteration"]
     order = [lv for lv in ("taylor", "taylor_skip", "small_strain", "ufl_linear") if lv in it]
-    cats = [("F", "F evaluation"), ("kernel", "RVE kernel"), ("assembly", "assembly"),
-            ("linear_solve", "linear solve (LU)"), ("rest", "rest (Python, PETSc driver)")]
+    cats = [
+        ("F", "F evaluation"),
+        ("kernel", "RVE kernel"),
+        ("assembly", "assembly"),
+        ("linear_solve", "linear solve (LU)"),
+        ("rest", "rest (Python, PETSc driver)"),
+    ]
     colors = ["#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b3"]
     fig = Figure(figsize=(10, 3.6))
     ax = fig.subplots()
@@ -74,15 +88,18 @@ def iteration_figure(res):
             w = max(it[lv]["best"][c], 0.0)
             ax.barh(i, w, left=left, color=col, label=label if i == 0 else None)
             left += w
-        ax.text(left, i, f" {left:.2f} ms ({it[lv]['run']['iterations']} it.)", va="center",
-                fontsize=8)
+        ax.text(
+            left, i, f" {left:.2f} ms ({it[lv]['run']['iterations']} it.)", va="center", fontsize=8
+        )
     ax.set_yticks(range(len(order)))
     ax.set_yticklabels([LEVEL_NAMES[lv] for lv in order], fontsize=8)
     ax.invert_yaxis()
     ax.set_xlabel("CPU ms per Newton iteration (best of repeats)")
     run = it["taylor"]["run"]
-    ax.set_title(f"slope, {res['config']['particles']} particles, {run['cells']} cells, "
-                 f"{run['points']} RVEs, 1 rank")
+    ax.set_title(
+        f"slope, {res['config']['particles']} particles, {run['cells']} cells, "
+        f"{run['points']} RVEs, 1 rank"
+    )
     ax.set_xlim(0, 1.25 * max(sum(max(it[lv]["best"][c], 0) for c, _ in cats) for lv in order))
     ax.legend(fontsize=7, loc="lower right", ncol=2)
     fig.tight_layout()
@@ -96,9 +113,14 @@ def _ranks_panel(ax, res):
         ax.text(0.5, 0.5, "MPI runs failed (see report)", ha="center", transform=ax.transAxes)
         return
     s = rank_speedups(rk)
-    bars = [("RVE kernel\nin run, wall", s["kernel"]), ("RVE kernel\nin run, CPU", s["kernel_cpu"]),
-            ("RVE work\nalone, wall", s["rve_bench"]), ("Newton\nwall", s["newton"]),
-            ("Newton\nCPU", s["newton_cpu"]), ("whole run\nwall", s["wall"])]
+    bars = [
+        ("RVE kernel\nin run, wall", s["kernel"]),
+        ("RVE kernel\nin run, CPU", s["kernel_cpu"]),
+        ("RVE work\nalone, wall", s["rve_bench"]),
+        ("Newton\nwall", s["newton"]),
+        ("Newton\nCPU", s["newton_cpu"]),
+        ("whole run\nwall", s["wall"]),
+    ]
     x = np.arange(len(bars))
     values = [v for _, v in bars]
     ax.bar(x, values, 0.6, color=["#dd8452"] * 3 + ["#4c72b0"] * 3)
@@ -123,8 +145,9 @@ def _refinement_panel(ax, res):
     ax.loglog(q, [per_iteration(r)["linear_solve"] for r in ref], "^-", label="linear solve (LU)")
     ax.loglog(q, t[-1] * q / q[-1], "k:", label="linear through the finest")
     for qi, ti, r in zip(q, t, ref):
-        ax.annotate(f"{r['cells']} cells", (qi, ti), textcoords="offset points", xytext=(4, -12),
-                    fontsize=8)
+        ax.annotate(
+            f"{r['cells']} cells", (qi, ti), textcoords="offset points", xytext=(4, -12), fontsize=8
+        )
     ax.set_xlabel("quadrature points (RVEs)")
     ax.set_ylabel("CPU ms per Newton iteration")
     ax.set_title("mesh refinement, 1 rank")
@@ -142,8 +165,13 @@ def scaling_figure(res):
     return fig
 
 
-_MARKERS = {"small_strain": "s", "ufl_linear": "D", "taylor_skip": "P", "adaptive": "X",
-            "adaptive_strain": "*"}
+_MARKERS = {
+    "small_strain": "s",
+    "ufl_linear": "D",
+    "taylor_skip": "P",
+    "adaptive": "X",
+    "adaptive_strain": "*",
+}
 
 
 def _error_panel(a, rows, q, title):
@@ -152,21 +180,43 @@ def _error_panel(a, rows, q, title):
     x = [r["wall"][0] for r in tay]
     y = [r[q + "_rms"] * 100 for r in tay]
     a.plot(x, y, "o-", color="#4c72b0", label="Taylor RVE: rms error of one run (over seeds)")
-    a.plot(x, [max(r[q + "_err"], 1e-6) * 100 for r in tay], "o--", mfc="none", color="#4c72b0",
-           label="Taylor RVE: error of the seed mean")
+    a.plot(
+        x,
+        [max(r[q + "_err"], 1e-6) * 100 for r in tay],
+        "o--",
+        mfc="none",
+        color="#4c72b0",
+        label="Taylor RVE: error of the seed mean",
+    )
     for r, xi, yi in zip(tay, x, y):
-        a.annotate(f"{r['particles']}", (xi, yi), textcoords="offset points", xytext=(5, 4),
-                   fontsize=8)
-    a.axhline(100 * ref_row[q + "_rms"], color="gray", ls="--", lw=1,
-              label=f"rms scatter of the {ref_row['particles']}-particle runs about their mean")
-    a.axvline(ref_row["wall"][0], color="gray", ls=":", lw=1,
-              label=f"wall time of a {ref_row['particles']}-particle run")
+        a.annotate(
+            f"{r['particles']}", (xi, yi), textcoords="offset points", xytext=(5, 4), fontsize=8
+        )
+    a.axhline(
+        100 * ref_row[q + "_rms"],
+        color="gray",
+        ls="--",
+        lw=1,
+        label=f"rms scatter of the {ref_row['particles']}-particle runs about their mean",
+    )
+    a.axvline(
+        ref_row["wall"][0],
+        color="gray",
+        ls=":",
+        lw=1,
+        label=f"wall time of a {ref_row['particles']}-particle run",
+    )
     for r in rows:
         if r["level"] == "taylor" or r["converged"] == 0:
             continue
-        a.plot(r["wall"][0], r[q + "_rms"] * 100, _MARKERS.get(r["level"], "o"), ms=8, alpha=0.8,
-               label=f"{level_label(r['level'], r['tol'])} ({r['particles']}): rms error of one "
-                     "run")
+        a.plot(
+            r["wall"][0],
+            r[q + "_rms"] * 100,
+            _MARKERS.get(r["level"], "o"),
+            ms=8,
+            alpha=0.8,
+            label=f"{level_label(r['level'], r['tol'])} ({r['particles']}): rms error of one run",
+        )
     a.set_xscale("log")
     a.set_yscale("log")
     for axis in (a.xaxis, a.yaxis):

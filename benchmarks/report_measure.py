@@ -9,12 +9,13 @@ import platform
 import subprocess
 import time
 
+from dolfinx_granular import TaylorRVE
+from dolfinx_granular.timing import time_per_point
+
 import numpy as np
 
 import flops  # benchmarks/flops.py: the machine's FMA peak
 import kernel as kbench  # benchmarks/kernel.py: the one kernel comparison
-from dolfinx_granular import TaylorRVE
-from dolfinx_granular.timing import time_per_point
 
 BENCHMARKS = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(BENCHMARKS)
@@ -44,11 +45,19 @@ def kernel_rows(sizes, points, repeats, packings, peak) -> list[dict]:
         t_pa, t_p = 1e-6 * r["us_pa"], 1e-6 * r["us_p"]
         gf_pa = (r["visited"] * FLOPS_CANDIDATE["PA"] + FLOPS_POINT["PA"]) / t_pa / 1e9
         gf_p = (r["visited"] * FLOPS_CANDIDATE["P"] + FLOPS_POINT["P"]) / t_p / 1e9
-        rows.append(dict(
-            r, particles=n, visited_per_s_pa=r["visited"] / t_pa,
-            active_per_s_pa=r["active"] / t_pa, visited_per_s_p=r["visited"] / t_p,
-            gflops_pa=gf_pa, gflops_p=gf_p, peak_frac_pa=gf_pa / peak["gflops_per_core"],
-            peak_frac_p=gf_p / peak["gflops_per_core"]))
+        rows.append(
+            dict(
+                r,
+                particles=n,
+                visited_per_s_pa=r["visited"] / t_pa,
+                active_per_s_pa=r["active"] / t_pa,
+                visited_per_s_p=r["visited"] / t_p,
+                gflops_pa=gf_pa,
+                gflops_p=gf_p,
+                peak_frac_pa=gf_pa / peak["gflops_per_core"],
+                peak_frac_p=gf_p / peak["gflops_per_core"],
+            )
+        )
     return rows
 
 
@@ -65,8 +74,10 @@ def stress_only_costs(rve, F, repeats) -> dict:
     """Seconds for post-processing at all points F (n, 2, 2): Cauchy stress or P alone against
     P and A or the spatial tangent (best of ``repeats``)."""
     n = len(F)
-    return {name: n * time_per_point(getattr(rve, name), F, repeats)
-            for name in ("cauchy", "stress", "evaluate", "spatial_tangent")}
+    return {
+        name: n * time_per_point(getattr(rve, name), F, repeats)
+        for name in ("cauchy", "stress", "evaluate", "spatial_tangent")
+    }
 
 
 def force_network_costs(rve, F, probes) -> dict:
@@ -80,13 +91,23 @@ def force_network_costs(rve, F, probes) -> dict:
     t_all = time.perf_counter() - t
     # a ContactSet holds per contact: pairs (2 int64), shift (2 int64), branch (2 float64),
     # overlap and force (float64): 64 bytes
-    return {"points_few": len(probes), "time_few": t_few, "contacts_few": few,
-            "bytes_few": 64 * few, "points_all": len(F), "time_all": t_all,
-            "contacts_all": total, "bytes_all": 64 * total}
+    return {
+        "points_few": len(probes),
+        "time_few": t_few,
+        "contacts_few": few,
+        "bytes_few": 64 * few,
+        "points_all": len(F),
+        "time_all": t_all,
+        "contacts_all": total,
+        "bytes_all": 64 * total,
+    }
 
 
 def versions() -> dict:
     """Versions of the package (with the git commit), Python and the numerical stack."""
+    import dolfinx_granular
+
+    import dolfinx
     import mpi4py
     import numba
     import petsc4py
@@ -94,21 +115,29 @@ def versions() -> dict:
     from mpi4py import MPI
     from petsc4py import PETSc
 
-    import dolfinx
-    import dolfinx_granular
-
     try:
-        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                             capture_output=True, text=True, timeout=10).stdout.strip()
+        sha = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         sha = ""
     mpi = MPI.Get_library_version().replace("\x00", "").strip().splitlines()[0]
-    return {"dolfinx_granular": dolfinx_granular.__version__ + (f" (git {sha})" if sha else ""),
-            "python": platform.python_version(), "numpy": np.__version__,
-            "numba": numba.__version__, "dolfinx": dolfinx.__version__, "ufl": ufl.__version__,
-            "petsc4py": petsc4py.__version__,
-            "PETSc": ".".join(map(str, PETSc.Sys.getVersion())), "mpi4py": mpi4py.__version__,
-            "MPI": " ".join(mpi.split(",")[0].split())}
+    return {
+        "dolfinx_granular": dolfinx_granular.__version__ + (f" (git {sha})" if sha else ""),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "numba": numba.__version__,
+        "dolfinx": dolfinx.__version__,
+        "ufl": ufl.__version__,
+        "petsc4py": petsc4py.__version__,
+        "PETSc": ".".join(map(str, PETSc.Sys.getVersion())),
+        "mpi4py": mpi4py.__version__,
+        "MPI": " ".join(mpi.split(",")[0].split()),
+    }
 
 
 def lu_solver() -> str:

@@ -26,24 +26,38 @@ import tempfile
 import time
 
 import dolfinx_granular  # noqa: F401  (first: loads the MPI library of DOLFINx's PyPI wheel)
-import numpy as np
-from mpi4py import MPI
-
 from dolfinx_granular import AdaptiveRVE, Packing, SmallStrainRVE, TaylorRVE
 from dolfinx_granular._dolfinx import mpi_command
 from dolfinx_granular.linear import LinearElasticMaterial
-from dolfinx_granular.slope import (SlopeGeometry, SlopeOptions, SlopeRun, granular_material,
-                                    newton_solver)
+from dolfinx_granular.slope import (
+    SlopeGeometry,
+    SlopeOptions,
+    SlopeRun,
+    granular_material,
+    newton_solver,
+)
 from dolfinx_granular.slope.summary import summarise
 from dolfinx_granular.solver import NewtonSolver
+
+import numpy as np
+from mpi4py import MPI
 
 #: model levels: law and material of each
 LEVELS = ("taylor", "taylor_skip", "small_strain", "adaptive", "adaptive_strain", "ufl_linear")
 #: PETSc events read around the load path (LU factorisation and solves)
 PETSC_EVENTS = ("PCSetUp", "KSPSolve")
 #: categories of :func:`newton_split`, in seconds
-CATEGORIES = ("newton", "F", "kernel", "residual_assembly", "jacobian_assembly", "scale_assembly",
-              "assembly", "linear_solve", "rest")
+CATEGORIES = (
+    "newton",
+    "F",
+    "kernel",
+    "residual_assembly",
+    "jacobian_assembly",
+    "scale_assembly",
+    "assembly",
+    "linear_solve",
+    "rest",
+)
 
 
 def make_law(packing, normal_stiffness, level="taylor", tol=None):
@@ -73,9 +87,15 @@ def make_solver(level, petsc_options=None):
     """The solver factory of a level: the settings of the slope's default solver
     (:func:`dolfinx_granular.slope.model.newton_solver`), with ``skip_final_tangent`` for
     ``taylor_skip`` (stress only for a residual that ends the solve)."""
+
     def factory(*args):
-        return newton_solver(*args, petsc_options=petsc_options, verbose=False,
-                             skip_final_tangent=level == "taylor_skip")
+        return newton_solver(
+            *args,
+            petsc_options=petsc_options,
+            verbose=False,
+            skip_final_tangent=level == "taylor_skip",
+        )
+
     return factory
 
 
@@ -110,10 +130,16 @@ def newton_split(solver, material) -> dict:
     for clock in ("wall", "cpu"):
         s, m = getattr(solver.clock, clock), getattr(material.clock, clock)
         split = NewtonSolver.time_split(s)
-        t = {"newton": s["snes"] + s["after"], "F": m["F"], "kernel": m["rve"],
-             "residual_assembly": s["residual"], "jacobian_assembly": s["jacobian"],
-             "scale_assembly": s["scale"], "assembly": split["assembly"],
-             "linear_solve": split["solve"]}
+        t = {
+            "newton": s["snes"] + s["after"],
+            "F": m["F"],
+            "kernel": m["rve"],
+            "residual_assembly": s["residual"],
+            "jacobian_assembly": s["jacobian"],
+            "scale_assembly": s["scale"],
+            "assembly": split["assembly"],
+            "linear_solve": split["solve"],
+        }
         t["rest"] = t["newton"] - t["F"] - t["kernel"] - t["assembly"] - t["linear_solve"]
         out[clock] = t
     return out
@@ -147,8 +173,9 @@ def _scratch(comm):
     return comm.bcast(tempfile.mkdtemp(prefix="slope_report_") if comm.rank == 0 else None)
 
 
-def slope_run(packing, level="taylor", tol=None, steps=20, refine=1, comm=None, keep=False,
-              rve_bench=0) -> dict:
+def slope_run(
+    packing, level="taylor", tol=None, steps=20, refine=1, comm=None, keep=False, rve_bench=0
+) -> dict:
     """One slope run (gravity, then ``steps`` footing steps) at a model level.
 
     Args:
@@ -168,10 +195,16 @@ def slope_run(packing, level="taylor", tol=None, steps=20, refine=1, comm=None, 
     options = SlopeOptions(steps=steps, geometry=refined_geometry(refine))
     out = _scratch(comm)
     try:
-        run = SlopeRun(packing, options, out, comm, verbose=False,
-                       law_factory=lambda p, k: make_law(p, k, level, tol),
-                       material_factory=make_material(level),
-                       solver_factory=make_solver(level, options.petsc_options))
+        run = SlopeRun(
+            packing,
+            options,
+            out,
+            comm,
+            verbose=False,
+            law_factory=lambda p, k: make_law(p, k, level, tol),
+            material_factory=make_material(level),
+            solver_factory=make_solver(level, options.petsc_options),
+        )
         before = petsc_events()
         run.run()
         after = petsc_events()
@@ -185,16 +218,28 @@ def slope_run(packing, level="taylor", tol=None, steps=20, refine=1, comm=None, 
         comm.barrier()
         if comm.rank == 0:
             shutil.rmtree(out, ignore_errors=True)
-    res["petsc"] = {e: {k: comm.allreduce(after[e][k] - before[e][k], op=MPI.MAX)
-                        for k in ("time", "count")} for e in PETSC_EVENTS}
+    res["petsc"] = {
+        e: {k: comm.allreduce(after[e][k] - before[e][k], op=MPI.MAX) for k in ("time", "count")}
+        for e in PETSC_EVENTS
+    }
     res["calls"]["ksp"] = res["petsc"]["KSPSolve"]["count"]
-    res.update(level=level, tol=tol, particles=packing.n_particles, ranks=comm.size,
-               steps=summary["steps"], refine=refine, cells=options.geometry.n_cells,
-               points=summary["rves"], converged=summary["converged"], failed=summary["failed"],
-               completed_steps=summary["completed_steps"],
-               iterations=int(sum(summary["iterations"])),
-               settlement=summary["footing_settlement"], max_von_mises=summary["max_von_mises"],
-               wall_time=summary["wall_time"])
+    res.update(
+        level=level,
+        tol=tol,
+        particles=packing.n_particles,
+        ranks=comm.size,
+        steps=summary["steps"],
+        refine=refine,
+        cells=options.geometry.n_cells,
+        points=summary["rves"],
+        converged=summary["converged"],
+        failed=summary["failed"],
+        completed_steps=summary["completed_steps"],
+        iterations=int(sum(summary["iterations"])),
+        settlement=summary["footing_settlement"],
+        max_von_mises=summary["max_von_mises"],
+        wall_time=summary["wall_time"],
+    )
     return res
 
 
@@ -204,8 +249,12 @@ def _measured(run, comm) -> dict:
     split = newton_split(solver, material)
     calls = solver.clock.calls
     res = {
-        "calls": {"residual": calls["residual"], "jacobian": calls["jacobian"],
-                  "updates": calls["rve"], "solves": calls["snes"]},
+        "calls": {
+            "residual": calls["residual"],
+            "jacobian": calls["jacobian"],
+            "updates": calls["rve"],
+            "solves": calls["snes"],
+        },
         "times": {k: comm.allreduce(v, op=MPI.MAX) for k, v in split["wall"].items()},
         "cpu": {k: comm.allreduce(v, op=MPI.MAX) for k, v in split["cpu"].items()},
         "kernel_per_rank": comm.allgather(split["wall"]["kernel"]),
@@ -225,13 +274,20 @@ def mpi_slope_run(packing_file, ranks, timeout=1200, **spec) -> dict:
         raise RuntimeError("no MPI launcher (mpiexec/mpirun) found")
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "result.json")
-        cmd = [*launcher, sys.executable, os.path.abspath(__file__),
-               json.dumps({"packing": packing_file, **spec}), out]
+        cmd = [
+            *launcher,
+            sys.executable,
+            os.path.abspath(__file__),
+            json.dumps({"packing": packing_file, **spec}),
+            out,
+        ]
         env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
         if proc.returncode != 0 or not os.path.isfile(out):
-            raise RuntimeError(f"{' '.join(launcher)} ... failed ({proc.returncode}): "
-                               f"{(proc.stdout + proc.stderr)[-2000:]}")
+            raise RuntimeError(
+                f"{' '.join(launcher)} ... failed ({proc.returncode}): "
+                f"{(proc.stdout + proc.stderr)[-2000:]}"
+            )
         with open(out) as f:
             return json.load(f)
 

@@ -10,6 +10,7 @@ import subprocess
 
 from dolfinx_granular import AdaptiveRVE, TaylorRVE
 from dolfinx_granular.slope.run import K_N
+
 from report_slope import mpi_slope_run, slope_run
 
 #: the levels of the Newton-iteration breakdown, in table order
@@ -46,8 +47,15 @@ def rank_runs(cfg, packing_file, log, bench_repeats=10) -> dict:
         for ranks in (1, 2):  # interleaved, so that both see the same load
             log(f"slope on {ranks} rank(s) (MPI), repeat {rep + 1} ...")
             try:
-                tries[ranks].append(mpi_slope_run(packing_file, ranks, level="taylor",
-                                                  steps=cfg["steps"], rve_bench=bench_repeats))
+                tries[ranks].append(
+                    mpi_slope_run(
+                        packing_file,
+                        ranks,
+                        level="taylor",
+                        steps=cfg["steps"],
+                        rve_bench=bench_repeats,
+                    )
+                )
             except (RuntimeError, subprocess.TimeoutExpired) as err:
                 errors[ranks] = str(err)[-500:]
     out = {}

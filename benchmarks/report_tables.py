@@ -16,8 +16,16 @@ LEVEL_NAMES = {
     "adaptive_strain": "AdaptiveRVE (strain only)",
 }
 #: categories of a run's ``times`` / ``cpu`` that :func:`per_iteration` divides
-_TIMED = ("F", "kernel", "assembly", "residual_assembly", "jacobian_assembly", "scale_assembly",
-          "linear_solve", "newton")
+_TIMED = (
+    "F",
+    "kernel",
+    "assembly",
+    "residual_assembly",
+    "jacobian_assembly",
+    "scale_assembly",
+    "linear_solve",
+    "newton",
+)
 
 
 def level_label(level, tol=None) -> str:
@@ -41,8 +49,9 @@ def best_of(runs, clock="cpu") -> dict:
     the total is re-derived so that the parts add up."""
     rows = [per_iteration(r, clock) for r in runs]
     best = {k: min(r[k] for r in rows) for k in rows[0]}
-    best["newton"] = (best["F"] + best["kernel"] + best["assembly"] + best["linear_solve"]
-                      + best["rest"])
+    best["newton"] = (
+        best["F"] + best["kernel"] + best["assembly"] + best["linear_solve"] + best["rest"]
+    )
     best["non_kernel"] = best["newton"] - best["kernel"]
     return best
 
@@ -54,10 +63,13 @@ def iteration_summary(runs) -> dict:
     out = {}
     for level, group in runs.items():
         fastest = min(group, key=lambda r: r["cpu"]["newton"])
-        out[level] = {"run": {k: v for k, v in fastest.items() if not k.startswith("_")},
-                      "best": best_of(group), "best_wall": best_of(group, "wall"),
-                      "spread_newton": [per_iteration(r)["newton"] for r in group],
-                      "spread_wall": [per_iteration(r, "wall")["newton"] for r in group]}
+        out[level] = {
+            "run": {k: v for k, v in fastest.items() if not k.startswith("_")},
+            "best": best_of(group),
+            "best_wall": best_of(group, "wall"),
+            "spread_newton": [per_iteration(r)["newton"] for r in group],
+            "spread_wall": [per_iteration(r, "wall")["newton"] for r in group],
+        }
     return out
 
 
@@ -72,8 +84,17 @@ def matched_linear(taylor, linear) -> float:
     jac_call = b["jacobian_assembly"] * it_l / ll["calls"]["jacobian"]
     lin_call = b["linear_solve"] * it_l / max(ll["calls"]["ksp"], 1)
     other = b["assembly"] - b["residual_assembly"] - b["jacobian_assembly"]
-    return (res_call * lt["calls"]["residual"] + jac_call * lt["calls"]["jacobian"]
-            + lin_call * lt["calls"]["ksp"]) / it_t + other + b["rest"] + b["F"]
+    return (
+        (
+            res_call * lt["calls"]["residual"]
+            + jac_call * lt["calls"]["jacobian"]
+            + lin_call * lt["calls"]["ksp"]
+        )
+        / it_t
+        + other
+        + b["rest"]
+        + b["F"]
+    )
 
 
 def stats(values):
@@ -106,9 +127,15 @@ def speed_error_table(res):
 def _row(key, group, ref, base=None) -> dict:
     level, tol, n = key
     ok = [r for r in group if r["converged"]]
-    row = {"level": level, "tol": tol, "particles": n, "runs": len(group), "converged": len(ok),
-           "wall": stats([r["wall_time"] for r in group]),
-           "iterations": float(np.mean([r["iterations"] for r in group]))}
+    row = {
+        "level": level,
+        "tol": tol,
+        "particles": n,
+        "runs": len(group),
+        "converged": len(ok),
+        "wall": stats([r["wall_time"] for r in group]),
+        "iterations": float(np.mean([r["iterations"] for r in group])),
+    }
     for q in ("settlement", "max_von_mises"):
         nan = float("nan")
         row[q], row[q + "_err"], row[q + "_rms"] = (nan, nan), nan, nan
@@ -119,8 +146,9 @@ def _row(key, group, ref, base=None) -> dict:
             rms = np.sqrt(np.mean([(r[q] - ref[q]) ** 2 for r in ok]))
             row[q + "_rms"] = float(rms) / abs(ref[q])
         if base and ok:
-            diffs = [abs(r[q] - b[q]) / abs(b[q]) for r, b in zip(group, base)
-                     if b and r["converged"]]
+            diffs = [
+                abs(r[q] - b[q]) / abs(b[q]) for r, b in zip(group, base) if b and r["converged"]
+            ]
             row[q + "_model_err"] = float(np.mean(diffs)) if diffs else nan
     counts = [r["level_counts"] for r in group if r.get("level_counts")]
     if counts:
@@ -139,8 +167,12 @@ def refinement_stats(runs) -> dict:
     t = np.array([r["cpu"]["newton"] / max(r["iterations"], 1) for r in runs])
     slope = float(np.polyfit(np.log(q), np.log(t), 1)[0]) if len(q) > 1 else float("nan")
     lu = [per_iteration(r)["linear_solve"] / r["points"] for r in runs]
-    return {"per_point": per_point, "dev": max(abs(p / per_point[-1] - 1) for p in per_point),
-            "slope": slope, "lu_growth": lu[-1] / lu[0]}
+    return {
+        "per_point": per_point,
+        "dev": max(abs(p / per_point[-1] - 1) for p in per_point),
+        "slope": slope,
+        "lu_growth": lu[-1] / lu[0],
+    }
 
 
 def ranks_ok(res) -> bool:
@@ -149,26 +181,34 @@ def ranks_ok(res) -> bool:
 
 def rank_speedups(rk) -> dict:
     """1-rank over 2-rank times of the rank runs ``{1: run, 2: run}``."""
-    return {"kernel": rk[1]["times"]["kernel"] / rk[2]["times"]["kernel"],
-            "kernel_cpu": rk[1]["cpu"]["kernel"] / rk[2]["cpu"]["kernel"],
-            "rve_bench": rk[1]["rve_bench"] / rk[2]["rve_bench"],
-            "newton": rk[1]["times"]["newton"] / rk[2]["times"]["newton"],
-            "newton_cpu": rk[1]["cpu"]["newton"] / rk[2]["cpu"]["newton"],
-            "wall": rk[1]["wall_time"] / rk[2]["wall_time"]}
+    return {
+        "kernel": rk[1]["times"]["kernel"] / rk[2]["times"]["kernel"],
+        "kernel_cpu": rk[1]["cpu"]["kernel"] / rk[2]["cpu"]["kernel"],
+        "rve_bench": rk[1]["rve_bench"] / rk[2]["rve_bench"],
+        "newton": rk[1]["times"]["newton"] / rk[2]["times"]["newton"],
+        "newton_cpu": rk[1]["cpu"]["newton"] / rk[2]["cpu"]["newton"],
+        "wall": rk[1]["wall_time"] / rk[2]["wall_time"],
+    }
 
 
 def targets(res) -> dict:
     """The measured values of the report's targets."""
     it = res["iteration"]
     t, lin = it["taylor"], it["ufl_linear"]
-    out = {"non_kernel_raw": t["best"]["non_kernel"] / lin["best"]["non_kernel"],
-           "non_kernel_matched": t["best"]["non_kernel"] / res["matched_linear"],
-           "non_kernel_wall": t["best_wall"]["non_kernel"] / lin["best_wall"]["non_kernel"]}
+    out = {
+        "non_kernel_raw": t["best"]["non_kernel"] / lin["best"]["non_kernel"],
+        "non_kernel_matched": t["best"]["non_kernel"] / res["matched_linear"],
+        "non_kernel_wall": t["best_wall"]["non_kernel"] / lin["best_wall"]["non_kernel"],
+    }
     if ranks_ok(res):
         s = rank_speedups(res["ranks"])
-        out.update(rank_speedup_kernel=s["kernel"], rank_speedup_kernel_cpu=s["kernel_cpu"],
-                   rank_speedup_newton=s["newton"], rank_speedup_newton_cpu=s["newton_cpu"],
-                   rank_speedup_rve_bench=s["rve_bench"])
+        out.update(
+            rank_speedup_kernel=s["kernel"],
+            rank_speedup_kernel_cpu=s["kernel_cpu"],
+            rank_speedup_newton=s["newton"],
+            rank_speedup_newton_cpu=s["newton_cpu"],
+            rank_speedup_rve_bench=s["rve_bench"],
+        )
     ref = refinement_stats(res["refinement"])
     out.update(linear_growth_dev=ref["dev"], loglog_slope=ref["slope"])
     return out

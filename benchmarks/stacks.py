@@ -9,7 +9,8 @@ Python; it finds the installed stacks of this checkout (``.venv``: Debian's DOLF
    serial run (the solver stops at round-off, so the runs agree to ~1e-12).
 2. **Speed.** Kernel µs per point (``TaylorRVE.evaluate``, P and A, 2000 points at ~2 %
    compression, best of 5) and the 700-particle slope on one rank: set-up with empty compiler
-   caches (FFCx forms and Numba kernels compiled: ``XDG_CACHE_HOME`` and ``NUMBA_CACHE_DIR`` point to
+   caches (FFCx forms and Numba kernels compiled: ``XDG_CACHE_HOME`` and ``NUMBA_CACHE_DIR``
+   point to
    empty folders) and with warm ones, their difference being the JIT time; material updates,
    assembly and the linear solves (SNES time outside the callbacks) from ``summary.json``.
 
@@ -97,8 +98,14 @@ def run_slope(stack, out, *args, ranks=1, env=None, timeout=1800):
         if not stack.mpi:
             raise RuntimeError(f"{stack.name}: no MPI launcher")
         cmd = [stack.mpi[0], "-n", str(ranks), *stack.mpi[3:], *cmd]
-    proc = subprocess.run(cmd, cwd=ROOT, env={**os.environ, **MPI_ENV, **(env or {})},
-                          capture_output=True, text=True, timeout=timeout)
+    proc = subprocess.run(
+        cmd,
+        cwd=ROOT,
+        env={**os.environ, **MPI_ENV, **(env or {})},
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     if proc.returncode != 0:
         tail = "\n".join((proc.stdout + proc.stderr).strip().splitlines()[-5:])
         raise RuntimeError(f"{stack.name}, {ranks} rank(s): slope failed:\n{tail}")
@@ -117,20 +124,29 @@ def same_numbers(stacks, packing_file, workdir, steps=4):
         for ranks in (1, 2):
             out = os.path.join(workdir, f"same_{k}_{ranks}")
             s = run_slope(stack, out, "--packing", packing_file, "--steps", steps, ranks=ranks)
-            rows.append({"stack": stack.name, "ranks": ranks, "iterations": s["iterations"],
-                         "settlement": s["footing_settlement"], "max_von_mises": s["max_von_mises"]})
+            rows.append(
+                {
+                    "stack": stack.name,
+                    "ranks": ranks,
+                    "iterations": s["iterations"],
+                    "settlement": s["footing_settlement"],
+                    "max_von_mises": s["max_von_mises"],
+                }
+            )
     ref = rows[0]
     for r in rows:
         r["d_settlement"] = abs(r["settlement"] - ref["settlement"]) / abs(ref["settlement"])
-        r["d_von_mises"] = abs(r["max_von_mises"] - ref["max_von_mises"]) / abs(ref["max_von_mises"])
+        r["d_von_mises"] = abs(r["max_von_mises"] - ref["max_von_mises"]) / abs(
+            ref["max_von_mises"]
+        )
     return rows
 
 
 def measure_kernel(packing_file, points=2000, repeats=5) -> dict:
     """µs per point of ``TaylorRVE.evaluate`` (P and A) and ``stress`` (P) with this Python."""
-    import numpy as np
-
     from dolfinx_granular import Packing, TaylorRVE
+
+    import numpy as np
 
     rve = TaylorRVE(Packing.load(packing_file), 2.8e7)
     rng = np.random.default_rng(0)
@@ -152,8 +168,13 @@ def measure_kernel(packing_file, points=2000, repeats=5) -> dict:
 
 def speed(stack, packing_file, workdir, steps=20):
     """Kernel timing and the slope (one rank) with cold and warm compiler caches."""
-    proc = subprocess.run([stack.python, __file__, "--measure-kernel", packing_file],
-                          capture_output=True, text=True, cwd=ROOT, check=True)
+    proc = subprocess.run(
+        [stack.python, __file__, "--measure-kernel", packing_file],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        check=True,
+    )
     kernel = json.loads(proc.stdout.strip().splitlines()[-1])
     cold_cache = tempfile.mkdtemp(prefix="stacks_cache_", dir=workdir)
     cold_env = {"XDG_CACHE_HOME": cold_cache, "NUMBA_CACHE_DIR": os.path.join(cold_cache, "numba")}
@@ -162,47 +183,70 @@ def speed(stack, packing_file, workdir, steps=20):
         out = os.path.join(workdir, f"speed_{stack.label.replace(' ', '_')}_{name}")
         runs[name] = run_slope(stack, out, "--packing", packing_file, "--steps", steps, env=env)
     warm, cold = runs["warm"], runs["cold"]
-    return {"stack": stack.name, "versions": stack.versions, "kernel": kernel,
-            "setup_cold": cold["time_setup"], "setup_warm": warm["time_setup"],
-            "jit": cold["time_setup"] - warm["time_setup"],
-            "iterations": sum(warm["iterations"]), "rve": warm["time_rve"],
-            "assembly": warm["time_assembly"], "solve": warm["time_solve"],
-            "wall": warm["wall_time"], "settlement": warm["footing_settlement"]}
+    return {
+        "stack": stack.name,
+        "versions": stack.versions,
+        "kernel": kernel,
+        "setup_cold": cold["time_setup"],
+        "setup_warm": warm["time_setup"],
+        "jit": cold["time_setup"] - warm["time_setup"],
+        "iterations": sum(warm["iterations"]),
+        "rve": warm["time_rve"],
+        "assembly": warm["time_assembly"],
+        "solve": warm["time_solve"],
+        "wall": warm["wall_time"],
+        "settlement": warm["footing_settlement"],
+    }
 
 
 def markdown(same, speeds, particles, command, minutes) -> str:
     """The performance.md section of both measurements."""
     worst = max(max(r["d_settlement"], r["d_von_mises"]) for r in same)
-    lines = [BEGIN, "## 6. DOLFINx releases: the same numbers, and the speed of each", "",
-             f"Generated by `{command}` on {time.strftime('%Y-%m-%d %H:%M')} in {minutes:.1f} min "
-             "(this machine; each stack runs with its own Python and MPI).", "",
-             "**Same numbers.** The slope with a 70-particle RVE from one packing file (seed 3), "
-             "gravity and 4 footing steps, serial and on 2 ranks; differences relative to the "
-             "first row. Largest difference: "
-             f"{worst:.1e} (the target is 1e-9; Newton stops at round-off).", "",
-             "| stack | ranks | Newton iterations per step | settlement (m) | rel. diff. | "
-             "max von Mises (Pa) | rel. diff. |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        BEGIN,
+        "## 6. DOLFINx releases: the same numbers, and the speed of each",
+        "",
+        f"Generated by `{command}` on {time.strftime('%Y-%m-%d %H:%M')} in {minutes:.1f} min "
+        "(this machine; each stack runs with its own Python and MPI).",
+        "",
+        "**Same numbers.** The slope with a 70-particle RVE from one packing file (seed 3), "
+        "gravity and 4 footing steps, serial and on 2 ranks; differences relative to the "
+        "first row. Largest difference: "
+        f"{worst:.1e} (the target is 1e-9; Newton stops at round-off).",
+        "",
+        "| stack | ranks | Newton iterations per step | settlement (m) | rel. diff. | "
+        "max von Mises (Pa) | rel. diff. |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in same:
-        lines.append(f"| {r['stack']} | {r['ranks']} | {' '.join(map(str, r['iterations']))} | "
-                     f"{r['settlement']:.12f} | {r['d_settlement']:.1e} | "
-                     f"{r['max_von_mises']:.6e} | {r['d_von_mises']:.1e} |")
-    lines += ["", f"**Speed.** The {particles}-particle slope (seed 0, 380 cells, 1520 RVEs, "
-              "gravity and 20 footing steps) on one rank, and the kernel on 2000 points. "
-              "Seconds of wall time except the kernel (µs per point, best of 5).", "",
-              "| | " + " | ".join(s["stack"] for s in speeds) + " |",
-              "|---|" + "---|" * len(speeds)]
-    rows = [("versions", lambda s: ", ".join(f"{k} {v}" for k, v in s["versions"].items())),
-            ("kernel P+A (µs/point)", lambda s: f"{s['kernel']['us_PA']:.2f}"),
-            ("kernel P only (µs/point)", lambda s: f"{s['kernel']['us_P']:.2f}"),
-            ("set-up, empty caches (s)", lambda s: f"{s['setup_cold']:.1f}"),
-            ("set-up, warm caches (s)", lambda s: f"{s['setup_warm']:.1f}"),
-            ("JIT: FFCx forms + Numba kernels (s)", lambda s: f"{s['jit']:.1f}"),
-            ("Newton iterations", lambda s: str(s["iterations"])),
-            ("material updates: F + kernel (s)", lambda s: f"{s['rve']:.2f}"),
-            ("assembly (s)", lambda s: f"{s['assembly']:.2f}"),
-            ("linear solves, MUMPS (s)", lambda s: f"{s['solve']:.2f}"),
-            ("wall time, warm (s)", lambda s: f"{s['wall']:.1f}"),
-            ("settlement (m)", lambda s: f"{s['settlement']:.10f}")]
+        lines.append(
+            f"| {r['stack']} | {r['ranks']} | {' '.join(map(str, r['iterations']))} | "
+            f"{r['settlement']:.12f} | {r['d_settlement']:.1e} | "
+            f"{r['max_von_mises']:.6e} | {r['d_von_mises']:.1e} |"
+        )
+    lines += [
+        "",
+        f"**Speed.** The {particles}-particle slope (seed 0, 380 cells, 1520 RVEs, "
+        "gravity and 20 footing steps) on one rank, and the kernel on 2000 points. "
+        "Seconds of wall time except the kernel (µs per point, best of 5).",
+        "",
+        "| | " + " | ".join(s["stack"] for s in speeds) + " |",
+        "|---|" + "---|" * len(speeds),
+    ]
+    rows = [
+        ("versions", lambda s: ", ".join(f"{k} {v}" for k, v in s["versions"].items())),
+        ("kernel P+A (µs/point)", lambda s: f"{s['kernel']['us_PA']:.2f}"),
+        ("kernel P only (µs/point)", lambda s: f"{s['kernel']['us_P']:.2f}"),
+        ("set-up, empty caches (s)", lambda s: f"{s['setup_cold']:.1f}"),
+        ("set-up, warm caches (s)", lambda s: f"{s['setup_warm']:.1f}"),
+        ("JIT: FFCx forms + Numba kernels (s)", lambda s: f"{s['jit']:.1f}"),
+        ("Newton iterations", lambda s: str(s["iterations"])),
+        ("material updates: F + kernel (s)", lambda s: f"{s['rve']:.2f}"),
+        ("assembly (s)", lambda s: f"{s['assembly']:.2f}"),
+        ("linear solves, MUMPS (s)", lambda s: f"{s['solve']:.2f}"),
+        ("wall time, warm (s)", lambda s: f"{s['wall']:.1f}"),
+        ("settlement (m)", lambda s: f"{s['settlement']:.10f}"),
+    ]
     for name, cell in rows:
         lines.append(f"| {name} | " + " | ".join(cell(s) for s in speeds) + " |")
     lines += ["", "![stacks](perf_stacks.png)", "", END]
@@ -218,11 +262,16 @@ def figure(path, same, speeds):
     import numpy as np
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.2))
-    labels = [f"{r['stack'].split(' (')[0]}\n{r['ranks']} rank{'s' if r['ranks'] > 1 else ''}"
-              for r in same]
+    labels = [
+        f"{r['stack'].split(' (')[0]}\n{r['ranks']} rank{'s' if r['ranks'] > 1 else ''}"
+        for r in same
+    ]
     floor = 1e-17  # an exact match is drawn at this floor
     x = np.arange(len(same))
-    for off, key, name in ((-0.2, "d_settlement", "settlement"), (0.2, "d_von_mises", "max von Mises")):
+    for off, key, name in (
+        (-0.2, "d_settlement", "settlement"),
+        (0.2, "d_von_mises", "max von Mises"),
+    ):
         ax1.bar(x + off, [max(r[key], floor) for r in same], width=0.4, label=name)
     ax1.axhline(1e-9, color="k", ls="--", lw=1, label="target 1e-9")
     ax1.set_yscale("log")
@@ -231,13 +280,22 @@ def figure(path, same, speeds):
     ax1.set_ylabel("relative difference to the first run")
     ax1.set_title("70-particle slope: same numbers (bars at 1e-17: identical)", fontsize=10)
     ax1.legend(fontsize=8)
-    parts = (("setup_warm", "set-up (warm)"), ("jit", "JIT"), ("rve", "material"),
-             ("assembly", "assembly"), ("solve", "linear solves"))
+    parts = (
+        ("setup_warm", "set-up (warm)"),
+        ("jit", "JIT"),
+        ("rve", "material"),
+        ("assembly", "assembly"),
+        ("solve", "linear solves"),
+    )
     x2 = np.arange(len(parts))
     width = 0.8 / max(len(speeds), 1)
     for k, s in enumerate(speeds):
-        ax2.bar(x2 + (k - (len(speeds) - 1) / 2) * width, [s[p] for p, _ in parts], width=width,
-                label=f"{s['stack']}: kernel {s['kernel']['us_PA']:.2f} µs/pt")
+        ax2.bar(
+            x2 + (k - (len(speeds) - 1) / 2) * width,
+            [s[p] for p, _ in parts],
+            width=width,
+            label=f"{s['stack']}: kernel {s['kernel']['us_PA']:.2f} µs/pt",
+        )
     ax2.set_xticks(x2, [name for _, name in parts], fontsize=9)
     ax2.set_ylabel("seconds (wall, one rank)")
     ax2.set_title("700-particle slope, 21 load steps", fontsize=10)
@@ -283,16 +341,23 @@ def main(argv=None):
     dolfinx_granular.generate_packing(a.particles, seed=0).save(big)
     same = same_numbers(stacks, small, work)
     for r in same:
-        print(f"  {r['stack']}, {r['ranks']} rank(s): settlement {r['settlement']!r} "
-              f"({r['d_settlement']:.1e}), von Mises {r['max_von_mises']!r} ({r['d_von_mises']:.1e})",
-              flush=True)
+        print(
+            f"  {r['stack']}, {r['ranks']} rank(s): settlement {r['settlement']!r} "
+            f"({r['d_settlement']:.1e}), von Mises {r['max_von_mises']!r} ({r['d_von_mises']:.1e})",
+            flush=True,
+        )
     speeds = [speed(s, big, work, a.steps) for s in stacks]
     os.makedirs(a.out, exist_ok=True)
     with open(os.path.join(a.out, "stacks.json"), "w") as f:
         json.dump({"same_numbers": same, "speed": speeds}, f, indent=1)
     figure(os.path.join(a.out, "perf_stacks.png"), same, speeds)
-    section = markdown(same, speeds, a.particles, "python benchmarks/stacks.py",
-                       (time.perf_counter() - started) / 60)
+    section = markdown(
+        same,
+        speeds,
+        a.particles,
+        "python benchmarks/stacks.py",
+        (time.perf_counter() - started) / 60,
+    )
     write_section(os.path.join(a.out, "performance.md"), section)
     print(section)
     return 0

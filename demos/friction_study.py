@@ -50,12 +50,12 @@ import sys
 import time
 from dataclasses import dataclass
 
+from dolfinx_granular.cache import PackingCache
+from dolfinx_granular.friction import FrictionalRVE, FrictionState
+
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-
-from dolfinx_granular.cache import PackingCache
-from dolfinx_granular.friction import FrictionalRVE, FrictionState
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 K_T = K_N  # tangential stiffness k_t = k_n (a common DEM choice), N/m²
@@ -84,6 +84,7 @@ SMALL = dict(particles=70, seeds=(0,), quarter_steps=20, cycles=2, monotonic_ste
 # σ = P Fᵀ / J with A = dP/dF); a bracket on e22 and bisection catch the rare iterate that
 # leaves it (stick/slip switches make σ22(e22) only piecewise smooth). Every iterate starts from
 # the committed state; the caller commits the returned state only after convergence.
+
 
 # %%
 class ConfinementError(RuntimeError):
@@ -121,8 +122,9 @@ def shear_F(gamma, e22):
     return np.array([[1.0, gamma], [0.0, 1.0 + e22]])
 
 
-def confined_shear_step(rve, gamma, state, pressure, F_guess=None, rtol=RTOL, max_iter=50,
-                        max_increment=0.02):
+def confined_shear_step(
+    rve, gamma, state, pressure, F_guess=None, rtol=RTOL, max_iter=50, max_increment=0.02
+):
     """Solve e22 so that sigma_22 = -pressure at shear gamma, from the committed ``state``.
 
     Control: F11 = 1, F12 = gamma, F21 = 0 fixed (a shear box with rigid side walls: sigma_11
@@ -170,7 +172,8 @@ def confined_shear_step(rve, gamma, state, pressure, F_guess=None, rtol=RTOL, ma
     raise ConfinementError(
         f"confined shear step gamma = {gamma:.6g}, p = {pressure:.6g} Pa: |sigma_22 + p| = "
         f"{abs(residuals[-1]):.3e} Pa > {rtol:.0e} p after {max_iter} iterations (residuals "
-        f"{', '.join(f'{x:.2e}' for x in residuals[-5:])}); state not committed")
+        f"{', '.join(f'{x:.2e}' for x in residuals[-5:])}); state not committed"
+    )
 
 
 # %% [markdown]
@@ -178,6 +181,7 @@ def confined_shear_step(rve, gamma, state, pressure, F_guess=None, rtol=RTOL, ma
 #
 # Every test is compressed to σ22 = −p at γ = 0 in pressure steps, then follows a γ path. The
 # cycles use an integer grid, so that a branch and its reverse visit bitwise the same γ.
+
 
 # %%
 @dataclass
@@ -226,11 +230,16 @@ def shear_path(rve, gammas, start, pressure=PRESSURE):
         steps.append(step)
     active, sliding = np.array(counts).T
     return LoadPath(
-        gamma=np.array([s.F[0, 1] for s in steps]), e22=np.array([s.e22 for s in steps]),
-        F=np.array([s.F for s in steps]), P=np.array([s.P for s in steps]),
-        sigma=np.array([s.sigma for s in steps]), W=np.array([s.W for s in steps]),
+        gamma=np.array([s.F[0, 1] for s in steps]),
+        e22=np.array([s.e22 for s in steps]),
+        F=np.array([s.F for s in steps]),
+        P=np.array([s.P for s in steps]),
+        sigma=np.array([s.sigma for s in steps]),
+        W=np.array([s.W for s in steps]),
         D=np.array([s.state.dissipation[0] for s in steps]),
-        iterations=np.array([s.iterations for s in steps]), active=active, sliding=sliding,
+        iterations=np.array([s.iterations for s in steps]),
+        active=active,
+        sliding=sliding,
     ), state
 
 
@@ -260,6 +269,7 @@ def cyclic_gammas(amplitude, cycles, quarter_steps):
 # stored energy W is the area of the loop, which must equal the increase of the dissipation
 # (`state.dissipation`) up to the discretisation error of the sum.
 
+
 # %%
 def stress_ratios(sigma):
     """``(q/p_m, tau/p)`` (k,) of Cauchy stresses (k, 2, 2): 2-D mean stress p_m, Mohr radius q
@@ -284,11 +294,19 @@ def cycle_energy(path, quarter_steps, cycles):
         a, b = m + 4 * m * (c - 1), m + 4 * m * c
         dissipation, work, stored = path.D[b] - path.D[a], dw[a:b].sum(), path.W[b] - path.W[a]
         area = work - stored
-        rows.append(dict(cycle=c, dissipation_Pa=dissipation, work_Pa=work, stored_change_Pa=stored,
-                         loop_area_Pa=area,
-                         rel_difference=(area - dissipation) / dissipation if dissipation > 0
-                         else float("nan"),
-                         e22_drift=path.e22[b] - path.e22[a]))
+        rows.append(
+            dict(
+                cycle=c,
+                dissipation_Pa=dissipation,
+                work_Pa=work,
+                stored_change_Pa=stored,
+                loop_area_Pa=area,
+                rel_difference=(area - dissipation) / dissipation
+                if dissipation > 0
+                else float("nan"),
+                e22_drift=path.e22[b] - path.e22[a],
+            )
+        )
     return rows
 
 
@@ -301,6 +319,7 @@ def loop_rtol(quarter_steps):
 # ## The two tests
 #
 # Cyclic shear on one packing per μ; monotonic shear on every seed per μ.
+
 
 # %%
 def cyclic_test(packing, mu, quarter_steps, cycles, amplitude=AMPLITUDE, pressure=PRESSURE):
@@ -324,13 +343,22 @@ def monotonic_measures(path):
     and final tau/p, K0 = sigma_11 / sigma_22 at gamma = 0, final e22 and dissipation (Pa)."""
     qp, tp = stress_ratios(path.sigma)
     k = int(np.argmax(qp))
-    return dict(qp_start=qp[0], qp_peak=qp[k], gamma_peak=path.gamma[k], qp_final=qp[-1],
-                taup_peak=tp.max(), taup_final=tp[-1], K0=path.sigma[0, 0, 0] / path.sigma[0, 1, 1],
-                e22_final=path.e22[-1], dissipation_final_Pa=path.D[-1])
+    return dict(
+        qp_start=qp[0],
+        qp_peak=qp[k],
+        gamma_peak=path.gamma[k],
+        qp_final=qp[-1],
+        taup_peak=tp.max(),
+        taup_final=tp[-1],
+        K0=path.sigma[0, 0, 0] / path.sigma[0, 1, 1],
+        e22_final=path.e22[-1],
+        dissipation_final_Pa=path.D[-1],
+    )
 
 
 # %% [markdown]
 # ## Tables
+
 
 # %%
 def write_csv(path, header, rows):
@@ -338,30 +366,71 @@ def write_csv(path, header, rows):
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(header)
-        w.writerows([[repr(float(v)) if isinstance(v, (float, np.floating)) else v for v in row]
-                     for row in rows])
+        w.writerows(
+            [
+                [repr(float(v)) if isinstance(v, (float, np.floating)) else v for v in row]
+                for row in rows
+            ]
+        )
 
 
-STEP_COLUMNS = ["step", "gamma", "e22", "sigma11_Pa", "sigma12_Pa", "sigma22_Pa", "q_over_p",
-                "tau_over_p", "W_Pa", "dissipation_Pa", "dissipation_step_Pa",
-                "newton_iterations", "active_contacts", "sliding_contacts"]
+STEP_COLUMNS = [
+    "step",
+    "gamma",
+    "e22",
+    "sigma11_Pa",
+    "sigma12_Pa",
+    "sigma22_Pa",
+    "q_over_p",
+    "tau_over_p",
+    "W_Pa",
+    "dissipation_Pa",
+    "dissipation_step_Pa",
+    "newton_iterations",
+    "active_contacts",
+    "sliding_contacts",
+]
 
 
 def step_rows(path):
     """One row per step in the order of STEP_COLUMNS."""
     qp, tp = stress_ratios(path.sigma)
     dD = np.diff(path.D, prepend=path.D[0])
-    return [[k, path.gamma[k], path.e22[k], path.sigma[k, 0, 0], path.sigma[k, 0, 1],
-             path.sigma[k, 1, 1], qp[k], tp[k], path.W[k], path.D[k], dD[k],
-             int(path.iterations[k]), int(path.active[k]), int(path.sliding[k])]
-            for k in range(path.gamma.size)]
+    return [
+        [
+            k,
+            path.gamma[k],
+            path.e22[k],
+            path.sigma[k, 0, 0],
+            path.sigma[k, 0, 1],
+            path.sigma[k, 1, 1],
+            qp[k],
+            tp[k],
+            path.W[k],
+            path.D[k],
+            dD[k],
+            int(path.iterations[k]),
+            int(path.active[k]),
+            int(path.sliding[k]),
+        ]
+        for k in range(path.gamma.size)
+    ]
 
 
 def summary_table(mono, energy, cycles):
     """Header and rows of friction_summary.csv: one row per mu (monotonic measures as mean and
     standard deviation over the seeds; cycle columns empty for mu without cycles)."""
-    keys = ["qp_start", "qp_peak", "gamma_peak", "qp_final", "taup_peak", "taup_final", "K0",
-            "e22_final", "dissipation_final_Pa"]
+    keys = [
+        "qp_start",
+        "qp_peak",
+        "gamma_peak",
+        "qp_final",
+        "taup_peak",
+        "taup_final",
+        "K0",
+        "e22_final",
+        "dissipation_final_Pa",
+    ]
     header = ["mu", "seeds"] + [f"{k}_{s}" for k in keys for s in ("mean", "std")]
     for c in range(1, cycles + 1):
         header += [f"dissipation_cycle{c}_Pa", f"loop_area_cycle{c}_Pa", f"rel_diff_cycle{c}"]
@@ -373,8 +442,11 @@ def summary_table(mono, energy, cycles):
             v = np.array([x[k] for x in m])
             row += [v.mean(), v.std(ddof=1 if v.size > 1 else 0)] if v.size else ["", ""]
         for e in energy.get(mu, [{}] * cycles):
-            row += [e.get("dissipation_Pa", ""), e.get("loop_area_Pa", ""),
-                    e.get("rel_difference", "")]
+            row += [
+                e.get("dissipation_Pa", ""),
+                e.get("loop_area_Pa", ""),
+                e.get("rel_difference", ""),
+            ]
         rows.append(row)
     return header, rows
 
@@ -405,20 +477,25 @@ def hysteresis_figure(cyc, pressure=PRESSURE):
             idx = np.r_[idx[0] - 1, idx] if c > 0 else idx  # join to the previous cycle's end
             style = dict(color="0.55", ls="--") if c == 0 else dict(color=_COLORS[(c - 1) % 6])
             label = "first loading" if c == 0 else f"cycle {c}"
-            top.plot(100 * path.gamma[idx], path.sigma[idx, 0, 1] / 1e3, lw=1.1, label=label,
-                     **style)
+            top.plot(
+                100 * path.gamma[idx], path.sigma[idx, 0, 1] / 1e3, lw=1.1, label=label, **style
+            )
             bot.plot(100 * path.gamma[idx], 100 * path.e22[idx], lw=1.1, **style)
         d = [e["dissipation_Pa"] for e in energy]
-        top.set_title(f"μ = {mu:g}: dissipation per cycle {', '.join(f'{x:.0f}' for x in d)} Pa",
-                      fontsize=9)
+        top.set_title(
+            f"μ = {mu:g}: dissipation per cycle {', '.join(f'{x:.0f}' for x in d)} Pa", fontsize=9
+        )
         top.set_ylabel("τ = σ12 [kPa]")
         bot.set_ylabel("vertical strain e22 = F22 − 1 [%]")
         bot.set_xlabel("shear strain γ = F12 [%]")
         for ax in (top, bot):
             ax.grid(True, alpha=0.3)
         top.legend(fontsize=7)
-    fig.suptitle(f"Cyclic confined simple shear (σ22 = −{pressure / 1e3:g} kPa, F11 = 1): "
-                 "hysteresis (top) and dilatancy (bottom)", fontsize=10)
+    fig.suptitle(
+        f"Cyclic confined simple shear (σ22 = −{pressure / 1e3:g} kPa, F11 = 1): "
+        "hysteresis (top) and dilatancy (bottom)",
+        fontsize=10,
+    )
     fig.tight_layout()
     return fig
 
@@ -430,9 +507,14 @@ def qp_gamma_figure(mono, seeds):
     for color, (mu, paths) in zip(_COLORS, mono.items()):
         for s, path in zip(seeds, paths):
             for ax, ratio in zip(axes, stress_ratios(path.sigma)):
-                ax.plot(100 * path.gamma, ratio, color=color, lw=1.5 if s == seeds[0] else 0.6,
-                        alpha=1.0 if s == seeds[0] else 0.6,
-                        label=f"μ = {mu:g}" if s == seeds[0] else None)
+                ax.plot(
+                    100 * path.gamma,
+                    ratio,
+                    color=color,
+                    lw=1.5 if s == seeds[0] else 0.6,
+                    alpha=1.0 if s == seeds[0] else 0.6,
+                    label=f"μ = {mu:g}" if s == seeds[0] else None,
+                )
     axes[0].axhline(1.0, color="0.3", ls=":", lw=1, label="q/p = 1 (a principal stress is 0)")
     axes[0].set_ylabel("q / p_m = sin φ_mobilised")
     axes[1].set_ylabel("τ / p = σ12 / (−σ22)")
@@ -440,8 +522,11 @@ def qp_gamma_figure(mono, seeds):
         ax.set_xlabel("shear strain γ [%]")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle(f"Monotonic confined simple shear: mobilised stress ratio ({len(seeds)} "
-                 "packings; thick: seed 0)", fontsize=10)
+    fig.suptitle(
+        f"Monotonic confined simple shear: mobilised stress ratio ({len(seeds)} "
+        "packings; thick: seed 0)",
+        fontsize=10,
+    )
     fig.tight_layout()
     return fig
 
@@ -460,9 +545,16 @@ def qp_mu_figure(header, rows):
     for k, (name, label) in enumerate((("qp", "q / p_m"), ("taup", "τ / p"))):
         ax = fig.add_subplot(1, 2, k + 1)
         for what, marker, size in (("peak", "o-", 9), ("final", "s--", 4)):
-            ax.errorbar(mu, get(f"{name}_{what}_mean"), yerr=get(f"{name}_{what}_std"),
-                        fmt=marker, ms=size, mfc="none" if what == "peak" else None, capsize=3,
-                        label=f"{what} (γ ≤ {100 * MAX_SHEAR:g} %)")
+            ax.errorbar(
+                mu,
+                get(f"{name}_{what}_mean"),
+                yerr=get(f"{name}_{what}_std"),
+                fmt=marker,
+                ms=size,
+                mfc="none" if what == "peak" else None,
+                capsize=3,
+                label=f"{what} (γ ≤ {100 * MAX_SHEAR:g} %)",
+            )
         if name == "qp":
             ax.plot(mu, get("qp_start_mean"), "^:", color="0.4", label="at γ = 0 (confined)")
             ax.axhline(1.0, color="0.3", ls=":", lw=1)
@@ -472,8 +564,9 @@ def qp_mu_figure(header, rows):
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Macroscopic stress ratio against contact friction (mean ± std over seeds)",
-                 fontsize=10)
+    fig.suptitle(
+        "Macroscopic stress ratio against contact friction (mean ± std over seeds)", fontsize=10
+    )
     fig.tight_layout()
     return fig
 
@@ -494,10 +587,20 @@ def dissipation_figure(energy, quarter_steps):
     ax.set_xticks(np.arange(len(mus)))
     ax.set_xticklabels([f"μ = {mu:g}" for mu in mus])
     ax.set_ylabel("energy per cycle [Pa = J/m³]")
-    worst = np.nanmax([abs(e["rel_difference"]) for rows in energy.values() for e in rows
-                       if np.isfinite(e["rel_difference"])] or [0.0])
-    ax.set_title(f"Dissipated energy per cycle ({quarter_steps} steps per quarter cycle; "
-                 f"|area − D| / D ≤ {100 * worst:.2f} %)", fontsize=9)
+    worst = np.nanmax(
+        [
+            abs(e["rel_difference"])
+            for rows in energy.values()
+            for e in rows
+            if np.isfinite(e["rel_difference"])
+        ]
+        or [0.0]
+    )
+    ax.set_title(
+        f"Dissipated energy per cycle ({quarter_steps} steps per quarter cycle; "
+        f"|area − D| / D ≤ {100 * worst:.2f} %)",
+        fontsize=9,
+    )
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -507,15 +610,29 @@ def dissipation_figure(energy, quarter_steps):
 # %% [markdown]
 # ## The study
 
+
 # %%
 def write_tables(out, cyc, mono, seeds, cycles):
     """The three CSV files; returns the summary's header and rows."""
-    write_csv(os.path.join(out, "friction_cycles.csv"), ["mu", "cycle"] + STEP_COLUMNS,
-              [[mu, int(cycle[k])] + row for mu, (path, cycle, _) in cyc.items()
-               for k, row in enumerate(step_rows(path))])
-    write_csv(os.path.join(out, "friction_monotonic.csv"), ["mu", "seed"] + STEP_COLUMNS,
-              [[mu, s] + row for mu, paths in mono.items() for s, path in zip(seeds, paths)
-               for row in step_rows(path)])
+    write_csv(
+        os.path.join(out, "friction_cycles.csv"),
+        ["mu", "cycle"] + STEP_COLUMNS,
+        [
+            [mu, int(cycle[k])] + row
+            for mu, (path, cycle, _) in cyc.items()
+            for k, row in enumerate(step_rows(path))
+        ],
+    )
+    write_csv(
+        os.path.join(out, "friction_monotonic.csv"),
+        ["mu", "seed"] + STEP_COLUMNS,
+        [
+            [mu, s] + row
+            for mu, paths in mono.items()
+            for s, path in zip(seeds, paths)
+            for row in step_rows(path)
+        ],
+    )
     header, rows = summary_table(mono, {mu: e for mu, (_, _, e) in cyc.items()}, cycles)
     write_csv(os.path.join(out, "friction_summary.csv"), header, rows)
     return header, rows
@@ -523,23 +640,31 @@ def write_tables(out, cyc, mono, seeds, cycles):
 
 def print_tables(say, header, rows, cyc, rtol):
     col = {h: i for i, h in enumerate(header)}
-    say("\n  mu     K0   q/p(γ=0)  peak q/p (at γ)      final q/p     peak τ/p  final τ/p"
-        "  e22 final")
+    say(
+        "\n  mu     K0   q/p(γ=0)  peak q/p (at γ)      final q/p     peak τ/p  final τ/p"
+        "  e22 final"
+    )
     for r in rows:
         if r[col["seeds"]]:
             v = {h: r[i] for h, i in col.items()}
-            say(f"{v['mu']:4g}  {v['K0_mean']:5.3f}  {v['qp_start_mean']:8.3f}  "
+            say(
+                f"{v['mu']:4g}  {v['K0_mean']:5.3f}  {v['qp_start_mean']:8.3f}  "
                 f"{v['qp_peak_mean']:6.3f}±{v['qp_peak_std']:.3f} "
                 f"({100 * v['gamma_peak_mean']:4.1f} %)  "
                 f"{v['qp_final_mean']:6.3f}±{v['qp_final_std']:.3f}  "
                 f"{v['taup_peak_mean']:8.3f}  {v['taup_final_mean']:9.3f}  "
-                f"{100 * v['e22_final_mean']:6.2f} %")
-    say(f"\n  mu  cycle  dissipation [Pa]  loop area [Pa]  (area - D)/D   e22 drift"
-        f"   (tolerance {100 * rtol:.2f} %)")
+                f"{100 * v['e22_final_mean']:6.2f} %"
+            )
+    say(
+        f"\n  mu  cycle  dissipation [Pa]  loop area [Pa]  (area - D)/D   e22 drift"
+        f"   (tolerance {100 * rtol:.2f} %)"
+    )
     for mu, (_, _, energy) in cyc.items():
         for e in energy:
-            say(f"{mu:4g}  {e['cycle']:5d}  {e['dissipation_Pa']:16.4f}  {e['loop_area_Pa']:14.4f}"
-                f"  {e['rel_difference']:12.2e}  {e['e22_drift']:10.2e}")
+            say(
+                f"{mu:4g}  {e['cycle']:5d}  {e['dissipation_Pa']:16.4f}  {e['loop_area_Pa']:14.4f}"
+                f"  {e['rel_difference']:12.2e}  {e['e22_drift']:10.2e}"
+            )
 
 
 def run(out="results/friction_study", small=False, use_cache=True, verbose=True):
@@ -555,8 +680,9 @@ def run(out="results/friction_study", small=False, use_cache=True, verbose=True)
     say(f"{cfg['particles']} particles, seeds {seeds} ({time.perf_counter() - t_start:.1f} s)")
     cyc = {mu: cyclic_test(packings[0], mu, m, cycles) for mu in MU_CYCLIC}
     say(f"cyclic shear, μ = {MU_CYCLIC} ({time.perf_counter() - t_start:.1f} s)")
-    mono = {mu: [monotonic_test(p, mu, cfg["monotonic_steps"]) for p in packings]
-            for mu in MU_MONOTONIC}
+    mono = {
+        mu: [monotonic_test(p, mu, cfg["monotonic_steps"]) for p in packings] for mu in MU_MONOTONIC
+    }
     say(f"monotonic shear, μ = {MU_MONOTONIC} ({time.perf_counter() - t_start:.1f} s)")
     header, rows = write_tables(out, cyc, mono, seeds, cycles)
     energy = {mu: e for mu, (_, _, e) in cyc.items()}
@@ -567,8 +693,14 @@ def run(out="results/friction_study", small=False, use_cache=True, verbose=True)
     print_tables(say, header, rows, cyc, loop_rtol(m))
     runtime = time.perf_counter() - t_start
     say(f"\nwrote {out}/ in {runtime:.1f} s")
-    return dict(runtime_s=runtime, config=dict(cfg), loop_rtol=loop_rtol(m), header=header,
-                rows=rows, energy=energy)
+    return dict(
+        runtime_s=runtime,
+        config=dict(cfg),
+        loop_rtol=loop_rtol(m),
+        header=header,
+        rows=rows,
+        energy=energy,
+    )
 
 
 def main(argv=None):

@@ -24,8 +24,6 @@ import os
 import sys
 import time
 
-import numpy as np
-
 from dolfinx_granular import TaylorRVE, cen_standard_sand, plotting
 from dolfinx_granular.cache import PackingCache
 from dolfinx_granular.fabric import anisotropy, contact_angles, density_deviation, fabric_tensor
@@ -33,12 +31,19 @@ from dolfinx_granular.generation import network_stats
 from dolfinx_granular.gsd import DEFAULT_D_MIN
 from dolfinx_granular.timing import time_per_point
 
+import numpy as np
+
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 MAX_STRAIN = 0.10
 DPI = 110
 
-FULL = dict(fig_sizes=(70, 350, 700), speed_sizes=(70, 350, 700, 1400, 2800), seeds=5,
-            speed_seeds=10, steps=20)
+FULL = dict(
+    fig_sizes=(70, 350, 700),
+    speed_sizes=(70, 350, 700, 1400, 2800),
+    seeds=5,
+    speed_seeds=10,
+    steps=20,
+)
 SMALL = dict(fig_sizes=(70,), speed_sizes=(70, 140), seeds=2, speed_seeds=3, steps=4)
 
 # name -> (F as a function of the parameter s, axis label); s runs from 0 to MAX_STRAIN
@@ -89,22 +94,45 @@ def packing_table(cache, packings, out):
             ratio = np.abs(rve.cauchy(np.eye(2))).max() / np.abs(rve.cauchy(0.99 * np.eye(2))).max()
             ang = contact_angles(p)
             a, _ = anisotropy(fabric_tensor(ang))
-            rows.append([n, s, f"{cache.generation_time(n, s):.3f}", f"{st.volume_fraction:.4f}",
-                         f"{st.coordination:.3f}", st.min_coordination,
-                         f"{st.rattler_fraction:.3f}", f"{ratio:.2e}", f"{a:.4f}",
-                         f"{density_deviation(ang, np.radians(20.0)):.4f}"])
-    write_csv(os.path.join(out, "packings.csv"),
-              ["n", "seed", "generation_time_s", "volume_fraction", "coordination_nonrattlers",
-               "min_coordination", "rattler_fraction", "prestress_ratio", "fabric_anisotropy",
-               "density_deviation_20deg"], rows)
+            rows.append(
+                [
+                    n,
+                    s,
+                    f"{cache.generation_time(n, s):.3f}",
+                    f"{st.volume_fraction:.4f}",
+                    f"{st.coordination:.3f}",
+                    st.min_coordination,
+                    f"{st.rattler_fraction:.3f}",
+                    f"{ratio:.2e}",
+                    f"{a:.4f}",
+                    f"{density_deviation(ang, np.radians(20.0)):.4f}",
+                ]
+            )
+    write_csv(
+        os.path.join(out, "packings.csv"),
+        [
+            "n",
+            "seed",
+            "generation_time_s",
+            "volume_fraction",
+            "coordination_nonrattlers",
+            "min_coordination",
+            "rattler_fraction",
+            "prestress_ratio",
+            "fabric_anisotropy",
+            "density_deviation_20deg",
+        ],
+        rows,
+    )
 
 
 def packing_figures(figure_sets, out):
     """Figure 2 (the sieve curve with the grains of the largest size's first packing) and figure 3
     (packings and contact-normal densities); ``figure_sets``: ``{n: [Packing per seed]}``."""
     n_show = max(figure_sets)
-    fig = plotting.plot_sieve_curve(cen_standard_sand(), figure_sets[n_show][0],
-                                    d_min=DEFAULT_D_MIN)
+    fig = plotting.plot_sieve_curve(
+        cen_standard_sand(), figure_sets[n_show][0], d_min=DEFAULT_D_MIN
+    )
     fig.savefig(os.path.join(out, "fig2_sieve_curve.png"), dpi=DPI)
     rattlers = {n: [network_stats(p).rattlers for p in group] for n, group in figure_sets.items()}
     fig = plotting.plot_packings_and_densities(figure_sets, rattlers=rattlers)
@@ -120,26 +148,48 @@ def stress_figures(figure_sets, steps, out):
         for n in figure_sets:
             s, mean, std = curves[n][name]
             for k in range(s.size):
-                rows.append([name, n, f"{s[k]:.4f}"] + [
-                    f"{v:.6e}" for a, b in ((0, 0), (1, 1), (0, 1))
-                    for v in (mean[k, a, b], std[k, a, b])])
-    write_csv(os.path.join(out, "stress_curves.csv"),
-              ["path", "n", "strain", "sigma11_mean_Pa", "sigma11_std_Pa", "sigma22_mean_Pa",
-               "sigma22_std_Pa", "sigma12_mean_Pa", "sigma12_std_Pa"], rows)
+                rows.append(
+                    [name, n, f"{s[k]:.4f}"]
+                    + [
+                        f"{v:.6e}"
+                        for a, b in ((0, 0), (1, 1), (0, 1))
+                        for v in (mean[k, a, b], std[k, a, b])
+                    ]
+                )
+    write_csv(
+        os.path.join(out, "stress_curves.csv"),
+        [
+            "path",
+            "n",
+            "strain",
+            "sigma11_mean_Pa",
+            "sigma11_std_Pa",
+            "sigma22_mean_Pa",
+            "sigma22_std_Pa",
+            "sigma12_mean_Pa",
+            "sigma12_std_Pa",
+        ],
+        rows,
+    )
 
     def panels(names, titles):
-        return [(t, PATHS[k][1], {n: curves[n][k] for n in figure_sets})
-                for k, t in zip(names, titles)]
+        return [
+            (t, PATHS[k][1], {n: curves[n][k] for n in figure_sets}) for k, t in zip(names, titles)
+        ]
 
     seeds = max(len(group) for group in figure_sets.values())
     fig = plotting.plot_stress_curves(
-        panels(["compression_11", "compression_22"],
-               ["uniaxial compression in 11", "uniaxial compression in 22"]),
-        f"Fig. 4: compression, mean ± std over {seeds} RVEs (solid σ11, dashed σ22)")
+        panels(
+            ["compression_11", "compression_22"],
+            ["uniaxial compression in 11", "uniaxial compression in 22"],
+        ),
+        f"Fig. 4: compression, mean ± std over {seeds} RVEs (solid σ11, dashed σ22)",
+    )
     fig.savefig(os.path.join(out, "fig4_compression.png"), dpi=DPI)
     fig = plotting.plot_stress_curves(
         panels(["shear_12", "shear_21"], ["simple shear in 12", "simple shear in 21"]),
-        f"Fig. 5: simple shear, mean ± std over {seeds} RVEs (solid σ11, dashed σ22)")
+        f"Fig. 5: simple shear, mean ± std over {seeds} RVEs (solid σ11, dashed σ22)",
+    )
     fig.savefig(os.path.join(out, "fig5_shear.png"), dpi=DPI)
 
 
@@ -154,21 +204,26 @@ def speed_error(cache, packings, out):
         sc = np.array([r.cauchy(F_c)[0, 0] for r in rves])
         ss = np.array([r.cauchy(F_s)[0, 1] for r in rves])
         ddof = 1 if len(rves) > 1 else 0
-        table.append({
-            "n": n,
-            "sigma11_compression_mean_Pa": float(sc.mean()),
-            "cv_compression": float(sc.std(ddof=ddof) / abs(sc.mean())),
-            "sigma12_shear_mean_Pa": float(ss.mean()),
-            "cv_shear": float(ss.std(ddof=ddof) / abs(ss.mean())),
-            "time_per_point": float(np.median([evaluation_time(r) for r in rves[:2]])),
-            "generation_time_s": float(np.mean([cache.generation_time(n, s)
-                                                for s in range(len(rves))])),
-            "seeds": len(rves),
-        })
+        table.append(
+            {
+                "n": n,
+                "sigma11_compression_mean_Pa": float(sc.mean()),
+                "cv_compression": float(sc.std(ddof=ddof) / abs(sc.mean())),
+                "sigma12_shear_mean_Pa": float(ss.mean()),
+                "cv_shear": float(ss.std(ddof=ddof) / abs(ss.mean())),
+                "time_per_point": float(np.median([evaluation_time(r) for r in rves[:2]])),
+                "generation_time_s": float(
+                    np.mean([cache.generation_time(n, s) for s in range(len(rves))])
+                ),
+                "seeds": len(rves),
+            }
+        )
     keys = list(table[0])
-    write_csv(os.path.join(out, "speed_error.csv"), keys,
-              [[f"{row[k]:.6g}" if isinstance(row[k], float) else row[k] for k in keys]
-               for row in table])
+    write_csv(
+        os.path.join(out, "speed_error.csv"),
+        keys,
+        [[f"{row[k]:.6g}" if isinstance(row[k], float) else row[k] for k in keys] for row in table],
+    )
     plotting.plot_speed_error(table).savefig(os.path.join(out, "speed_error.png"), dpi=DPI)
     return table
 
@@ -183,11 +238,15 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     sizes = sorted(set(cfg["fig_sizes"]) | set(cfg["speed_sizes"]))
     packings = {}
     for n in sizes:
-        seeds = max(cfg["seeds"] if n in cfg["fig_sizes"] else 0,
-                    cfg["speed_seeds"] if n in cfg["speed_sizes"] else 0)
+        seeds = max(
+            cfg["seeds"] if n in cfg["fig_sizes"] else 0,
+            cfg["speed_seeds"] if n in cfg["speed_sizes"] else 0,
+        )
         packings[n] = [cache.get(n, s) for s in range(seeds)]
-        say(f"{n:5d} particles: generated / loaded {seeds} packings "
-            f"({time.perf_counter() - t_start:.1f} s)")
+        say(
+            f"{n:5d} particles: generated / loaded {seeds} packings "
+            f"({time.perf_counter() - t_start:.1f} s)"
+        )
     packing_table(cache, packings, out)
     figure_sets = {n: packings[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}
     packing_figures(figure_sets, out)
@@ -198,12 +257,19 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
 
     say("\n    n   CV(σ11, 5 % compr.)  CV(σ12, 5 % shear)  time/point [µs]  generation [s]")
     for row in table:
-        say(f"{row['n']:5d}  {100 * row['cv_compression']:17.2f} %  {100 * row['cv_shear']:16.2f} %"
-            f"  {1e6 * row['time_per_point']:15.2f}  {row['generation_time_s']:14.2f}")
+        say(
+            f"{row['n']:5d}  {100 * row['cv_compression']:17.2f} %  {100 * row['cv_shear']:16.2f} %"
+            f"  {1e6 * row['time_per_point']:15.2f}  {row['generation_time_s']:14.2f}"
+        )
     runtime = time.perf_counter() - t_start
     say(f"\nwrote {out}/ in {runtime:.1f} s")
-    summary = {"runtime_s": runtime, "speed_error": table, "seeds": list(range(cfg["seeds"])),
-               "speed_seeds": cfg["speed_seeds"], "fig_sizes": list(cfg["fig_sizes"])}
+    summary = {
+        "runtime_s": runtime,
+        "speed_error": table,
+        "seeds": list(range(cfg["seeds"])),
+        "speed_seeds": cfg["speed_seeds"],
+        "fig_sizes": list(cfg["fig_sizes"]),
+    }
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1)
     return summary

@@ -30,10 +30,10 @@ import os
 import sys
 import time
 
-from mpi4py import MPI
-
 from dolfinx_granular import generate_packing
 from dolfinx_granular.slope import SlopeGeometry, SlopeOptions, run_slope
+
+from mpi4py import MPI
 
 # %% [markdown]
 # ## The runs
@@ -53,14 +53,33 @@ def runs(meshes, steps):
     out = []
     for k in meshes:
         cells = geometry(k).n_cells
-        out.append((f"load_control_{cells}", SlopeOptions(steps=steps, load_factor=2.0,
-                                                          geometry=geometry(k))))
-        out.append((f"path_{cells}", SlopeOptions(steps=steps, load_factor=2.0,
-                                                  path_following=True, geometry=geometry(k))))
+        out.append(
+            (
+                f"load_control_{cells}",
+                SlopeOptions(steps=steps, load_factor=2.0, geometry=geometry(k)),
+            )
+        )
+        out.append(
+            (
+                f"path_{cells}",
+                SlopeOptions(
+                    steps=steps, load_factor=2.0, path_following=True, geometry=geometry(k)
+                ),
+            )
+        )
     # the uplift's load levels off over a long way before its peak: more increments
-    out.append((f"uplift_path_{geometry(meshes[0]).n_cells}",
-                SlopeOptions(steps=steps, load_factor=-0.25, path_following=True,
-                             max_increments=300, geometry=geometry(meshes[0]))))
+    out.append(
+        (
+            f"uplift_path_{geometry(meshes[0]).n_cells}",
+            SlopeOptions(
+                steps=steps,
+                load_factor=-0.25,
+                path_following=True,
+                max_increments=300,
+                geometry=geometry(meshes[0]),
+            ),
+        )
+    )
     return out
 
 
@@ -68,12 +87,17 @@ def run_all(packing, meshes, steps, out, comm, say):
     results = {}
     for name, options in runs(meshes, steps):
         t0 = time.perf_counter()
-        s = run_slope(packing, options, out=os.path.join(out, name), comm=comm, figure=False,
-                      verbose=False)
-        results[name] = {"summary": s, "wall": time.perf_counter() - t0,
-                         "cells": options.geometry.n_cells}
-        say(f"{name}: {s['status']}, {s['completed_steps']} steps, "
-            f"{time.perf_counter() - t0:.1f} s")
+        s = run_slope(
+            packing, options, out=os.path.join(out, name), comm=comm, figure=False, verbose=False
+        )
+        results[name] = {
+            "summary": s,
+            "wall": time.perf_counter() - t0,
+            "cells": options.geometry.n_cells,
+        }
+        say(
+            f"{name}: {s['status']}, {s['completed_steps']} steps, {time.perf_counter() - t0:.1f} s"
+        )
     return results
 
 
@@ -88,8 +112,11 @@ def run_all(packing, meshes, steps, out, comm, say):
 # %%
 def curve(summary):
     steps = [s for s in summary["step_info"] if s["phase"] == "footing"]
-    return ([-s["settlement"] for s in steps], [-s["footing_load"] / 1e6 for s in steps],
-            [s["non_elliptic_points"] for s in steps])
+    return (
+        [-s["settlement"] for s in steps],
+        [-s["footing_load"] / 1e6 for s in steps],
+        [s["non_elliptic_points"] for s in steps],
+    )
 
 
 def figure(results, path):
@@ -105,8 +132,9 @@ def figure(results, path):
             continue
         settle, load, non_elliptic = curve(r["summary"])
         style = "--o" if name.startswith("load") else "-"
-        label = f"{'load control' if name.startswith('load') else 'path following'}, " \
-                f"{r['cells']} cells"
+        label = (
+            f"{'load control' if name.startswith('load') else 'path following'}, {r['cells']} cells"
+        )
         ax1.plot(settle, load, style, ms=3, label=label)
         if not name.startswith("load"):
             ax2.plot(range(1, len(load) + 1), non_elliptic, label=label)
@@ -132,19 +160,27 @@ def records(results):
         for k, (settle, load, ne) in enumerate(zip(*curve(s)), start=1):
             rows.append((name, r["cells"], k, settle, load, ne))
         path = s.get("path_following") or {}
-        summary[name] = {"cells": r["cells"], "status": s["status"], "wall_time": r["wall"],
-                         "ranks": s["ranks"], "completed_steps": s["completed_steps"],
-                         "iterations": sum(s["iterations"]), "peak": path.get("peak"),
-                         "critical_points": path.get("critical_points"),
-                         "stopped": path.get("stopped") or s.get("failed"),
-                         "limit_load": (s["failed"] or {}).get("limit_load")}
+        summary[name] = {
+            "cells": r["cells"],
+            "status": s["status"],
+            "wall_time": r["wall"],
+            "ranks": s["ranks"],
+            "completed_steps": s["completed_steps"],
+            "iterations": sum(s["iterations"]),
+            "peak": path.get("peak"),
+            "critical_points": path.get("critical_points"),
+            "stopped": path.get("stopped") or s.get("failed"),
+            "limit_load": (s["failed"] or {}).get("limit_load"),
+        }
     return rows, summary
 
 
 # %%
 def main(argv=None):
-    p = argparse.ArgumentParser(description="The slope's collapse: load control and path "
-                                "following on two meshes, and the uplift.")
+    p = argparse.ArgumentParser(
+        description="The slope's collapse: load control and path "
+        "following on two meshes, and the uplift."
+    )
     p.add_argument("--particles", type=int, default=700)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, default=20, help="nominal footing steps")
@@ -159,16 +195,26 @@ def main(argv=None):
         rows, summary = records(results)
         with open(os.path.join(a.out, "collapse.csv"), "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["run", "cells", "step", "settlement_m", "footing_load_MN_per_m",
-                        "non_elliptic_points"])
+            w.writerow(
+                [
+                    "run",
+                    "cells",
+                    "step",
+                    "settlement_m",
+                    "footing_load_MN_per_m",
+                    "non_elliptic_points",
+                ]
+            )
             w.writerows(rows)
         with open(os.path.join(a.out, "collapse.json"), "w") as f:
             json.dump(summary, f, indent=1)
         figure(results, os.path.join(a.out, "collapse.png"))
         for name, s in summary.items():
             peak = s["peak"] or {}
-            say(f"{name}: {s['completed_steps']} steps, peak x{abs(peak.get('load_factor', 0)):.4g}"
-                f", {s['wall_time']:.0f} s on {s['ranks']} rank(s); {s['stopped']}")
+            say(
+                f"{name}: {s['completed_steps']} steps, peak x{abs(peak.get('load_factor', 0)):.4g}"
+                f", {s['wall_time']:.0f} s on {s['ranks']} rank(s); {s['stopped']}"
+            )
     return 0
 
 

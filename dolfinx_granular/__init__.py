@@ -12,27 +12,47 @@ import importlib.util as _importlib_util
 if _importlib_util.find_spec("dolfinx_solver") is not None:
     import dolfinx_solver  # noqa: F401
 
+from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
+from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
+from .gsd import SieveCurve, cen_standard_sand
+from .levels import AdaptiveRVE, SmallStrainRVE
 from .packing import Packing, PackingFileError
 from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
-from .gsd import SieveCurve, cen_standard_sand
-from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
-from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
-from .levels import AdaptiveRVE, SmallStrainRVE
 
-__all__ = ["Packing", "PackingFileError", "TaylorRVE", "ContactSet", "UnsupportedDeformationError",
-           "SieveCurve", "cen_standard_sand", "generate_packing", "network_stats", "NetworkStats",
-           "relax_overlaps",
-           "contact_angles", "normal_density", "fabric_tensor", "anisotropy", "density_deviation",
-           "SmallStrainRVE", "AdaptiveRVE"]
+__all__ = [
+    "Packing",
+    "PackingFileError",
+    "TaylorRVE",
+    "ContactSet",
+    "UnsupportedDeformationError",
+    "SieveCurve",
+    "cen_standard_sand",
+    "generate_packing",
+    "network_stats",
+    "NetworkStats",
+    "relax_overlaps",
+    "contact_angles",
+    "normal_density",
+    "fabric_tensor",
+    "anisotropy",
+    "density_deviation",
+    "SmallStrainRVE",
+    "AdaptiveRVE",
+]
 __version__ = "0.2.0"
 #: the DOLFINx releases this version supports and tests (Debian bookworm, trixie, PyPI wheel)
 SUPPORTED_DOLFINX = (">=0.5.2", "<0.12")
 
 # DOLFINx-side names, imported on first use so that `import dolfinx_granular` stays DOLFINx-free.
 _LAZY = {
-    "GranularMaterial": "material", "NewtonSolver": "solver", "SolveResult": "solver",
-    "LoadStepper": "loading", "LinearElasticMaterial": "linear", "derivative": "quadrature",
-    "von_mises": "postprocess", "vector_space": "_dolfinx",
+    "GranularMaterial": "material",
+    "NewtonSolver": "solver",
+    "SolveResult": "solver",
+    "LoadStepper": "loading",
+    "LinearElasticMaterial": "linear",
+    "derivative": "quadrature",
+    "von_mises": "postprocess",
+    "vector_space": "_dolfinx",
 }
 __all__ += list(_LAZY)
 

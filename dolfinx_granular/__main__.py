@@ -1,4 +1,4 @@
-"""Command line: ``python -m dolfinx_granular <command> ...`` (also installed as ``dolfinx-granular``).
+"""Command line: ``python -m dolfinx_granular <command> ...`` (installed as ``dolfinx-granular``).
 
 Commands:
     generate N [--seed S] [-o packing.npz] [--force] [--d-min MM] [--sieve-curve CSV] [--aspect A]
@@ -53,10 +53,12 @@ def _d_min(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="python -m dolfinx_granular",
-                     description="dolfinx_granular's command line (also installed as "
-                     "dolfinx-granular). 'python -m dolfinx_granular COMMAND --help' describes a "
-                     "command; the slope benchmark is 'python -m dolfinx_granular.slope'.")
+    parser = _Parser(
+        prog="python -m dolfinx_granular",
+        description="dolfinx_granular's command line (also installed as "
+        "dolfinx-granular). 'python -m dolfinx_granular COMMAND --help' describes a "
+        "command; the slope benchmark is 'python -m dolfinx_granular.slope'.",
+    )
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
@@ -68,16 +70,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     gen.add_argument("n_particles", type=_integer, help="number of disks (>= 2)")
     gen.add_argument("--seed", type=_integer, default=0, help="random seed (default 0)")
-    gen.add_argument("-o", "--output", default="packing.npz",
-                     help="output .npz file (default packing.npz; kept if it exists, see --force)")
+    gen.add_argument(
+        "-o",
+        "--output",
+        default="packing.npz",
+        help="output .npz file (default packing.npz; kept if it exists, see --force)",
+    )
     gen.add_argument("--force", action="store_true", help="overwrite an existing output file")
     gen.add_argument(
-        "--d-min", type=_d_min, default=_AUTO, metavar="MM",
+        "--d-min",
+        type=_d_min,
+        default=_AUTO,
+        metavar="MM",
         help="cut size in mm: finer grains are left out ('none' keeps the whole curve; "
         "default 0.5 for the CEN sand, none for a user curve)",
     )
     gen.add_argument(
-        "--sieve-curve", metavar="CSV",
+        "--sieve-curve",
+        metavar="CSV",
         help="sieve curve file: '#' comments, a header, rows 'aperture_mm, passing_percent'",
     )
     gen.add_argument("--aspect", type=float, default=1.0, help="cell height / width (default 1)")
@@ -86,10 +96,12 @@ def build_parser() -> argparse.ArgumentParser:
     gen.set_defaults(handler=_cmd_generate)
 
     relax = sub.add_parser(
-        "relax", help="make a packing whose disks overlap stress-free",
+        "relax",
+        help="make a packing whose disks overlap stress-free",
         description="Move the disks of a packing file minimally so that every contact of its "
         "network overlaps by 1e-11 of the mean diameter (the generator's last stage): a "
-        "prestressed reference state becomes stress-free.")
+        "prestressed reference state becomes stress-free.",
+    )
     relax.add_argument("packing", help="input packing .npz")
     relax.add_argument("-o", "--output", required=True, help="output .npz file")
     relax.add_argument("--force", action="store_true", help="overwrite an existing output file")
@@ -121,8 +133,9 @@ def _cmd_generate(args) -> int:
         last.update(t=now, stage=stage)
         print(f"[{now:6.1f} s] {line.strip()}", file=sys.stderr, flush=True)
 
-    packing = generate_packing(args.n_particles, gsd, seed=args.seed, d_min=d_min,
-                               aspect=args.aspect, progress=progress)
+    packing = generate_packing(
+        args.n_particles, gsd, seed=args.seed, d_min=d_min, aspect=args.aspect, progress=progress
+    )
     packing.save(args.output)
     s = network_stats(packing)
     print(
@@ -138,8 +151,9 @@ def _check_output(args):
     if not args.output.endswith(".npz"):
         raise ValueError(f"the output file must end in .npz, got {args.output!r}")
     if os.path.exists(args.output) and not args.force:
-        raise ValueError(f"{args.output!r} exists; choose another name with -o, or pass --force "
-                         "to overwrite it")
+        raise ValueError(
+            f"{args.output!r} exists; choose another name with -o, or pass --force to overwrite it"
+        )
 
 
 def _cmd_relax(args) -> int:
@@ -153,9 +167,11 @@ def _cmd_relax(args) -> int:
     after.save(args.output)
     ratio = TaylorRVE(after, 1.0).prestress_ratio
     moved = np.abs(after.centers - before.centers).max() / before.radii.mean()
-    print(f"wrote {args.output}: {after.n_particles} disks, centres moved up to {100 * moved:.2g} "
-          f"% of the mean radius, radii changed up to "
-          f"{100 * np.abs(after.radii / before.radii - 1).max():.2g} %; |P(I)| / |C| = {ratio:.1e}")
+    print(
+        f"wrote {args.output}: {after.n_particles} disks, centres moved up to {100 * moved:.2g} "
+        f"% of the mean radius, radii changed up to "
+        f"{100 * np.abs(after.radii / before.radii - 1).max():.2g} %; |P(I)| / |C| = {ratio:.1e}"
+    )
     return 0
 
 

@@ -28,21 +28,25 @@ try:
 except ImportError:  # DOLFINx 0.5 / 0.6
     _quadrature_element = None
 
+
 class _CompilerChatter(logging.Filter):
     """Drops the INFO lines of the C compiler runs behind DOLFINx's JIT (setuptools logs every
     command line on the root logger, which FFCx has given a stderr handler)."""
 
     def filter(self, record):
         where = record.pathname.replace(os.sep, "/")
-        return not (record.levelno < logging.WARNING
-                    and ("/distutils/" in where or "/setuptools/" in where))
+        return not (
+            record.levelno < logging.WARNING and ("/distutils/" in where or "/setuptools/" in where)
+        )
 
 
 logging.getLogger().addFilter(_CompilerChatter())
 
 #: SNES reason for a NaN residual: DIVERGED_FNORM_NAN up to PETSc 3.19, then renamed
-SNES_NAN_REASON = int(getattr(PETSc.SNES.ConvergedReason, "DIVERGED_FNORM_NAN", None)
-                      or PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF)
+SNES_NAN_REASON = int(
+    getattr(PETSc.SNES.ConvergedReason, "DIVERGED_FNORM_NAN", None)
+    or PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF
+)
 #: ``fem.functionspace`` (0.7+) or the ``fem.FunctionSpace`` constructor (0.5, 0.6)
 _NEW_SPACES = hasattr(fem, "functionspace")
 #: ``Expression.eval(mesh, cells)`` (0.7+) or ``Expression.eval(cells)`` (0.5, 0.6)
@@ -68,12 +72,14 @@ def quadrature_space(msh, degree: int, shape: tuple):
     ``degree`` (the scheme that a measure with matching metadata integrates with)."""
     cell = msh.topology.cell_type.name
     if _quadrature_element is not None:
-        element = _quadrature_element(cell, value_shape=tuple(shape), scheme="default",
-                                      degree=degree)
+        element = _quadrature_element(
+            cell, value_shape=tuple(shape), scheme="default", degree=degree
+        )
         return fem.functionspace(msh, element)
     if shape:
-        element = ufl.TensorElement("Quadrature", msh.ufl_cell(), degree, shape=tuple(shape),
-                                    quad_scheme="default")
+        element = ufl.TensorElement(
+            "Quadrature", msh.ufl_cell(), degree, shape=tuple(shape), quad_scheme="default"
+        )
     else:
         element = ufl.FiniteElement("Quadrature", msh.ufl_cell(), degree, quad_scheme="default")
     return fem.FunctionSpace(msh, element)
@@ -145,8 +151,9 @@ def create_mesh(comm, cells, x, cell: str, gdim: int, max_facet_to_cell_links: i
 
         domain = ufl.Mesh(element("Lagrange", cell, 1, shape=(gdim,)))
     else:
-        domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(cell, geometric_dimension=gdim),
-                                            1, dim=gdim))
+        domain = ufl.Mesh(
+            ufl.VectorElement("Lagrange", ufl.Cell(cell, geometric_dimension=gdim), 1, dim=gdim)
+        )
     cells = np.asarray(cells, dtype=np.int64)
     x = np.asarray(x, dtype=np.float64)
     if comm.rank != 0:

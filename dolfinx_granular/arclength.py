@@ -103,9 +103,26 @@ class ArcLength:
         failed: None, or the reason the path ended early.
     """
 
-    def __init__(self, solver, load, external, ds=None, *, dlam=None, psi=0.0, control=None,
-                 direction=1.0, max_it=15, target_iterations=5, ds_max=None, ds_min=None,
-                 max_cutbacks=8, energy_rtol=1e-20, peak_refinement=1.0, log=None):
+    def __init__(
+        self,
+        solver,
+        load,
+        external,
+        ds=None,
+        *,
+        dlam=None,
+        psi=0.0,
+        control=None,
+        direction=1.0,
+        max_it=15,
+        target_iterations=5,
+        ds_max=None,
+        ds_min=None,
+        max_cutbacks=8,
+        energy_rtol=1e-20,
+        peak_refinement=1.0,
+        log=None,
+    ):
         self.solver, self.load = solver, load
         self.psi = float(psi)
         self.control = control
@@ -158,9 +175,11 @@ class ArcLength:
         r1.axpy(1.0, self.f)
         scale = max(self.f.norm(), 1e-300)
         if not r1.norm() <= 1e-8 * max(scale, r0.norm()):
-            raise ValueError("the residual is not R(u) - lam * external with lam = load: "
-                             f"dR/dlam differs from -external by {r1.norm():.3g} (|f| = "
-                             f"{scale:.3g}); pass the load pattern that the load Constant scales")
+            raise ValueError(
+                "the residual is not R(u) - lam * external with lam = load: "
+                f"dR/dlam differs from -external by {r1.norm():.3g} (|f| = "
+                f"{scale:.3g}); pass the load pattern that the load Constant scales"
+            )
         for v in (x, r0, r1):
             v.destroy()
 
@@ -179,10 +198,17 @@ class ArcLength:
 
     def state(self) -> dict:
         """What continues the path after a restart (JSON), beside u and the last increment Du."""
-        return {"lam": self.lam, "ds": self.ds, "ds_max": self.ds_max, "ds_min": self.ds_min,
-                "dlam_prev": self._dlam_prev,
-                "det_sign": self._det_sign, "path": [p.as_dict() for p in self.path],
-                "critical": [c.as_dict() for c in self.critical], "stopped": self.stopped}
+        return {
+            "lam": self.lam,
+            "ds": self.ds,
+            "ds_max": self.ds_max,
+            "ds_min": self.ds_min,
+            "dlam_prev": self._dlam_prev,
+            "det_sign": self._det_sign,
+            "path": [p.as_dict() for p in self.path],
+            "critical": [c.as_dict() for c in self.critical],
+            "stopped": self.stopped,
+        }
 
     def resume(self, state, du_prev):
         """Continue from :meth:`state` at the converged state in ``solver.u``; ``du_prev``: its
@@ -214,8 +240,9 @@ class ArcLength:
             ksp.setUp()
         except PETSc.Error as err:
             pc.reset()
-            raise RuntimeError(f"factorisation failed (PETSc error {err.ierr}): a singular "
-                               "tangent") from None
+            raise RuntimeError(
+                f"factorisation failed (PETSc error {err.ierr}): a singular tangent"
+            ) from None
         if not mumps:
             return 0
         return int(np.sign(pc.getFactorMatrix().getMumpsRinfog(12)))
@@ -297,16 +324,20 @@ class ArcLength:
                 if newton.converged(it, R):
                     return x, du, dlam, newton
                 if it == self.max_it:
-                    raise _Failed(f"no convergence in {self.max_it} corrector iterations "
-                                  f"(|R| = {newton.rnorm:.3e} N)")
+                    raise _Failed(
+                        f"no convergence in {self.max_it} corrector iterations "
+                        f"(|R| = {newton.rnorm:.3e} N)"
+                    )
                 self._factorise(x)
                 R.scale(-1.0)
                 self._solve(R, a)
                 self._solve(self.f, b)
                 r = self._constraint_root(du, dlam, a, b)
                 if r is None:
-                    raise _Failed("the arc does not meet the linearised equilibrium path (no "
-                                  "real root of the constraint)")
+                    raise _Failed(
+                        "the arc does not meet the linearised equilibrium path (no "
+                        "real root of the constraint)"
+                    )
                 a.axpy(r, b)  # the correction du = a + r b
                 newton.step(abs(R.dot(a)))
                 du.axpy(1.0, a)
@@ -331,12 +362,16 @@ class ArcLength:
                 self._restore(x0)
                 cuts += 1
                 if cuts > self.max_cutbacks or self.ds / 2.0 < self.ds_min:
-                    self.failed = (f"increment {len(self.path) + 1} failed at ds = {self.ds:.3g} "
-                                   f"after {cuts - 1} cut-backs: {err}")
+                    self.failed = (
+                        f"increment {len(self.path) + 1} failed at ds = {self.ds:.3g} "
+                        f"after {cuts - 1} cut-backs: {err}"
+                    )
                     self.log(f"path: {self.failed}; stopping")
                     return None
-                self.log(f"path: increment {len(self.path) + 1} failed ({err}); ds "
-                         f"{self.ds:.3g} -> {self.ds / 2:.3g}")
+                self.log(
+                    f"path: increment {len(self.path) + 1} failed ({err}); ds "
+                    f"{self.ds:.3g} -> {self.ds / 2:.3g}"
+                )
                 self.ds /= 2.0
 
     def _restore(self, x0):
@@ -352,7 +387,6 @@ class ArcLength:
         """Commit a converged increment: history, path record, critical points, next ds."""
         for m in self.solver.materials:
             m.commit()
-        lam_before = self.lam
         self.lam += dlam
         self.load.value = self.lam
         if self._det_sign and sign and sign != self._det_sign and self.path:
@@ -360,16 +394,28 @@ class ArcLength:
         elif self.path and np.sign(dlam) != np.sign(self.path[-1].dlam):
             cp = CriticalPoint("limit", len(self.path) + 1, self.path[-1].lam, self.lam, False)
             self.critical.append(cp)
-            self.log(f"path: the load turned back in increment {cp.step} (from lam = "
-                     f"{cp.lam_before:.6g}) with det K keeping its sign: a non-smooth limit point")
+            self.log(
+                f"path: the load turned back in increment {cp.step} (from lam = "
+                f"{cp.lam_before:.6g}) with det K keeping its sign: a non-smooth limit point"
+            )
         self._det_sign = sign or self._det_sign
         if self._du_prev is not None:
             self._du_prev.destroy()
         self._du_prev, self._dlam_prev = du, dlam
         its = len(newton.history)
-        inc = Increment(len(self.path) + 1, self.lam, dlam, self.ds, its, sign, du.norm(),
-                        self._control_value(x) if self.control is not None else None,
-                        newton.rnorm, newton.history, newton.stopped_by)
+        inc = Increment(
+            len(self.path) + 1,
+            self.lam,
+            dlam,
+            self.ds,
+            its,
+            sign,
+            du.norm(),
+            self._control_value(x) if self.control is not None else None,
+            newton.rnorm,
+            newton.history,
+            newton.stopped_by,
+        )
         self.path.append(inc)
         x.destroy()
         self.ds = self._next_ds(its)
@@ -401,8 +447,10 @@ class ArcLength:
         if self.critical and self.critical[-1].step == cp.step and not self.critical[-1].det_change:
             self.critical.pop()  # the turn of the load reported there is this one
         self.critical.append(cp)
-        self.log(f"path: det K changed sign in increment {cp.step}: a {cp.kind} point between "
-                 f"lam = {cp.lam_before:.6g} and {cp.lam_after:.6g}")
+        self.log(
+            f"path: det K changed sign in increment {cp.step}: a {cp.kind} point between "
+            f"lam = {cp.lam_before:.6g} and {cp.lam_after:.6g}"
+        )
 
     # -- the path ------------------------------------------------------------------------------
 
@@ -442,8 +490,8 @@ class ArcLength:
         k = max(range(len(self.path)), key=lambda i: abs(self.path[i].lam), default=None)
         if k is None or not 0 < k < len(self.path) - 1:
             return None
-        s = np.cumsum([inc.ds for inc in self.path])[k - 1:k + 2]
-        lam = np.array([inc.lam for inc in self.path[k - 1:k + 2]])
+        s = np.cumsum([inc.ds for inc in self.path])[k - 1 : k + 2]
+        lam = np.array([inc.lam for inc in self.path[k - 1 : k + 2]])
         a, b, _ = np.polyfit(s, lam, 2)
         if a * np.sign(lam[1]) >= 0:  # not a maximum of |lam|
             return None
@@ -480,8 +528,9 @@ class _Newton:
             self.scale = self.solver.force_scale(R)
         self.rnorm = rnorm
         stalled = it > 0 and rnorm > 0.5 * previous
-        if rnorm <= self.solver.residual_rtol * self.scale or (stalled and self.energy
-                                                                  <= self.solver.roundoff_energy):
+        if rnorm <= self.solver.residual_rtol * self.scale or (
+            stalled and self.energy <= self.solver.roundoff_energy
+        ):
             self.stopped_by = "round-off"
         elif it > 0 and self.energy <= self.energy_rtol:
             self.stopped_by = "energy norm"
@@ -490,8 +539,10 @@ class _Newton:
         if it > 1 and rnorm >= self.best:
             self.no_progress += 1
             if self.no_progress >= self.stagnation_it:
-                raise _Failed(f"stagnation: |R| = {rnorm:.3e} N has not gone below its best "
-                              f"value {self.best:.3e} N for {self.no_progress} corrector steps")
+                raise _Failed(
+                    f"stagnation: |R| = {rnorm:.3e} N has not gone below its best "
+                    f"value {self.best:.3e} N for {self.no_progress} corrector steps"
+                )
         else:
             self.best, self.no_progress = min(self.best, rnorm), 0
         return False
@@ -506,26 +557,34 @@ class _Newton:
 def load_reaches(target):
     """Stop once lam has reached ``target`` from the side of zero (lam >= target for a positive
     target, lam <= target for a negative one)."""
+
     def stop(al):
         if (al.lam - target) * np.sign(target) >= 0:
             return f"the load parameter reached {al.lam:.6g} (target {target:g})"
+
     return stop
 
 
 def unloaded_to(fraction):
     """Stop once the load has fallen to ``fraction`` of its peak after a limit point."""
+
     def stop(al):
         peak = al.peak
         if peak is not None and peak is not al.path[-1] and abs(al.lam) <= fraction * abs(peak.lam):
-            return (f"past the peak lam = {peak.lam:.6g} (increment {peak.step}) the load fell to "
-                    f"{abs(al.lam / peak.lam):.3f} of it")
+            return (
+                f"past the peak lam = {peak.lam:.6g} (increment {peak.step}) the load fell to "
+                f"{abs(al.lam / peak.lam):.3f} of it"
+            )
+
     return stop
 
 
 def control_reaches(target):
     """Stop once the control dof's displacement has gone past ``target`` (m)."""
+
     def stop(al):
         value = al.path[-1].control
         if value is not None and (value - target) * np.sign(target) >= 0:
             return f"the control displacement reached {value:.6g} m (target {target:g} m)"
+
     return stop

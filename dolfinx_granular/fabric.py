@@ -46,7 +46,9 @@ def _as_angles(angles) -> np.ndarray:
             f"shape {a.shape}"
         )
     if a.size == 0:
-        raise ValueError("no contacts: the density and fabric of an empty contact set are undefined")
+        raise ValueError(
+            "no contacts: the density and fabric of an empty contact set are undefined"
+        )
     if not np.all(np.isfinite(a)):
         raise ValueError("contact angles contain NaN or inf")
     return a
@@ -76,7 +78,9 @@ def normal_density(angles, delta, theta=None, n_theta: int = 720):
     a_mod = np.sort(np.mod(a, np.pi))
     t = np.mod(theta, np.pi)
     ext = np.concatenate([a_mod - np.pi, a_mod, a_mod + np.pi])
-    count = np.searchsorted(ext, t + delta, side="right") - np.searchsorted(ext, t - delta, side="left")
+    count = np.searchsorted(ext, t + delta, side="right") - np.searchsorted(
+        ext, t - delta, side="left"
+    )
     # each counted contact adds 1 / (2 N_c) * K_delta = 1 / (4 N_c delta)
     rho = count / (4.0 * delta * a.size)
     return theta, rho

@@ -26,12 +26,12 @@ Algorithm (:func:`generate_packing`):
    coordination of the non-rattlers below 3.8 is rejected and the same disks are jammed again
    from new random centres (a few percent of 70-disk cells need this).
 
-Cost. Every neighbour search is a cell list (:func:`dolfinx_granular.kernel.find_pairs`), so one FIRE step, one
-stress-free round and :func:`network_stats` cost O(N); the sparse normal equations of the Newton
-correction are factorised with a symmetric fill-reducing order. What stays super-linear is the
-number of FIRE steps a minimisation needs, which grows roughly like N^0.6 from 700 to 45000 disks
-(the slowest elastic mode of the cell relaxes on a time ~ its width), and the cost of a step at
-large N, whose random memory access outgrows the caches: ``benchmarks/generation.py`` measures
+Cost. Every neighbour search is a cell list (:func:`dolfinx_granular.kernel.find_pairs`), so one
+FIRE step, one stress-free round and :func:`network_stats` cost O(N); the sparse normal equations of
+the Newton correction are factorised with a symmetric fill-reducing order. What stays super-linear
+is the number of FIRE steps a minimisation needs, which grows roughly like N^0.6 from 700 to 45000
+disks (the slowest elastic mode of the cell relaxes on a time ~ its width), and the cost of a step
+at large N, whose random memory access outgrows the caches: ``benchmarks/generation.py`` measures
 the total.
 
 Everything is deterministic for a given ``seed`` (one ``numpy.random.Generator``; the Numba
@@ -50,8 +50,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba import njit
 
-from .gsd import DEFAULT_D_MIN, as_sieve_curve
 from . import kernel
+from .gsd import DEFAULT_D_MIN, as_sieve_curve
 from .packing import Packing
 
 # FIRE parameters of Bitzek et al. (2006).
@@ -67,7 +67,7 @@ PROGRESS_INTERVAL = 1.0
 _CHUNK_SECONDS = 0.1
 
 
-# -- neighbour search --------------------------------------------------------------------------------
+# -- neighbour search ------------------------------------------------------------------------------
 
 
 @njit(cache=True)
@@ -93,7 +93,7 @@ def _candidates(centers, radii, box, max_ratio):
     return ij, shift, R - np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
 
 
-# -- FIRE --------------------------------------------------------------------------------------------
+# -- FIRE ------------------------------------------------------------------------------------------
 
 
 @njit(cache=True)
@@ -231,7 +231,7 @@ def _minimise(x, r, box, skin, ftol, dt0, dt_max, max_steps, beat):
         chunk = int(min(max(chunk * _CHUNK_SECONDS / elapsed, 16), 8 * chunk))
 
 
-# -- progress ----------------------------------------------------------------------------------------
+# -- progress --------------------------------------------------------------------------------------
 
 
 class ProgressLine(str):
@@ -294,7 +294,7 @@ class _Reporter:
         self.callback(ProgressLine(f"{text} [{percent} %]", stage, self.fraction))
 
 
-# -- public API --------------------------------------------------------------------------------------
+# -- public API ------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -395,8 +395,9 @@ def generate_packing(
         ValueError: N < 2, a bad sieve curve (not monotone, not reaching 100 %, non-positive
             apertures) or a parameter out of range.
     """
-    n, curve = _check_arguments(n_particles, gsd, aspect, pressure, max_rattlers, max_attempts,
-                                contact_overlap)
+    n, curve = _check_arguments(
+        n_particles, gsd, aspect, pressure, max_rattlers, max_attempts, contact_overlap
+    )
     say = _Reporter(progress)
     rng = np.random.default_rng(_seed(seed))
     diam = curve.sample_diameters(n, rng, d_min=d_min)
@@ -417,10 +418,15 @@ def generate_packing(
         say.new_attempt()
         x = rng.random((n, 2)) * box
         x, scale, p = _jam(x, r0, box, pressure, d_mean, say)
-        say("jamming", 1.0, f"jammed at phi = {np.pi * np.sum((scale * r0) ** 2) / box.prod():.4f}"
-            f", p/k = {p:.2e} ({say.elapsed():.1f} s)")
-        centers, radii, cell = _stress_free(x / scale, r0.copy(), box / scale,
-                                            contact_overlap * d_mean, say)
+        say(
+            "jamming",
+            1.0,
+            f"jammed at phi = {np.pi * np.sum((scale * r0) ** 2) / box.prod():.4f}"
+            f", p/k = {p:.2e} ({say.elapsed():.1f} s)",
+        )
+        centers, radii, cell = _stress_free(
+            x / scale, r0.copy(), box / scale, contact_overlap * d_mean, say
+        )
         packing = Packing(centers, radii, cell)
         say("checking", 0.0, f"checking the contact network ({say.elapsed():.1f} s)", True)
         stats = network_stats(packing)
@@ -428,11 +434,19 @@ def generate_packing(
             best = (packing, stats)
         if stats.rattler_fraction <= max_rattlers and stats.coordination >= 3.8:
             break
-        say("checking", 1.0, f"attempt {attempt + 1}: {100 * stats.rattler_fraction:.1f} % "
-            f"rattlers, Z = {stats.coordination:.2f}; jamming again from new random centres")
+        say(
+            "checking",
+            1.0,
+            f"attempt {attempt + 1}: {100 * stats.rattler_fraction:.1f} % "
+            f"rattlers, Z = {stats.coordination:.2f}; jamming again from new random centres",
+        )
     packing, stats = best
-    say("done", 1.0, f"done: {n} disks, phi = {packing.volume_fraction:.4f}, "
-        f"{100 * stats.rattler_fraction:.1f} % rattlers ({say.elapsed():.1f} s)")
+    say(
+        "done",
+        1.0,
+        f"done: {n} disks, phi = {packing.volume_fraction:.4f}, "
+        f"{100 * stats.rattler_fraction:.1f} % rattlers ({say.elapsed():.1f} s)",
+    )
     return packing
 
 
@@ -455,13 +469,15 @@ def relax_overlaps(packing: Packing, contact_overlap: float = 1e-11, progress=No
     if not (0.0 < contact_overlap <= 1e-8):
         raise ValueError(f"contact_overlap must lie in (0, 1e-8], got {contact_overlap!r}")
     delta = contact_overlap * 2.0 * float(packing.radii.mean())
-    centers, radii, box = _stress_free(packing.centers.copy(), packing.radii.copy(),
-                                       packing.box.copy(), delta, _Reporter(progress))
+    centers, radii, box = _stress_free(
+        packing.centers.copy(), packing.radii.copy(), packing.box.copy(), delta, _Reporter(progress)
+    )
     return Packing(centers, radii, box)
 
 
-def _check_arguments(n_particles, gsd, aspect, pressure, max_rattlers, max_attempts,
-                     contact_overlap):
+def _check_arguments(
+    n_particles, gsd, aspect, pressure, max_rattlers, max_attempts, contact_overlap
+):
     """Validate the arguments of :func:`generate_packing`; returns ``(n, sieve curve)``."""
     try:
         n = int(n_particles)
@@ -492,7 +508,7 @@ def _seed(seed):
     return int(seed)
 
 
-# -- stage 2: jamming --------------------------------------------------------------------------------
+# -- stage 2: jamming ------------------------------------------------------------------------------
 
 
 def _jam(x, r0, box, p_target, d_mean, say):
@@ -516,8 +532,11 @@ def _jam(x, r0, box, p_target, d_mean, say):
     for it in range(60):
         scale = np.sqrt(phi / phi0)
         steps, p = _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, phi, it)
-        say("jamming", (it + 1) / max(4.0, it + 1.5),
-            f"  phi = {phi:.5f}: p/k = {p:.3e} after {steps} FIRE steps")
+        say(
+            "jamming",
+            (it + 1) / max(4.0, it + 1.5),
+            f"  phi = {phi:.5f}: p/k = {p:.3e} after {steps} FIRE steps",
+        )
         if p_target / 1.5 <= p <= 1.5 * p_target:
             return x, scale, p
         if p > p_target:
@@ -547,9 +566,13 @@ def _minimise_reporting(x, r, box, skin, ftol, d_mean, say, phi, it):
         if not f0:
             f0.append(fmax)
         g = math.log(f0[0] / fmax) / math.log(f0[0] / ftol) if f0[0] > ftol and fmax > 0 else 0.0
-        say("jamming", (it + max(g, 0.0)) / max(4.0, it + 1.5),
+        say(
+            "jamming",
+            (it + max(g, 0.0)) / max(4.0, it + 1.5),
             f"jamming: phi = {phi:.5f}, FIRE step {step}, largest force {fmax / ftol:.3g} x "
-            "the tolerance", heartbeat=True)
+            "the tolerance",
+            heartbeat=True,
+        )
 
     steps, vir = _minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
     return steps, vir / (2.0 * box.prod())
@@ -585,7 +608,7 @@ def _pressure(x, r, box):
     return _forces(x, r, box, m, pi, pj, ps, np.empty_like(x)) / (2.0 * box.prod())
 
 
-# -- stage 3: stress-free reference ------------------------------------------------------------------
+# -- stage 3: stress-free reference ----------------------------------------------------------------
 
 
 def _rattlers(pairs, n):
@@ -644,8 +667,12 @@ def _stress_free(x, r, box, delta, say):
         ok_free = not np.any(eps[free] > -0.5 * gap)
         if ok_free and found.all() and np.all(np.abs(eps[sel] - tgt) <= 0.1 * delta):
             return centers, r, box
-        say("stress-free", rnd / (rnd + 2.0), f"stress-free correction, round {rnd + 1}: "
-            f"{sel.size} contacts ({say.elapsed():.1f} s)", heartbeat=True)
+        say(
+            "stress-free",
+            rnd / (rnd + 2.0),
+            f"stress-free correction, round {rnd + 1}: {sel.size} contacts ({say.elapsed():.1f} s)",
+            heartbeat=True,
+        )
         centers, r = _newton(centers, r, box, ij[sel], shift[sel], tgt, delta)
         centers = Packing(centers, r, box).centers
     raise RuntimeError("the stress-free correction of the contact network did not converge")
@@ -684,9 +711,10 @@ def _newton(x, r, box, ij, shift, target, delta):
         JJt = JJt + sp.identity(m, format="csc") * 1e-12 * JJt.diagonal().mean()
         # J J^T is symmetric positive definite: a symmetric fill-reducing order without pivoting
         # fills in far less than the default column order (O(M^1.2) instead of O(M^1.6) here)
-        lu = spla.splu(JJt, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options={"SymmetricMode": True})
+        lu = spla.splu(
+            JJt, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+        )
         dz = J.T @ lu.solve(-g)
         x += dz[: 2 * n].reshape(n, 2)
-        r += dz[2 * n:]
+        r += dz[2 * n :]
     return x, r

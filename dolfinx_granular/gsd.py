@@ -52,8 +52,7 @@ class SieveCurve:
             raise ValueError(f"a sieve curve needs at least 2 points, got {a.size}")
         if np.any(a <= 0.0):
             raise ValueError(
-                f"sieve apertures must be > 0 mm, got {a[a <= 0.0].tolist()}; "
-                "give apertures in mm"
+                f"sieve apertures must be > 0 mm, got {a[a <= 0.0].tolist()}; give apertures in mm"
             )
         if np.any(np.diff(a) <= 0.0):
             raise ValueError(
@@ -85,7 +84,7 @@ class SieveCurve:
     # -- evaluation -------------------------------------------------------------------------------
 
     def passing_at(self, d):
-        """Percent passing at diameters ``d`` (mm), linear in log d, 0 below / 100 above the curve."""
+        """Percent passing at diameters ``d`` (mm), linear in log d; 0 below, 100 above."""
         d = np.asarray(d, dtype=float)
         out = np.interp(np.log(np.maximum(d, 1e-300)), np.log(self.aperture), self.passing)
         out = np.where(d < self.aperture[0], 0.0, out)
@@ -126,7 +125,7 @@ class SieveCurve:
             keep = hi > d_min
             lo, hi, dp = lo[keep], hi[keep], dp[keep]
             if lo[0] < d_min:
-                # the class straddling the cut keeps the part of its share above d_min (log-linear P)
+                # the class straddling the cut keeps its share above d_min (log-linear P)
                 dp[0] *= np.log(hi[0] / d_min) / np.log(hi[0] / lo[0])
                 lo[0] = d_min
         keep = dp > 0.0
@@ -143,7 +142,7 @@ class SieveCurve:
         return lo, hi, w / w.sum()
 
     def sample_diameters(self, n: int, rng=None, d_min=None) -> np.ndarray:
-        """Draw ``n`` grain diameters (mm) whose area distribution follows the curve above ``d_min``.
+        """Draw ``n`` grain diameters (mm) whose area distribution follows the curve above d_min.
 
         Stratified sampling of the number distribution: the i-th diameter is the inverse number
         CDF at (i + U_i) / n, U_i uniform, so even 70 grains reproduce the grading closely.
@@ -217,8 +216,10 @@ class SieveCurve:
 
 def cen_standard_sand() -> SieveCurve:
     """The shipped quartz sand: CEN standard sand (EN 196-1), mean grading, 0.08-2 mm."""
-    text = resources.files("dolfinx_granular").joinpath("data/cen_standard_sand.csv").read_text(
-        encoding="utf-8"
+    text = (
+        resources.files("dolfinx_granular")
+        .joinpath("data/cen_standard_sand.csv")
+        .read_text(encoding="utf-8")
     )
     return SieveCurve._parse(text, "CEN standard sand (EN 196-1)", "cen_standard_sand.csv")
 

@@ -17,7 +17,8 @@ with v = L (material, eqs. 10 and 12-13) or v = l (spatial, eqs. 11 and 14). Wit
     A_abcd = K [F_ae F_cf T_efbd(L) - delta_ac S_bd(L)]      (eqs. 12-13)
     sigma = -K/J S(l),  a_abcd = K/J [T_acbd(l) - delta_ac S_bd(l)]   (eqs. 11, 14)
 
-The 4th-order term follows from n_a n_c L_b L_d = l_a l_c L_b L_d / d^2 = F_ae F_cf L_e L_f L_b L_d / d^2.
+The 4th-order term follows from
+n_a n_c L_b L_d = l_a l_c L_b L_d / d^2 = F_ae F_cf L_e L_f L_b L_d / d^2.
 Accumulating 8 scalars per contact instead of the 16 entries of A is what makes the kernel fast.
 
 Contacts can only be active where |F L| <= R, and |F L| >= s_min(F) |L| with s_min the smallest
@@ -184,9 +185,7 @@ def candidate_pairs(centers, radii, box, max_ratio):
 @njit(cache=True, inline="always")
 def _check_F(F00, F01, F10, F11, min_stretch):
     """Status code of one F and, when valid, the number-independent bound 1 / s_min(F)."""
-    if not (
-        np.isfinite(F00) and np.isfinite(F01) and np.isfinite(F10) and np.isfinite(F11)
-    ):
+    if not (np.isfinite(F00) and np.isfinite(F01) and np.isfinite(F10) and np.isfinite(F11)):
         return NOT_FINITE, 0.0
     J = F00 * F11 - F01 * F10
     # s_max^2 = (tr C + sqrt(tr C^2 - 4 J^2)) / 2 with C = F^T F; s_min = J / s_max is stable.
@@ -263,7 +262,9 @@ def _moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc):
 
 
 @njit(cache=True)
-def evaluate_batch(F, X, Y, R, rho, stiffness_per_area, min_stretch, spatial, tangent, W, P, A, status):
+def evaluate_batch(
+    F, X, Y, R, rho, stiffness_per_area, min_stretch, spatial, tangent, W, P, A, status
+):
     """Energy, stress and (optionally) tangent at n points.
 
     Args:

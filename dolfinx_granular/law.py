@@ -71,9 +71,13 @@ def has_history(law) -> bool:
         return True
     if isinstance(law, MaterialLaw):
         return False
-    missing = [m for m in ("evaluate", "stress", "cauchy", "spatial_tangent",
-                           "small_strain_modulus") if not callable(getattr(law, m, None))]
+    missing = [
+        m
+        for m in ("evaluate", "stress", "cauchy", "spatial_tangent", "small_strain_modulus")
+        if not callable(getattr(law, m, None))
+    ]
     raise TypeError(
         f"{type(law).__name__} is not a material law: it lacks {', '.join(missing)} (see "
         "dolfinx_granular.law.MaterialLaw; TaylorRVE, SmallStrainRVE, AdaptiveRVE and "
-        "FrictionalRVE are laws)")
+        "FrictionalRVE are laws)"
+    )

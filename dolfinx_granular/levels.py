@@ -73,8 +73,16 @@ def _symmetrise(C):
     out = np.empty_like(S)
     for idx in np.ndindex(2, 2, 2, 2):
         a, b, c, d = idx
-        orbit = [(a, b, c, d), (b, a, c, d), (a, b, d, c), (b, a, d, c),
-                 (c, d, a, b), (d, c, a, b), (c, d, b, a), (d, c, b, a)]
+        orbit = [
+            (a, b, c, d),
+            (b, a, c, d),
+            (a, b, d, c),
+            (b, a, d, c),
+            (c, d, a, b),
+            (d, c, a, b),
+            (c, d, b, a),
+            (d, c, b, a),
+        ]
         out[idx] = S[min(orbit)]
     return out
 
@@ -113,7 +121,8 @@ def _validate_finite(F):
         raise UnsupportedDeformationError(
             f"F at {bad.size} of {F.shape[0]} points is outside the model's range; the first, "
             f"point {q}, F = {F[q].tolist()}, has a NaN or inf entry",
-            bad, status,
+            bad,
+            status,
         )
 
 
@@ -320,8 +329,9 @@ class AdaptiveRVE(_Level):
         the reference one: ``(1/sqrt 3) error_constant t^2 / (1 - t)^2``, t = ||F - I||_2 < 1."""
         t = self.strain_measure(F)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(t < 1.0, _REMAINDER_CONSTANT * self.error_constant * t**2 / (1.0 - t) ** 2,
-                            np.inf)
+            return np.where(
+                t < 1.0, _REMAINDER_CONSTANT * self.error_constant * t**2 / (1.0 - t) ** 2, np.inf
+            )
 
     def _linear(self, F, tangent):
         """The linear branch at points F (m, 2, 2): W, P and (if ``tangent``) A."""

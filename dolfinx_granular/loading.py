@@ -1,9 +1,10 @@
-"""Adaptive load stepping: cut a failed load increment back and retry, grow it again after easy steps.
+"""Adaptive load stepping: cut a failed load increment back and retry, grow it after easy steps.
 
 A phase drives a load parameter t from its start to 1 (the caller maps t to the loads, e.g. gravity
 or the footing pressure). Each increment is one :meth:`~dolfinx_granular.solver.NewtonSolver.solve`.
-When it fails for any reason (SNES divergence, a singular Jacobian where contacts have opened, an RVE
-outside its range, stagnation), the solver restores the last converged state and the increment is halved,
+When it fails for any reason (SNES divergence, a singular Jacobian where contacts have opened, an
+RVE outside its range, stagnation), the solver restores the last converged state and the increment
+is halved,
 at most ``max_cutbacks`` times in a row; after a step converging in at most ``easy_iterations``
 Newton steps the increment grows by ``grow`` up to the nominal one; an increment below
 ``min_fraction`` of the nominal one ends the phase as failed. Contact opening and closing
@@ -83,8 +84,12 @@ def limit_point(path, t_failed, stiffness_drop=0.2):
     collapsed = ratio <= stiffness_drop and t_star <= t_last + 2.0 * (t_failed - t_last)
     if not (collapsed or t_star <= t_failed):
         return None
-    return {"t_converged": float(t_last), "t_failed": float(t_failed),
-            "t_estimate": float(t_star), "stiffness_ratio": float(ratio)}
+    return {
+        "t_converged": float(t_last),
+        "t_failed": float(t_failed),
+        "t_estimate": float(t_star),
+        "stiffness_ratio": float(ratio),
+    }
 
 
 class LoadStepper:
@@ -115,11 +120,13 @@ class LoadStepper:
     ``t`` and ``dt`` to :meth:`run`; it then takes the same increments as the uninterrupted run.
     """
 
-    def __init__(self, solver, *, max_cutbacks=6, min_fraction=1e-3, grow=1.5, easy_iterations=8,
-                 log=None):
+    def __init__(
+        self, solver, *, max_cutbacks=6, min_fraction=1e-3, grow=1.5, easy_iterations=8, log=None
+    ):
         if max_cutbacks < 0 or grow < 1.0 or easy_iterations < 0 or not 0 < min_fraction <= 1:
-            raise ValueError("need max_cutbacks >= 0, 0 < min_fraction <= 1, grow >= 1 and "
-                             "easy_iterations >= 0")
+            raise ValueError(
+                "need max_cutbacks >= 0, 0 < min_fraction <= 1, grow >= 1 and easy_iterations >= 0"
+            )
         self.min_fraction = float(min_fraction)
         self.solver = solver
         self.max_cutbacks = int(max_cutbacks)
@@ -160,8 +167,14 @@ class LoadStepper:
             set_load(target)
             result, increment_norm = self._solve()
             if result.converged:
-                self.path.append({"phase": phase, "t": float(target), "dt": float(target - t),
-                                  "increment_norm": increment_norm})
+                self.path.append(
+                    {
+                        "phase": phase,
+                        "t": float(target),
+                        "dt": float(target - t),
+                        "increment_norm": increment_norm,
+                    }
+                )
                 self.step += 1
                 t, cuts = target, 0
                 if result.iterations <= self.easy_iterations:
@@ -172,8 +185,9 @@ class LoadStepper:
                     return False
                 continue
             # (the solver has restored u and the material data of the converged state at t)
-            cut = Cutback(phase, self.step + 1, float(t), float(target), result.why,
-                          result.iterations)
+            cut = Cutback(
+                phase, self.step + 1, float(t), float(target), result.why, result.iterations
+            )
             self.cutbacks.append(cut)
             smallest = (target - t) / 2.0 < self.min_fraction * increment
             if cuts >= self.max_cutbacks or smallest:
@@ -182,9 +196,11 @@ class LoadStepper:
                 return False
             cuts += 1
             dt = self.dt = (target - t) / 2.0
-            self.log(f"{phase}: cut-back {cuts}/{self.max_cutbacks}: t = {t:.6g} -> {target:.6g} "
-                     f"failed after {result.iterations} Newton steps ({cut.reason}); "
-                     f"retrying with increment {dt:.4g}")
+            self.log(
+                f"{phase}: cut-back {cuts}/{self.max_cutbacks}: t = {t:.6g} -> {target:.6g} "
+                f"failed after {result.iterations} Newton steps ({cut.reason}); "
+                f"retrying with increment {dt:.4g}"
+            )
         return True
 
     def _solve(self):
@@ -199,15 +215,28 @@ class LoadStepper:
 
     def _give_up(self, phase, t, target, cut, smallest):
         """Record that the phase failed, checking the path for a limit point."""
-        self.log(f"{phase}: t = {t:.6g} -> {target:.6g} failed ({cut.reason}); "
-                 + (f"increment {target - t:.3g} cannot be halved further" if smallest
-                    else f"{self.max_cutbacks} cut-backs in a row") + ", giving up")
+        self.log(
+            f"{phase}: t = {t:.6g} -> {target:.6g} failed ({cut.reason}); "
+            + (
+                f"increment {target - t:.3g} cannot be halved further"
+                if smallest
+                else f"{self.max_cutbacks} cut-backs in a row"
+            )
+            + ", giving up"
+        )
         # (the last attempt is the smallest: each cut-back halves the increment)
         limit = limit_point([p for p in self.path if p["phase"] == phase], target)
-        self.failed = {"phase": phase, "step": self.step + 1, "t": float(t),
-                       "reason": cut.reason, "limit_load": limit}
+        self.failed = {
+            "phase": phase,
+            "step": self.step + 1,
+            "t": float(t),
+            "reason": cut.reason,
+            "limit_load": limit,
+        }
         if limit is not None:
-            self.log(f"{phase}: limit load: the path stiffness fell to "
-                     f"{100 * limit['stiffness_ratio']:.1f} % of its initial value and "
-                     f"extrapolates to zero at t = {limit['t_estimate']:.6g}; no larger load has "
-                     "an equilibrium nearby (load control cannot pass a limit point)")
+            self.log(
+                f"{phase}: limit load: the path stiffness fell to "
+                f"{100 * limit['stiffness_ratio']:.1f} % of its initial value and "
+                f"extrapolates to zero at t = {limit['t_estimate']:.6g}; no larger load has "
+                "an equilibrium nearby (load control cannot pass a limit point)"
+            )

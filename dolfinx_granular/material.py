@@ -2,10 +2,11 @@
 
 Every quadrature point of the material's owned cells carries the same law (a
 :class:`~dolfinx_granular.law.MaterialLaw` such as :class:`~dolfinx_granular.rve.TaylorRVE`, or a
-:class:`~dolfinx_granular.law.HistoryLaw` such as the frictional RVE). :meth:`GranularMaterial.update`
-evaluates F = I + grad u at those points, calls the law and writes the first Piola stress P and the
-tangent dP/dF into quadrature Functions, which the UFL forms read. Ghost cells are skipped: cell
-integrals never read their quadrature values, so no RVE is evaluated twice across ranks.
+:class:`~dolfinx_granular.law.HistoryLaw` such as the frictional RVE).
+:meth:`GranularMaterial.update` evaluates F = I + grad u at those points, calls the law and writes
+the first Piola stress P and the tangent dP/dF into quadrature Functions, which the UFL forms read.
+Ghost cells are skipped: cell integrals never read their quadrature values, so no RVE is evaluated
+twice across ranks.
 
 A law with history is always evaluated from the committed state; :meth:`GranularMaterial.commit`
 (called by :class:`~dolfinx_granular.solver.NewtonSolver` when a solve converges) makes the state
@@ -56,8 +57,9 @@ class GranularMaterial(QuadratureMaterial):
         cells, n_qp, timings)
     """
 
-    def __init__(self, rve, u: fem.Function, quadrature_degree: int = 2, stabilise: float = 0.0,
-                 cells=None):
+    def __init__(
+        self, rve, u: fem.Function, quadrature_degree: int = 2, stabilise: float = 0.0, cells=None
+    ):
         self.history = has_history(rve)
         super().__init__(u, quadrature_degree, cells)
         self.rve = rve
@@ -69,12 +71,13 @@ class GranularMaterial(QuadratureMaterial):
         for f in (self.P, self.A):
             Q = f.function_space
             # Writing P and A by position needs dof = cell * n_qp + q with owned cells first.
-            if (Q.dofmap.index_map.size_local != imap.size_local * self.n_qp
-                    or not np.array_equal(dfx.cell_dofs(Q.dofmap).ravel(),
-                                          np.arange(n_all * self.n_qp))):
+            if Q.dofmap.index_map.size_local != imap.size_local * self.n_qp or not np.array_equal(
+                dfx.cell_dofs(Q.dofmap).ravel(), np.arange(n_all * self.n_qp)
+            ):
                 raise RuntimeError(
                     "the quadrature dofmap is not cell-major (dof = cell * n_qp + q); this DOLFINx "
-                    "version lays out quadrature spaces differently and is not supported")
+                    "version lays out quadrature spaces differently and is not supported"
+                )
         self._slots = _point_slots(self.cells, self.n_qp, imap.size_local)
         self.W = np.zeros(n)
         self.F = np.tile(np.eye(2), (n, 1, 1))
@@ -119,7 +122,8 @@ class GranularMaterial(QuadratureMaterial):
             raise UnsupportedDeformationError(
                 f"{err}. Affected cells (local) {cells[:10].tolist()}, first point at x = "
                 f"{xy.tolist()} m. Reduce the load step or check the boundary conditions.",
-                err.points, err.status,
+                err.points,
+                err.status,
             ) from None
         opened = np.flatnonzero(self.W == 0.0)
         self.n_open = opened.size

@@ -131,7 +131,7 @@ class Packing:
             )
 
     @classmethod
-    def load(cls, path) -> "Packing":
+    def load(cls, path) -> Packing:
         """Read a packing written by :meth:`save`.
 
         Raises:

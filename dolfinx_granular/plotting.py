@@ -48,8 +48,14 @@ def plot_sieve_curve(curve: SieveCurve, packing: Packing | None = None, d_min=No
         base = float(curve.passing_at(d_min)) if d_min is not None else 0.0
         # steps after each grain: the sample's own sieve curve
         pas = base + (1.0 - base / 100.0) * SieveCurve.area_passing(diam, diam)
-        ax.step(diam, pas, where="post", color="tab:red", lw=1.2,
-                label=f"generated packing, {packing.n_particles} grains")
+        ax.step(
+            diam,
+            pas,
+            where="post",
+            color="tab:red",
+            lw=1.2,
+            label=f"generated packing, {packing.n_particles} grains",
+        )
     ax.set_xlabel("mesh aperture d [mm]")
     ax.set_ylabel("passing [% of grain area]")
     ax.set_ylim(0, 102)
@@ -121,14 +127,13 @@ def plot_packings_and_densities(sets, deltas_deg=(10.0, 20.0, 30.0), rattlers=No
             draw_packing(ax, packing, None if rattlers is None else rattlers[n][c])
             if c == 0:
                 ax.set_ylabel(f"{n} particles", fontsize=10)
-            pax = fig.add_subplot(len(rows), 2 * cols, r * 2 * cols + 2 * c + 2,
-                                  projection="polar")
+            pax = fig.add_subplot(len(rows), 2 * cols, r * 2 * cols + 2 * c + 2, projection="polar")
             draw_density(pax, contact_angles(packing), deltas_deg)
     handles, labels = pax.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=len(deltas_deg), fontsize=9,
-               frameon=False)
-    fig.suptitle("RVEs and contact-normal densities 2π ρ_δ(θ) (fig. 3; dotted: isotropic)",
-                 fontsize=11)
+    fig.legend(handles, labels, loc="lower center", ncol=len(deltas_deg), fontsize=9, frameon=False)
+    fig.suptitle(
+        "RVEs and contact-normal densities 2π ρ_δ(θ) (fig. 3; dotted: isotropic)", fontsize=11
+    )
     fig.tight_layout(rect=(0, 0.05, 1, 0.96))
     return fig
 
@@ -145,9 +150,17 @@ def plot_stress_curves(panels, title="") -> Figure:
         ax = fig.add_subplot(1, len(panels), k + 1)
         for color, (n, (x, mean, std)) in zip(_N_COLORS, curves.items()):
             for (a, b), ls, comp in (((0, 0), "-", "11"), ((1, 1), "--", "22")):
-                ax.errorbar(x, mean[:, a, b] / 1e6, yerr=std[:, a, b] / 1e6, color=color, ls=ls,
-                            lw=1.1, capsize=2, elinewidth=0.8,
-                            label=f"σ{comp}, {n} particles")
+                ax.errorbar(
+                    x,
+                    mean[:, a, b] / 1e6,
+                    yerr=std[:, a, b] / 1e6,
+                    color=color,
+                    ls=ls,
+                    lw=1.1,
+                    capsize=2,
+                    elinewidth=0.8,
+                    label=f"σ{comp}, {n} particles",
+                )
         ax.set_xlabel(xlabel)
         ax.set_ylabel("Cauchy stress [MPa]")
         ax.set_title(ptitle, fontsize=10)
@@ -164,13 +177,16 @@ def plot_speed_error(rows) -> Figure:
     fig = Figure(figsize=(5.6, 4.2))
     ax = fig.add_subplot()
     t = np.array([row["time_per_point"] for row in rows]) * 1e6
-    for key, marker, label in (("cv_compression", "o-", "σ11 at 5 % compression"),
-                               ("cv_shear", "s--", "σ12 at 5 % shear")):
+    for key, marker, label in (
+        ("cv_compression", "o-", "σ11 at 5 % compression"),
+        ("cv_shear", "s--", "σ12 at 5 % shear"),
+    ):
         cv = np.array([row[key] for row in rows]) * 100.0
         ax.loglog(t, cv, marker, label=label)
         for row, ti, ci in zip(rows, t, cv):
-            ax.annotate(f"{row['n']}", (ti, ci), textcoords="offset points", xytext=(4, 4),
-                        fontsize=8)
+            ax.annotate(
+                f"{row['n']}", (ti, ci), textcoords="offset points", xytext=(4, 4), fontsize=8
+            )
     for axis in (ax.xaxis, ax.yaxis):
         axis.set_major_formatter(FormatStrFormatter("%g"))
         axis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))

@@ -118,7 +118,9 @@ def gather_mesh(V, u, cell_values):
     k = topology[0]
     cells = topology.reshape(-1, k + 1)[:n_owned, 1:]
     uu = u.x.array.reshape(-1, 2)
-    parts = msh.comm.gather((geometry, cells, cell_types[:n_owned], uu, np.asarray(cell_values)), root=0)
+    parts = msh.comm.gather(
+        (geometry, cells, cell_types[:n_owned], uu, np.asarray(cell_values)), root=0
+    )
     if msh.comm.rank != 0:
         return None
     offset = 0
@@ -192,21 +194,31 @@ def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, 
     import pyvista as pv
 
     pv.OFF_SCREEN = True
-    plotter = pv.Plotter(off_screen=True, shape=(2, 4), groups=[(slice(0, 2), slice(0, 2))],
-                         window_size=(1800, 860), border=False)
+    plotter = pv.Plotter(
+        off_screen=True,
+        shape=(2, 4),
+        groups=[(slice(0, 2), slice(0, 2))],
+        window_size=(1800, 860),
+        border=False,
+    )
     plotter.subplot(0, 0)
     clim = _slope_panel(plotter, mesh_data, markers, deformation_scale, value_range)
-    plotter.add_text(title + "\nbranch width proportional to normal contact force, same scale in "
-                     "A-D" + ("; blue: sliding contacts" if any(r[4] is not None for r in rves)
-                              else ""), font_size=11, position="upper_left")
+    plotter.add_text(
+        title + "\nbranch width proportional to normal contact force, same scale in "
+        "A-D" + ("; blue: sliding contacts" if any(r[4] is not None for r in rves) else ""),
+        font_size=11,
+        position="upper_left",
+    )
     # One force-width scale and one length scale for all insets, so that they compare.
     networks = [contact_network(rve, F, state) for _, rve, F, _, state in rves]
     fmax = max((f.max(initial=0.0) for _, f, _ in networks), default=0.0)
     mean_r = np.mean([rve.packing.radii.mean() for _, rve, *_ in rves]) if rves else 1.0
     scale = 0.3 * mean_r / fmax if fmax > 0 else 0.0
     corners = np.array([[0.5, 0.5], [0.5, -0.5]])
-    extent = max((np.abs((corners * rve.packing.box) @ np.asarray(F).T).max()
-                  for _, rve, F, *_ in rves), default=1.0)
+    extent = max(
+        (np.abs((corners * rve.packing.box) @ np.asarray(F).T).max() for _, rve, F, *_ in rves),
+        default=1.0,
+    )
     for n, (inset, network) in enumerate(zip(rves, networks)):
         plotter.subplot(n // 2, 2 + n % 2)
         _inset(plotter, inset, network, scale, extent)
@@ -233,20 +245,33 @@ def _slope_panel(plotter, mesh_data, markers, deformation_scale, value_range):
     clim = (float(lo) / 1e6, float(hi) / 1e6)
     # VTK's scalar bar actor crashes in this VTK wheel (std::regex in its label formatter), so the
     # colour bar is drawn as a mesh of its own below the slope.
-    plotter.add_mesh(grid, scalars="von Mises [MPa]", cmap="turbo", n_colors=16, clim=clim,
-                     show_scalar_bar=False)
+    plotter.add_mesh(
+        grid, scalars="von Mises [MPa]", cmap="turbo", n_colors=16, clim=clim, show_scalar_bar=False
+    )
     plotter.add_mesh(grid.extract_all_edges(), color="black", line_width=0.5, opacity=0.25)
-    _colorbar(plotter, grid.bounds, clim, "von Mises stress [MPa]: colours the cell means, the bar "
-              "spans the Gauss points' range")
+    _colorbar(
+        plotter,
+        grid.bounds,
+        clim,
+        "von Mises stress [MPa]: colours the cell means, the bar spans the Gauss points' range",
+    )
     u_of = _displacement_lookup(points, u)
     mk = []
     for label, X, text in markers:
         x = np.array([X[0], X[1], 0.0])
         x[:2] += deformation_scale * u_of(X)
         mk.append((label, x, text))
-    plotter.add_point_labels(np.array([m[1] for m in mk]), [f"{m[0]}: {m[2]}" for m in mk],
-                             point_size=14, font_size=14, point_color="black", text_color="black",
-                             shape_opacity=0.7, always_visible=True, render_points_as_spheres=True)
+    plotter.add_point_labels(
+        np.array([m[1] for m in mk]),
+        [f"{m[0]}: {m[2]}" for m in mk],
+        point_size=14,
+        font_size=14,
+        point_color="black",
+        text_color="black",
+        shape_opacity=0.7,
+        always_visible=True,
+        render_points_as_spheres=True,
+    )
     plotter.view_xy()
     plotter.camera.parallel_projection = True
     plotter.camera.zoom(1.25)
@@ -270,8 +295,12 @@ def _inset(plotter, inset, network, scale, extent):
             plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color=colour)
     overlap = c.overlap.max(initial=0.0) / rve.packing.radii.mean()
     slide = f", {int(sliding.sum())} sliding" if state is not None else ""
-    plotter.add_text(f"{label}: {text}\n{len(force)} contacts{slide}, largest overlap "
-                     f"{100 * overlap:.2f} % of the mean radius", font_size=10, position="upper_left")
+    plotter.add_text(
+        f"{label}: {text}\n{len(force)} contacts{slide}, largest overlap "
+        f"{100 * overlap:.2f} % of the mean radius",
+        font_size=10,
+        position="upper_left",
+    )
     plotter.view_xy()
     plotter.camera.parallel_projection = True
     plotter.camera.focal_point = (0.0, 0.0, 0.0)
@@ -318,15 +347,28 @@ def _colorbar(plotter, bounds, clim, title, n_ticks=5):
 
     x0, x1, y0, y1 = bounds[0], bounds[1], bounds[2], bounds[3]
     h = 0.04 * (y1 - y0 + x1 - x0)
-    bar = pv.Plane(center=(0.5 * (x0 + x1), y0 - 2.2 * h, 0.0), direction=(0, 0, 1),
-                   i_size=x1 - x0, j_size=h, i_resolution=128, j_resolution=1)
+    bar = pv.Plane(
+        center=(0.5 * (x0 + x1), y0 - 2.2 * h, 0.0),
+        direction=(0, 0, 1),
+        i_size=x1 - x0,
+        j_size=h,
+        i_resolution=128,
+        j_resolution=1,
+    )
     bar.point_data["c"] = clim[0] + (bar.points[:, 0] - x0) / (x1 - x0) * (clim[1] - clim[0])
     plotter.add_mesh(bar, scalars="c", cmap="turbo", n_colors=16, clim=clim, show_scalar_bar=False)
     ticks = np.linspace(clim[0], clim[1], n_ticks)
     pts = np.c_[np.linspace(x0, x1, n_ticks), np.full(n_ticks, y0 - 3.4 * h), np.zeros(n_ticks)]
-    plotter.add_point_labels(pts, [f"{t:.2f}" for t in ticks], shape=None, show_points=False,
-                             font_size=14, text_color="black", justification_horizontal="center",
-                             always_visible=True)
+    plotter.add_point_labels(
+        pts,
+        [f"{t:.2f}" for t in ticks],
+        shape=None,
+        show_points=False,
+        font_size=14,
+        text_color="black",
+        justification_horizontal="center",
+        always_visible=True,
+    )
     plotter.add_text(title, position="lower_left", font_size=10)
 
 
@@ -334,6 +376,7 @@ def _displacement_lookup(points, u):
     def at(X):
         i = int(np.argmin(np.linalg.norm(points[:, :2] - np.asarray(X)[:2], axis=1)))
         return u[i]
+
     return at
 
 

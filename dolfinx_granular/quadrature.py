@@ -39,8 +39,11 @@ def unflatten(t):
 
 def check_quadrature_degree(value) -> int:
     """``value`` as a quadrature degree: an integer >= 1 (2.0 is accepted, 2.7 is not)."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) \
-            or not (np.isfinite(value) and value == int(value) and value >= 1):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, numbers.Real)
+        or not (np.isfinite(value) and value == int(value) and value >= 1)
+    ):
         raise ValueError(f"quadrature_degree must be an integer >= 1, got {value!r}")
     return int(value)
 
@@ -96,12 +99,14 @@ class QuadratureMaterial:
             raise ValueError(
                 f"{type(self).__name__} needs a 2-D mesh and a vector displacement with 2 "
                 f"components; got geometric dimension {msh.geometry.dim} and value shape "
-                f"{u.ufl_shape}")
+                f"{u.ufl_shape}"
+            )
         self.u = u
         self.mesh = msh
         self.quadrature_degree = k = check_quadrature_degree(quadrature_degree)
-        self.dx = ufl.Measure("dx", domain=msh,
-                              metadata={"quadrature_degree": k, "quadrature_scheme": "default"})
+        self.dx = ufl.Measure(
+            "dx", domain=msh, metadata={"quadrature_degree": k, "quadrature_scheme": "default"}
+        )
         X = dfx.quadrature_points(msh, k)
         self.n_qp = X.shape[0]
         self.cells, self.indicator = _material_cells(msh, cells)
@@ -188,12 +193,15 @@ def _material_cells(msh, cells):
         return np.arange(n_owned, dtype=np.int32), None
     cells = np.asarray(cells)
     if cells.ndim != 1 or not np.issubdtype(cells.dtype, np.integer) and cells.size:
-        raise ValueError("cells must be a 1-D array of local cell indices (e.g. from "
-                         "dolfinx.mesh.locate_entities(mesh, 2, marker))")
+        raise ValueError(
+            "cells must be a 1-D array of local cell indices (e.g. from "
+            "dolfinx.mesh.locate_entities(mesh, 2, marker))"
+        )
     cells = np.unique(cells.astype(np.int32))
     if cells.size and (cells[0] < 0 or cells[-1] >= n_all):
-        raise ValueError(f"cells must be local cell indices in [0, {n_all}), got "
-                         f"{cells[0]} .. {cells[-1]}")
+        raise ValueError(
+            f"cells must be local cell indices in [0, {n_all}), got {cells[0]} .. {cells[-1]}"
+        )
     chi = fem.Function(dfx.function_space(msh, "DG", 0), name="indicator")
     chi.x.array[dfx.cell_dofs(chi.function_space.dofmap)[cells].ravel()] = 1.0
     chi.x.scatter_forward()

@@ -76,16 +76,19 @@ def read_npz(path, format_name):
     """The arrays of a restart file written with ``format=format_name``, as a dict; raises
     :class:`RestartError` naming the problem."""
     if not os.path.isfile(path):
-        raise RestartError(f"{path!r} does not exist; give the output folder of a run that "
-                           "completed at least one load step")
+        raise RestartError(
+            f"{path!r} does not exist; give the output folder of a run that "
+            "completed at least one load step"
+        )
     try:
         with np.load(path, allow_pickle=False) as f:
             if str(f["format"]) != format_name:
                 raise ValueError(f"not a {format_name} file")
             return {k: np.array(f[k]) for k in f.files}
     except Exception as err:  # zip, key or format errors: all mean an unusable file
-        raise RestartError(f"{path!r} is not a usable restart file ({err}); start the run "
-                           "again without resuming") from err
+        raise RestartError(
+            f"{path!r} is not a usable restart file ({err}); start the run again without resuming"
+        ) from err
 
 
 class _CoordinateOrder:
@@ -114,8 +117,9 @@ class _CoordinateOrder:
         dist, idx = cKDTree(X_stored).query(X_here) if len(X_here) else (np.zeros(0), [])
         worst = self.comm.allreduce(float(dist.max()) if len(dist) else 0.0, op=MPI.MAX)
         if worst > self.tolerance:
-            raise RestartError("the restart file belongs to another mesh; start the run again "
-                               "without resuming")
+            raise RestartError(
+                "the restart file belongs to another mesh; start the run again without resuming"
+            )
         return np.asarray(idx, dtype=np.int64)
 
 

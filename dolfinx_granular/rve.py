@@ -94,13 +94,22 @@ class TaylorRVE:
     :class:`UnsupportedDeformationError` naming the points.
     """
 
-    def __init__(self, packing: Packing, normal_stiffness: float, min_stretch: float = 0.5,
-                 allow_overlaps: bool = False):
+    def __init__(
+        self,
+        packing: Packing,
+        normal_stiffness: float,
+        min_stretch: float = 0.5,
+        allow_overlaps: bool = False,
+    ):
         if not isinstance(packing, Packing):
-            raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
+            raise TypeError(
+                f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}"
+            )
         k = _number(normal_stiffness, "normal_stiffness")
         if not (np.isfinite(k) and k > 0.0):
-            raise ValueError(f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}")
+            raise ValueError(
+                f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}"
+            )
         s = _number(min_stretch, "min_stretch")
         if not (0.0 < s <= 1.0):
             raise ValueError(f"min_stretch must lie in (0, 1], got {min_stretch!r}")
@@ -126,14 +135,18 @@ class TaylorRVE:
                 f"the packing's disks overlap by up to {100 * worst:.3g} % of their radius sums at "
                 f"F = I (more than {100 * MAX_REFERENCE_OVERLAP:g} %): that is no contact network "
                 "but overlapping disks. Relax it with dolfinx_granular.relax_overlaps(packing), "
-                "or pass allow_overlaps=True to use it as it is")
+                "or pass allow_overlaps=True to use it as it is"
+            )
         self.prestress = self.stress(np.eye(2))[1]
         if self.prestress_ratio > PRESTRESS_WARNING:
             warnings.warn(
                 f"the reference state is prestressed: P(I) = {self.prestress.round(1).tolist()} Pa "
                 f"({self.prestress_ratio:.2g} of the modulus), from disks overlapping by up to "
                 f"{100 * self.max_reference_overlap:.3g} % at F = I; dolfinx_granular."
-                "relax_overlaps(packing) makes it stress-free", PrestressWarning, stacklevel=3)
+                "relax_overlaps(packing) makes it stress-free",
+                PrestressWarning,
+                stacklevel=3,
+            )
 
     @property
     def prestress_ratio(self) -> float:
@@ -162,8 +175,19 @@ class TaylorRVE:
                 A = np.empty((0, 2, 2, 2, 2))
         status = np.empty(n, dtype=np.int8)
         kernel.evaluate_batch(
-            F, self._X, self._Y, self._R, self._rho, self._K, self.min_stretch, spatial, tangent,
-            W, P, A, status,
+            F,
+            self._X,
+            self._Y,
+            self._R,
+            self._rho,
+            self._K,
+            self.min_stretch,
+            spatial,
+            tangent,
+            W,
+            P,
+            A,
+            status,
         )
         if status.any():
             self._raise(F, status)
@@ -177,7 +201,10 @@ class TaylorRVE:
         reason = _REASONS[int(status[q])]
         if status[q] == kernel.BELOW_MIN_STRETCH:
             smin = np.linalg.svd(F[q], compute_uv=False).min()
-            reason += f" ({smin:.4g} < min_stretch={self.min_stretch}; build the TaylorRVE with a smaller min_stretch)"
+            reason += (
+                f" ({smin:.4g} < min_stretch={self.min_stretch}; "
+                "build the TaylorRVE with a smaller min_stretch)"
+            )
         raise UnsupportedDeformationError(
             f"F at {bad.size} of {F.shape[0]} points is outside the Taylor RVE's range; the first, "
             f"point {q}, F = {F[q].tolist()}, {reason}",
@@ -200,7 +227,7 @@ class TaylorRVE:
         return self._run(F, spatial=False, tangent=True, out=out)
 
     def stress(self, F, out=None):
-        """Energy and first Piola stress without the tangent (cheaper): ``(W (n,), P (n, 2, 2))``."""
+        """Energy and first Piola stress, no tangent (cheaper): ``(W (n,), P (n, 2, 2))``."""
         W, P, _ = self._run(F, spatial=False, tangent=False, out=out)
         return W, P
 
@@ -236,7 +263,10 @@ class TaylorRVE:
         l, eps = self._overlaps(F)
         on = eps >= 0.0
         return ContactSet(
-            pairs=self._ij[on], shift=self._shift[on], branch=l[on], overlap=eps[on],
+            pairs=self._ij[on],
+            shift=self._shift[on],
+            branch=l[on],
+            overlap=eps[on],
             force=self.normal_stiffness * eps[on],
         )
 

@@ -129,10 +129,25 @@ class NewtonSolver:
             internal forces of the round-off test); ``clock.calls`` counts them.
     """
 
-    def __init__(self, residual, jacobian, u, bcs=(), materials=(), *, energy_rtol=1e-20,
-                 residual_rtol=1e-12, residual_atol=0.0, roundoff_energy=1e-14, max_it=20,
-                 prefix="granular_", petsc_options=None, verbose=False, skip_final_tangent=False,
-                 stagnation_it=4):
+    def __init__(
+        self,
+        residual,
+        jacobian,
+        u,
+        bcs=(),
+        materials=(),
+        *,
+        energy_rtol=1e-20,
+        residual_rtol=1e-12,
+        residual_atol=0.0,
+        roundoff_energy=1e-14,
+        max_it=20,
+        prefix="granular_",
+        petsc_options=None,
+        verbose=False,
+        skip_final_tangent=False,
+        stagnation_it=4,
+    ):
         self.u = u
         self.bcs = list(bcs)
         self.materials = _as_tuple(materials)
@@ -157,7 +172,8 @@ class NewtonSolver:
         self.A = create_matrix(self.a)
         # SNES's own vector x (line searches write trial points there) and work vectors
         self.b, self.x, self._x_eval, self._x_prev, self._R_prev, self._f = (
-            self._u_vec.duplicate() for _ in range(6))
+            self._u_vec.duplicate() for _ in range(6)
+        )
         self._have_eval = self._have_tangent = False
         self.snes = self._create_snes(prefix, petsc_options)
         self.clock = Stopwatch()
@@ -178,12 +194,20 @@ class NewtonSolver:
     def time_split(t) -> dict:
         """``rve``, ``assembly``, ``solve`` and ``rest`` seconds of a Stopwatch table ``t``."""
         assembly = t["residual"] + t["jacobian"] + t["scale"]
-        return {"rve": t["rve"], "assembly": assembly, "solve": t["snes"] - t["callbacks"],
-                "rest": t["callbacks"] + t["after"] - t["rve"] - assembly}
+        return {
+            "rve": t["rve"],
+            "assembly": assembly,
+            "solve": t["snes"] - t["callbacks"],
+            "rest": t["callbacks"] + t["after"] - t["rve"] - assembly,
+        }
 
     def _create_snes(self, prefix, petsc_options):
-        opts = {"snes_type": "newtonls", "snes_linesearch_type": "basic", "ksp_type": "preonly",
-                "pc_type": "lu"}
+        opts = {
+            "snes_type": "newtonls",
+            "snes_linesearch_type": "basic",
+            "ksp_type": "preonly",
+            "pc_type": "lu",
+        }
         if PETSc.Sys.hasExternalPackage("mumps"):
             opts["pc_factor_mat_solver_type"] = "mumps"  # PETSc's own LU is serial only
         opts.update(petsc_options or {})
@@ -315,8 +339,11 @@ class NewtonSolver:
             rel = self._energy_rel(x)
             self.history.append((it, self._rnorm_prev, rel))
             if self.verbose and self.comm.rank == 0:
-                print(f"    Newton {it:2d}: |R| = {self._rnorm_prev:.3e} N, energy norm (rel) = "
-                      f"{rel:.3e}", flush=True)
+                print(
+                    f"    Newton {it:2d}: |R| = {self._rnorm_prev:.3e} N, energy norm (rel) = "
+                    f"{rel:.3e}",
+                    flush=True,
+                )
         stalled = it > 0 and fnorm > 0.5 * self._rnorm_prev
         # the first Newton step may well overshoot the starting residual: count from iterate 1
         if it <= 1 or fnorm < self._rnorm_best:
@@ -341,8 +368,10 @@ class NewtonSolver:
         if it >= self.max_it:
             return _CR.DIVERGED_MAX_IT
         if self.stagnation_it > 0 and self._no_progress >= self.stagnation_it:
-            self._error = (f"|R| = {fnorm:.3e} N has not gone below its best value "
-                           f"{self._rnorm_best:.3e} N for {self._no_progress} Newton steps")
+            self._error = (
+                f"|R| = {fnorm:.3e} N has not gone below its best value "
+                f"{self._rnorm_best:.3e} N for {self._no_progress} Newton steps"
+            )
             self._stagnated = True
             return _CR.DIVERGED_DTOL
         return _CR.ITERATING
@@ -372,10 +401,16 @@ class NewtonSolver:
             self._error = self._error or self._final_evaluation()
         reason, name = self._outcome(petsc_error)
         result = SolveResult(
-            converged=reason > 0, reason=reason, reason_name=name,
-            iterations=len(self.history), history=list(self.history),
-            residual_norm=float(self._rnorm_prev), force_scale=float(self._scale),
-            error=self._error, stopped_by=self._stop if reason > 0 else "")
+            converged=reason > 0,
+            reason=reason,
+            reason_name=name,
+            iterations=len(self.history),
+            history=list(self.history),
+            residual_norm=float(self._rnorm_prev),
+            force_scale=float(self._scale),
+            error=self._error,
+            stopped_by=self._stop if reason > 0 else "",
+        )
         with self.clock("after"):
             if result.converged:
                 for m in self.materials:
@@ -449,8 +484,16 @@ class NewtonSolver:
         gc.collect()
         if hasattr(PETSc, "garbage_cleanup"):
             PETSc.garbage_cleanup(self.comm)
-        for obj in (self.snes, self.A, self.b, self.x, self._x_eval, self._x_prev, self._R_prev,
-                    self._f):
+        for obj in (
+            self.snes,
+            self.A,
+            self.b,
+            self.x,
+            self._x_eval,
+            self._x_prev,
+            self._R_prev,
+            self._f,
+        ):
             obj.destroy()
         if hasattr(PETSc, "garbage_cleanup"):
             PETSc.garbage_cleanup(self.comm)

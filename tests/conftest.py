@@ -1,7 +1,7 @@
+import dolfinx_granular  # noqa: F401  (first: loads the MPI of DOLFINx's PyPI wheel)
+
 import numpy as np
 import pytest
-
-import dolfinx_granular  # noqa: F401  (first: loads the MPI of DOLFINx's PyPI wheel)
 
 # (tests/ and benchmarks/ are on the import path through pytest's `pythonpath` setting)
 

@@ -1,8 +1,8 @@
 """Small packings with known properties, built in the tests (no generator involved)."""
 
-import numpy as np
-
 from dolfinx_granular import Packing
+
+import numpy as np
 
 
 def random_packing(n=40, phi=0.85, seed=0):
@@ -24,6 +24,7 @@ def hex_lattice(nx=6, ny=6, overlap=1e-9):
     """Triangular lattice of unit disks (6 contacts each, isotropic fabric), radii enlarged by a
     relative ``overlap`` so that every lattice contact is active despite rounding. ``ny`` even."""
     h = np.sqrt(3.0) / 2.0
-    centers = np.array([((ix + 0.5 * (iy % 2)) + 0.25, (iy + 0.5) * h)
-                        for iy in range(ny) for ix in range(nx)])
+    centers = np.array(
+        [((ix + 0.5 * (iy % 2)) + 0.25, (iy + 0.5) * h) for iy in range(ny) for ix in range(nx)]
+    )
     return Packing(centers, np.full(nx * ny, 0.5 * (1.0 + overlap)), (float(nx), ny * h))

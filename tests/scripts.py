@@ -9,7 +9,6 @@ import json
 import os
 import sys
 
-
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SLOPE = os.path.join(ROOT, "demos", "slope.py")
 # mpirun as root (CI containers) needs these

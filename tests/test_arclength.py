@@ -3,12 +3,13 @@ spring (tests/truss.py): the traced path lies on the exact equilibrium path thro
 limit points and the snap-back, the limit points are found by the sign of det K, and failed
 increments leave the converged state as it was."""
 
+from dolfinx_granular.arclength import ArcLength, control_reaches, load_reaches, unloaded_to
+
 import numpy as np
 import pytest
 from mpi4py import MPI
 
-from dolfinx_granular.arclength import ArcLength, control_reaches, load_reaches, unloaded_to
-from truss import (P_MAX, H, deflections, load_of_apex, spring_compression, truss)
+from truss import P_MAX, H, deflections, load_of_apex, spring_compression, truss
 
 
 def trace(model, ds=0.02, steps=200, stop=None, **kwargs):
@@ -22,8 +23,12 @@ def trace(model, ds=0.02, steps=200, stop=None, **kwargs):
 @pytest.mark.mpi
 def test_truss_path_through_both_limit_points_and_the_snap_back():
     model = truss(prefix="al_truss_")
-    al, s = trace(model, ds=0.02, ds_max=0.05, stop=lambda a: "past" if deflections(model)[0] > 2.2 * H
-                  else None)
+    al, s = trace(
+        model,
+        ds=0.02,
+        ds_max=0.05,
+        stop=lambda a: "past" if deflections(model)[0] > 2.2 * H else None,
+    )
     lam, w, v = s.T
     assert al.failed is None and al.stopped == "past"
     # every converged state is on the exact path: P(w), and the spring's compression at that P
@@ -56,9 +61,13 @@ def test_cylindrical_and_spherical_and_dof_control_trace_the_same_curve():
         model = truss(prefix=f"al_{list(kwargs)[0]}_")
         if kwargs.get("control"):
             kwargs = {"control": (model.apex_dof, -1.0)}  # the apex moves down: u_y decreases
-        al, s = trace(model, ds=0.01 if "control" in kwargs else 0.02, steps=80,
-                      stop=load_reaches(-0.5 * P_MAX) if "psi" in kwargs
-                      else control_reaches(-1.5 * H), **kwargs)
+        al, s = trace(
+            model,
+            ds=0.01 if "control" in kwargs else 0.02,
+            steps=80,
+            stop=load_reaches(-0.5 * P_MAX) if "psi" in kwargs else control_reaches(-1.5 * H),
+            **kwargs,
+        )
         lam, w, v = s.T
         assert al.failed is None, al.failed
         assert np.abs(lam - load_of_apex(w)).max() <= 1e-9 * P_MAX
@@ -119,19 +128,26 @@ def test_serial_path_is_reproduced_on_every_rank_count():
 def snes_newtonal_final_state(model, target, step_size):
     """PETSc's own arc length (SNESNEWTONAL, in recent PETSc) on the same residual and Jacobian:
     lam from 0 to 1 of the load ``target``, through every limit point; returns (w, v)."""
-    from petsc4py import PETSc
-
     from dolfinx_granular._dolfinx import petsc_vec
+
+    from petsc4py import PETSc
 
     solver = model.solver
     f = ArcLength(solver, model.load, model.external, 0.02).f  # the assembled load pattern
     snes = PETSc.SNES().create(solver.comm)
     snes.setOptionsPrefix("test_newtonal_")
     opts = PETSc.Options()
-    settings = {"snes_type": "newtonal", "snes_newtonal_step_size": step_size,
-                "snes_newtonal_psisq": 0.0, "snes_newtonal_lambda_min": -2.0,
-                "snes_newtonal_max_continuation_steps": 500, "snes_max_it": 30,
-                "snes_rtol": 1e-12, "ksp_type": "preonly", "pc_type": "lu"}
+    settings = {
+        "snes_type": "newtonal",
+        "snes_newtonal_step_size": step_size,
+        "snes_newtonal_psisq": 0.0,
+        "snes_newtonal_lambda_min": -2.0,
+        "snes_newtonal_max_continuation_steps": 500,
+        "snes_max_it": 30,
+        "snes_rtol": 1e-12,
+        "ksp_type": "preonly",
+        "pc_type": "lu",
+    }
     for key, value in settings.items():
         opts["test_newtonal_" + key] = value
     b = petsc_vec(model.u).duplicate()

@@ -1,21 +1,27 @@
-"""Bad input to the slope demo: one line ``error: ...`` naming the problem and the fix, exit status 2,
-no traceback (unless ``--debug``), also under ``mpirun -n 2``; a gmsh model without the required
-physical groups."""
+"""Bad input to the slope demo: one line ``error: ...`` naming the problem and the fix, exit
+status 2, no traceback (unless ``--debug``), also under ``mpirun -n 2``; a gmsh model without the
+required physical groups."""
 
 import subprocess
 
-import numpy as np
-import pytest
-
 from dolfinx_granular import Packing
 from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
+
+import numpy as np
+import pytest
 
 from scripts import MPI_ENV, ROOT, slope_command
 
 
 def demo(*args, ranks=1, cwd=ROOT):
-    return subprocess.run(slope_command(*args, ranks=ranks), cwd=cwd, env=MPI_ENV,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        slope_command(*args, ranks=ranks),
+        cwd=cwd,
+        env=MPI_ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def assert_user_error(proc, *words, mpirun=False):
@@ -40,8 +46,13 @@ def write_npz(path, **fields):
 @pytest.fixture
 def packings(tmp_path):
     good = Packing([[0.5, 0.5], [1.5, 1.5]], [0.4, 0.4], (3.0, 3.0))
-    base = dict(format=np.array(FORMAT_NAME), version=np.array(FORMAT_VERSION),
-                centers=good.centers, radii=good.radii, box=good.box)
+    base = dict(
+        format=np.array(FORMAT_NAME),
+        version=np.array(FORMAT_VERSION),
+        centers=good.centers,
+        radii=good.radii,
+        box=good.box,
+    )
     files = {"missing": str(tmp_path / "nope.npz")}
     files["truncated"] = str(tmp_path / "truncated.npz")
     good.save(files["truncated"])
@@ -55,40 +66,51 @@ def packings(tmp_path):
     return files
 
 
-@pytest.mark.parametrize("args, words", [
-    (["--particles", "-5"], ["--particles", ">= 2", "-5"]),
-    (["--particles", "0"], ["--particles", ">= 2"]),
-    (["--particles", "many"], ["--particles", "integer"]),
-    (["--steps", "0"], ["--steps", ">= 1"]),
-    (["--load-factor", "nan"], ["--load-factor", "finite"]),
-    (["--stabilise", "-1"], ["--stabilise", ">= 0"]),
-    (["--bogus"], ["unrecognized arguments: --bogus", "--help"]),
-    (["--line-search", "magic"], ["--line-search", "invalid choice"]),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--particles", "-5"], ["--particles", ">= 2", "-5"]),
+        (["--particles", "0"], ["--particles", ">= 2"]),
+        (["--particles", "many"], ["--particles", "integer"]),
+        (["--steps", "0"], ["--steps", ">= 1"]),
+        (["--load-factor", "nan"], ["--load-factor", "finite"]),
+        (["--stabilise", "-1"], ["--stabilise", ">= 0"]),
+        (["--bogus"], ["unrecognized arguments: --bogus", "--help"]),
+        (["--line-search", "magic"], ["--line-search", "invalid choice"]),
+    ],
+)
 def test_invalid_options(args, words):
     assert_user_error(demo(*args), *words)
 
 
-@pytest.mark.parametrize("kind, words", [
-    ("missing", ["does not exist"]),
-    ("truncated", ["truncated.npz"]),
-    ("foreign", ["foreign.npz"]),
-    ("text", ["text.npz"]),
-    ("negative", ["radii must be > 0"]),
-    ("zero", ["radii must be > 0"]),
-    ("nan", ["non-finite"]),
-])
+@pytest.mark.parametrize(
+    "kind, words",
+    [
+        ("missing", ["does not exist"]),
+        ("truncated", ["truncated.npz"]),
+        ("foreign", ["foreign.npz"]),
+        ("text", ["text.npz"]),
+        ("negative", ["radii must be > 0"]),
+        ("zero", ["radii must be > 0"]),
+        ("nan", ["non-finite"]),
+    ],
+)
 def test_invalid_packing_files(packings, kind, words, tmp_path):
-    line = assert_user_error(demo("--packing", packings[kind], "--out", str(tmp_path / "o")),
-                             "--packing", *words)
+    line = assert_user_error(
+        demo("--packing", packings[kind], "--out", str(tmp_path / "o")), "--packing", *words
+    )
     assert "dolfinx_granular generate" in line  # the fix
 
 
 def test_unwritable_out(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    assert_user_error(demo("--out", str(blocker / "results"), "--particles", "10"),
-                      "--out", "cannot be written", "writable folder")
+    assert_user_error(
+        demo("--out", str(blocker / "results"), "--particles", "10"),
+        "--out",
+        "cannot be written",
+        "writable folder",
+    )
     assert_user_error(demo("--out", str(blocker), "--particles", "10"), "--out")
 
 
@@ -99,25 +121,32 @@ def test_debug_shows_the_traceback(tmp_path):
 
 @pytest.mark.slow
 def test_error_on_two_ranks_is_one_line_and_no_hang(packings, tmp_path):
-    assert_user_error(demo("--packing", packings["nan"], "--out", str(tmp_path / "o"), ranks=2),
-                      "--packing", "non-finite", mpirun=True)
+    assert_user_error(
+        demo("--packing", packings["nan"], "--out", str(tmp_path / "o"), ranks=2),
+        "--packing",
+        "non-finite",
+        mpirun=True,
+    )
     assert_user_error(demo("--particles", "-1", ranks=2), "--particles", mpirun=True)
 
 
 @pytest.mark.mpi
 def test_mesh_without_physical_groups():
     pytest.importorskip("dolfinx")
+    from dolfinx_granular.slope.geometry import MeshError, build_gmsh_model, model_to_mesh
+
     import gmsh
     from mpi4py import MPI
-
-    from dolfinx_granular.slope.geometry import MeshError, build_gmsh_model, model_to_mesh
 
     comm = MPI.COMM_WORLD
     gmsh.initialize()
     gmsh.option.setNumber("General.Terminal", 0)
     try:
-        for removed, words in ([(1, 4)], ["footing (4)"]), ([(2, 10)], ["2-D cell group"]), \
-                (None, ["bottom (1)", "left (2)", "right (3)", "footing (4)"]):
+        for removed, words in (
+            ([(1, 4)], ["footing (4)"]),
+            ([(2, 10)], ["2-D cell group"]),
+            (None, ["bottom (1)", "left (2)", "right (3)", "footing (4)"]),
+        ):
             if comm.rank == 0:
                 build_gmsh_model()
                 if removed is None:

@@ -1,9 +1,10 @@
 """The benchmark scripts run (at tiny size) so that they cannot rot."""
 
+from dolfinx_granular import TaylorRVE, generate_packing
+
 import numpy as np
 
 import kernel
-from dolfinx_granular import TaylorRVE, generate_packing
 
 
 def test_kernel_benchmark_runs(capsys):

@@ -4,19 +4,25 @@ import os
 import subprocess
 import sys
 
-import numpy as np
-import pytest
-
 from dolfinx_granular import Packing, generate_packing
 from dolfinx_granular.__main__ import main
+
+import numpy as np
+import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def run_module(*args, cwd):
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "dolfinx_granular", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "dolfinx_granular", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_generate_writes_the_packing_of_generate_packing(tmp_path):
@@ -68,11 +74,28 @@ def test_bad_arguments(tmp_path, monkeypatch, capsys, argv, message):
 def test_user_sieve_curve_and_options(tmp_path, monkeypatch, capsys):
     (tmp_path / "sand.csv").write_text("# test sand\naperture,passing\n0.3,0\n0.6,50\n1.18,100\n")
     monkeypatch.chdir(tmp_path)
-    assert main(["generate", "80", "--seed", "2", "--sieve-curve", "sand.csv", "--aspect", "1.5",
-                 "-o", "s.npz", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "80",
+                "--seed",
+                "2",
+                "--sieve-curve",
+                "sand.csv",
+                "--aspect",
+                "1.5",
+                "-o",
+                "s.npz",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     p = Packing.load(tmp_path / "s.npz")
-    assert p == generate_packing(80, ([0.3, 0.6, 1.18], [0, 50, 100]), seed=2, d_min=None,
-                                 aspect=1.5)
+    assert p == generate_packing(
+        80, ([0.3, 0.6, 1.18], [0, 50, 100]), seed=2, d_min=None, aspect=1.5
+    )
     assert np.isclose(p.box[1] / p.box[0], 1.5)
     assert "wrote s.npz" in capsys.readouterr().out
 

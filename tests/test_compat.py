@@ -8,14 +8,15 @@ or FFCx (run on the newest stack, this catches an API that is on its way out).
 import os
 import warnings
 
+from dolfinx_granular import _dolfinx as dfx
+from dolfinx_granular.slope import SlopeOptions, run_slope
+
 import numpy as np
 import pytest
 import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 
-from dolfinx_granular import _dolfinx as dfx
-from dolfinx_granular.slope import SlopeOptions, run_slope
 from scripts import ROOT
 
 LIBRARIES = ("dolfinx", "ufl", "basix", "ffcx")
@@ -52,7 +53,11 @@ def test_evaluate_gives_row_major_points_per_cell():
     assert np.allclose(F.reshape(-1, 2, 2), [[1.1, 0.2], [-0.3, 1.0]], rtol=0, atol=1e-14)
     x = dfx.evaluate(dfx.expression(ufl.SpatialCoordinate(msh), X), msh, cells).reshape(-1, 2)
     assert x.shape == (cells.size * X.shape[0], 2) and np.all((x > 0) & (x < 1))
-    assert dfx.evaluate(dfx.expression(ufl.grad(u), X), msh, cells[:0]).reshape(-1, 2, 2).shape == (0, 2, 2)
+    assert dfx.evaluate(dfx.expression(ufl.grad(u), X), msh, cells[:0]).reshape(-1, 2, 2).shape == (
+        0,
+        2,
+        2,
+    )
 
 
 @pytest.mark.mpi
@@ -92,15 +97,23 @@ def test_no_deprecation_warning_from_the_package(tmp_path):
     packing = generate_packing(20, seed=2)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        summary = run_slope(packing, SlopeOptions(steps=1), out=str(tmp_path), figure=False,
-                            verbose=False)
+        summary = run_slope(
+            packing, SlopeOptions(steps=1), out=str(tmp_path), figure=False, verbose=False
+        )
         dfx.vtk_mesh(dfx.vector_space(square(1)))
     assert summary["converged"]
-    ours = [f"{w.filename}:{w.lineno}: {w.message}" for w in caught
-            if issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning, FutureWarning))
-            and (w.filename.startswith(ROOT) or any(
+    ours = [
+        f"{w.filename}:{w.lineno}: {w.message}"
+        for w in caught
+        if issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning, FutureWarning))
+        and (
+            w.filename.startswith(ROOT)
+            or any(
                 f"{os.sep}{lib}{os.sep}" in w.filename or f"{os.sep}{lib}." in w.filename
-                for lib in LIBRARIES))]
+                for lib in LIBRARIES
+            )
+        )
+    ]
     assert not ours, "\n".join(ours)
 
 

@@ -1,24 +1,28 @@
 """The acoustic-tensor test of strong ellipticity: analytic cases and the Taylor RVE."""
 
-import numpy as np
-import pytest
-
 from dolfinx_granular import TaylorRVE, generate_packing
 from dolfinx_granular.postprocess import min_acoustic_eigenvalue
+
+import numpy as np
+import pytest
 
 I2 = np.eye(2)
 
 
 def isotropic(lam, mu):
     """A_iJkL of small-strain isotropic elasticity (n = 1)."""
-    return (lam * np.einsum("ij,kl->ijkl", I2, I2) + mu * (np.einsum("ik,jl->ijkl", I2, I2)
-                                                          + np.einsum("il,jk->ijkl", I2, I2)))[None]
+    return (
+        lam * np.einsum("ij,kl->ijkl", I2, I2)
+        + mu * (np.einsum("ik,jl->ijkl", I2, I2) + np.einsum("il,jk->ijkl", I2, I2))
+    )[None]
 
 
 def test_isotropic_minimum_is_the_shear_modulus():
     # Q(N) = mu I + (lam + mu) N N: eigenvalues mu and lam + 2 mu for every N
     for lam, mu in [(2.0, 1.0), (-0.9, 1.0), (5.0, 0.25)]:
-        assert min_acoustic_eigenvalue(isotropic(lam, mu), 7)[0] == pytest.approx(min(mu, lam + 2 * mu), rel=1e-14)
+        assert min_acoustic_eigenvalue(isotropic(lam, mu), 7)[0] == pytest.approx(
+            min(mu, lam + 2 * mu), rel=1e-14
+        )
     # lam + 2 mu < 0: the longitudinal wave speed is imaginary, ellipticity is lost
     assert min_acoustic_eigenvalue(isotropic(-3.0, 1.0))[0] == pytest.approx(-1.0, rel=1e-14)
 
@@ -40,8 +44,10 @@ def test_taylor_rve_matches_dense_eigenvalues():
     _, _, A = rve.evaluate(F)
     got = min_acoustic_eigenvalue(A, n_directions=360)
     for q in range(len(F)):
-        lowest = min(np.linalg.eigvalsh(np.einsum("iJkL,J,L->ik", A[q], N, N))[0]
-                     for N in (np.array([np.cos(t), np.sin(t)]) for t in np.pi * np.arange(360) / 360))
+        lowest = min(
+            np.linalg.eigvalsh(np.einsum("iJkL,J,L->ik", A[q], N, N))[0]
+            for N in (np.array([np.cos(t), np.sin(t)]) for t in np.pi * np.arange(360) / 360)
+        )
         assert got[q] == pytest.approx(lowest, rel=1e-12, abs=1e-9 * np.abs(A[q]).max())
     # the stress-free packing under no load is elliptic
     assert got[0] > 0

@@ -1,8 +1,5 @@
 """Contact-normal density (angle of influence), fabric tensor and anisotropy."""
 
-import numpy as np
-import pytest
-
 from dolfinx_granular import TaylorRVE, generate_packing
 from dolfinx_granular.fabric import (
     anisotropy,
@@ -11,6 +8,10 @@ from dolfinx_granular.fabric import (
     fabric_tensor,
     normal_density,
 )
+
+import numpy as np
+import pytest
+
 from packings import hex_lattice, square_lattice
 
 DEG = np.pi / 180
@@ -23,7 +24,9 @@ def test_density_integrates_to_one(rng, delta_deg):
     theta, rho = normal_density(angles, delta_deg * DEG, n_theta=m)
     assert rho.min() >= 0
     # Riemann sum of box windows: exact up to one grid cell per window edge
-    assert np.sum(rho) * 2 * np.pi / m == pytest.approx(1.0, abs=2 * (2 * np.pi / m) / (2 * delta_deg * DEG))
+    assert np.sum(rho) * 2 * np.pi / m == pytest.approx(
+        1.0, abs=2 * (2 * np.pi / m) / (2 * delta_deg * DEG)
+    )
 
 
 def test_uniform_set_gives_one_over_two_pi_everywhere():
@@ -37,10 +40,20 @@ def test_uniform_set_gives_one_over_two_pi_everywhere():
 def test_each_contact_counts_at_theta_and_theta_plus_pi():
     delta = 10 * DEG
     theta, rho = normal_density([0.3], delta, n_theta=3600)
-    on = np.minimum(np.abs(np.angle(np.exp(1j * (theta - 0.3)))),
-                    np.abs(np.angle(np.exp(1j * (theta - 0.3 - np.pi))))) < delta - 1e-9
-    off = np.minimum(np.abs(np.angle(np.exp(1j * (theta - 0.3)))),
-                     np.abs(np.angle(np.exp(1j * (theta - 0.3 - np.pi))))) > delta + 1e-9
+    on = (
+        np.minimum(
+            np.abs(np.angle(np.exp(1j * (theta - 0.3)))),
+            np.abs(np.angle(np.exp(1j * (theta - 0.3 - np.pi)))),
+        )
+        < delta - 1e-9
+    )
+    off = (
+        np.minimum(
+            np.abs(np.angle(np.exp(1j * (theta - 0.3)))),
+            np.abs(np.angle(np.exp(1j * (theta - 0.3 - np.pi)))),
+        )
+        > delta + 1e-9
+    )
     np.testing.assert_allclose(rho[on], 1 / (4 * delta))
     assert np.all(rho[off] == 0)
     # a normal and its opposite are the same contact orientation; vectors work like angles
@@ -79,9 +92,17 @@ def test_fabric_from_density_moments(rng):
     m = 72000
     theta, rho = normal_density(angles, delta, n_theta=m)
     c, s = np.cos(theta), np.sin(theta)
-    M = np.array([[np.sum(rho * c * c), np.sum(rho * c * s)],
-                  [np.sum(rho * c * s), np.sum(rho * s * s)]]) * 2 * np.pi / m
-    expected = 0.5 * np.eye(2) + (fabric_tensor(angles) - 0.5 * np.eye(2)) * np.sin(2 * delta) / (2 * delta)
+    M = (
+        np.array(
+            [[np.sum(rho * c * c), np.sum(rho * c * s)], [np.sum(rho * c * s), np.sum(rho * s * s)]]
+        )
+        * 2
+        * np.pi
+        / m
+    )
+    expected = 0.5 * np.eye(2) + (fabric_tensor(angles) - 0.5 * np.eye(2)) * np.sin(2 * delta) / (
+        2 * delta
+    )
     np.testing.assert_allclose(M, expected, atol=2e-3)
 
 

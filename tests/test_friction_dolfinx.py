@@ -5,22 +5,24 @@ the history, and serial = MPI."""
 import json
 import subprocess
 
+from dolfinx_granular import generate_packing
+from dolfinx_granular.friction import FrictionalRVE
+from dolfinx_granular.loading import LoadStepper
+
 import numpy as np
 import pytest
 from mpi4py import MPI
 
 from columns import granular_column
-from dolfinx_granular import generate_packing
-from dolfinx_granular.friction import FrictionalRVE
-from dolfinx_granular.loading import LoadStepper
 from scripts import MPI_ENV, ROOT, read_outputs, slope_command
 
 K_N = 2.8e7
 
 
 def frictional_rve(mu=0.5, n=70, seed=4):
-    return FrictionalRVE(generate_packing(n, seed=seed), normal_stiffness=K_N,
-                         tangential_stiffness=K_N, friction=mu)
+    return FrictionalRVE(
+        generate_packing(n, seed=seed), normal_stiffness=K_N, tangential_stiffness=K_N, friction=mu
+    )
 
 
 @pytest.mark.mpi
@@ -41,8 +43,10 @@ def test_history_is_committed_only_by_converged_solves():
     # the data belong to u from the committed state: evaluating there changes nothing (values
     # equal; a zero force may come back as -0.0)
     trial = material.trial_state
-    assert all(np.array_equal(getattr(trial, k), getattr(committed, k))
-               for k in ("F", "dissipation", "offsets", "force"))
+    assert all(
+        np.array_equal(getattr(trial, k), getattr(committed, k))
+        for k in ("F", "dissipation", "offsets", "force")
+    )
     solver.destroy()
 
 
@@ -63,8 +67,22 @@ def test_newton_converges_superlinearly_with_sliding_contacts():
 
 
 def run_demo(out, *args, ranks=1):
-    cmd = slope_command("--particles", "70", "--seed", "1", "--steps", "2", "--no-figure",
-                        "--friction", "0.5", "--unload", "--out", out, *args, ranks=ranks)
+    cmd = slope_command(
+        "--particles",
+        "70",
+        "--seed",
+        "1",
+        "--steps",
+        "2",
+        "--no-figure",
+        "--friction",
+        "0.5",
+        "--unload",
+        "--out",
+        out,
+        *args,
+        ranks=ranks,
+    )
     proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return read_outputs(out)[0]
@@ -92,8 +110,7 @@ def test_footing_leaves_a_permanent_settlement(friction_run):
 @pytest.mark.slow
 def test_friction_serial_and_two_ranks_agree(tmp_path, friction_run):
     two = run_demo(tmp_path / "np2", ranks=2)
-    for key in ("footing_settlement", "permanent_settlement", "dissipated_energy",
-                "max_von_mises"):
+    for key in ("footing_settlement", "permanent_settlement", "dissipated_energy", "max_von_mises"):
         assert abs(two[key] - friction_run[key]) <= 1e-10 * abs(friction_run[key]), key
 
 
@@ -107,8 +124,14 @@ def test_resume_carries_the_history(tmp_path, friction_run):
         with np.load(out / "restart.npz") as f:
             assert {"history_force", "history_points", "history_F"} <= set(f.files)
             assert f["history_points"].shape == (1520, 2)
-        proc = subprocess.run(slope_command("--resume", out, "--no-figure", ranks=ranks),
-                              cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
+        proc = subprocess.run(
+            slope_command("--resume", out, "--no-figure", ranks=ranks),
+            cwd=ROOT,
+            env=MPI_ENV,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         assert proc.returncode == 0, proc.stderr[-3000:]
         resumed = json.loads((out / "summary.json").read_text())
         for key in ("footing_settlement", "permanent_settlement", "dissipated_energy"):

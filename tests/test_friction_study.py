@@ -4,13 +4,13 @@ the mobilised q/p, and the files, with numbers recomputed from the CSVs and the 
 import csv
 import time
 
+from dolfinx_granular import Packing
+from dolfinx_granular.friction import FrictionalRVE
+
 import numpy as np
 import pytest
 
 from scripts import load_demo
-
-from dolfinx_granular import Packing
-from dolfinx_granular.friction import FrictionalRVE
 
 
 @pytest.fixture(scope="module")
@@ -41,15 +41,20 @@ def column(rows, key, **where):
 
 
 def rve(mod, packing, mu):
-    return FrictionalRVE(packing, normal_stiffness=mod.K_N, tangential_stiffness=mod.K_T,
-                         friction=mu)
+    return FrictionalRVE(
+        packing, normal_stiffness=mod.K_N, tangential_stiffness=mod.K_T, friction=mu
+    )
 
 
 def test_outputs_exist_with_their_columns_and_rows(study):
     mod, out, runtime = study
     assert runtime < 60  # about 3 s on 2 cores; generous for a shared machine
-    for name in ("friction_hysteresis.png", "friction_qp_gamma.png", "friction_qp_mu.png",
-                 "friction_dissipation.png"):
+    for name in (
+        "friction_hysteresis.png",
+        "friction_qp_gamma.png",
+        "friction_qp_mu.png",
+        "friction_dissipation.png",
+    ):
         with open(out / name, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"
     cfg = mod.SMALL
@@ -60,11 +65,18 @@ def test_outputs_exist_with_their_columns_and_rows(study):
         assert f.readline().strip().split(",") == ["mu", "seed"] + mod.STEP_COLUMNS
     assert len(read(out / "friction_cycles.csv")) == len(mod.MU_CYCLIC) * (m + 4 * m * cycles + 1)
     assert len(read(out / "friction_monotonic.csv")) == (
-        len(mod.MU_MONOTONIC) * len(cfg["seeds"]) * (cfg["monotonic_steps"] + 1))
+        len(mod.MU_MONOTONIC) * len(cfg["seeds"]) * (cfg["monotonic_steps"] + 1)
+    )
     summary = read(out / "friction_summary.csv")
     assert [float(r["mu"]) for r in summary] == sorted(set(mod.MU_CYCLIC) | set(mod.MU_MONOTONIC))
-    for key in ("qp_peak_mean", "qp_final_mean", "taup_peak_mean", "K0_mean",
-                f"dissipation_cycle{cycles}_Pa", f"loop_area_cycle{cycles}_Pa"):
+    for key in (
+        "qp_peak_mean",
+        "qp_final_mean",
+        "taup_peak_mean",
+        "K0_mean",
+        f"dissipation_cycle{cycles}_Pa",
+        f"loop_area_cycle{cycles}_Pa",
+    ):
         assert key in summary[0]
 
 
@@ -75,7 +87,7 @@ def test_cyclic_path_and_cycle_labels(study):
     for c in (1, 2):  # cycle c runs from +a (index m + 4m(c-1)) to +a and carries its label
         a, b = 4 + 16 * (c - 1), 4 + 16 * c
         assert g[a] == g[b] == 0.02 and g[a + 8] == -0.02
-        assert (cycle[a + 1:b + 1] == c).all() and cycle[a] == c - 1
+        assert (cycle[a + 1 : b + 1] == c).all() and cycle[a] == c - 1
     assert (cycle[:5] == 0).all() and np.abs(g).max() == 0.02
 
 
@@ -172,12 +184,19 @@ def loop_energy(rows, m, c):
     g, e = np.array([float(r["gamma"]) for r in rows]), np.array([float(r["e22"]) for r in rows])
     F = np.zeros((g.size, 2, 2))
     F[:, 0, 0], F[:, 0, 1], F[:, 1, 1] = 1.0, g, 1.0 + e
-    sig = np.array([[[float(r["sigma11_Pa"]), float(r["sigma12_Pa"])],
-                     [float(r["sigma12_Pa"]), float(r["sigma22_Pa"])]] for r in rows])
+    sig = np.array(
+        [
+            [
+                [float(r["sigma11_Pa"]), float(r["sigma12_Pa"])],
+                [float(r["sigma12_Pa"]), float(r["sigma22_Pa"])],
+            ]
+            for r in rows
+        ]
+    )
     P = np.linalg.det(F)[:, None, None] * sig @ np.linalg.inv(F).transpose(0, 2, 1)
     W, D = (np.array([float(r[k]) for r in rows]) for k in ("W_Pa", "dissipation_Pa"))
     a, b = m + 4 * m * (c - 1), m + 4 * m * c
-    work = np.einsum("kab,kab->", 0.5 * (P[a + 1:b + 1] + P[a:b]), F[a + 1:b + 1] - F[a:b])
+    work = np.einsum("kab,kab->", 0.5 * (P[a + 1 : b + 1] + P[a:b]), F[a + 1 : b + 1] - F[a:b])
     return D[b] - D[a], work - (W[b] - W[a])
 
 
@@ -220,8 +239,9 @@ def test_mobilised_stress_ratio(study):
     for key in ("qp_peak_mean", "taup_peak_mean"):
         assert np.all(np.diff([float(r[key]) for r in summary]) > 0), key
     for r, mu in zip(summary, mus):
-        s11, s12, s22 = (column(rows, f"sigma{k}_Pa", mu=r["mu"], seed=0)
-                         for k in ("11", "12", "22"))
+        s11, s12, s22 = (
+            column(rows, f"sigma{k}_Pa", mu=r["mu"], seed=0) for k in ("11", "12", "22")
+        )
         qp = np.hypot((s11 - s22) / 2, s12) / (-(s11 + s22) / 2)
         np.testing.assert_allclose(column(rows, "q_over_p", mu=r["mu"], seed=0), qp, rtol=1e-9)
         assert float(r["qp_peak_mean"]) == pytest.approx(qp.max(), rel=1e-9)

@@ -2,11 +2,12 @@
 
 import time
 
+from dolfinx_granular import Packing, TaylorRVE, generate_packing, generation, kernel, network_stats
+from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
+
 import numpy as np
 import pytest
 
-from dolfinx_granular import Packing, TaylorRVE, generate_packing, generation, kernel, network_stats
-from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
 from scripts import load_benchmark
 
 # (70, 68): the first jammed state has 17 % rattlers and is rejected
@@ -226,7 +227,7 @@ def test_linear_candidates_equal_the_brute_force_scan(packings, case):
     from reference import brute_force_candidates
 
     p = packings[case]
-    for ratio in ((1.02, 2.0) if case[0] > 100 else (1.02, 1.0 / 0.99, 1.3, 2.0)):
+    for ratio in (1.02, 2.0) if case[0] > 100 else (1.02, 1.0 / 0.99, 1.3, 2.0):
         got = kernel.candidate_pairs(p.centers, p.radii, p.box, ratio)
         for a, b in zip(got, brute_force_candidates(p.centers, p.radii, p.box, ratio)):
             np.testing.assert_array_equal(a, b)  # same pairs, same order, same values
@@ -257,8 +258,9 @@ def test_fire_in_chunks_follows_the_same_trajectory():
         st[4] = generation._forces(x, r, box, *nl, f)
         done = False
         while not done and st[3] < 100_000:
-            nl, done = generation._fire_steps(x, r, box, skin, ftol, dt_max,
-                                              int(st[3]) + chunk, st, v, f, x_ref, nl)
+            nl, done = generation._fire_steps(
+                x, r, box, skin, ftol, dt_max, int(st[3]) + chunk, st, v, f, x_ref, nl
+            )
         assert done
         ends.append((x, st))
     for x, st in ends[1:]:

@@ -1,9 +1,9 @@
 """Sieve curves: the shipped CEN sand, validation, interpolation and diameter sampling."""
 
+from dolfinx_granular.gsd import DEFAULT_D_MIN, SieveCurve, as_sieve_curve, cen_standard_sand
+
 import numpy as np
 import pytest
-
-from dolfinx_granular.gsd import DEFAULT_D_MIN, SieveCurve, as_sieve_curve, cen_standard_sand
 
 CEN = {2.00: 100, 1.60: 93, 1.00: 67, 0.50: 33, 0.16: 13, 0.08: 1}
 

@@ -11,18 +11,24 @@ import numpy as np
 import pytest
 
 pytest.importorskip("dolfinx")
+from dolfinx_granular import generate_packing  # noqa: E402
+from dolfinx_granular.slope import SlopeOptions, load_restart, run_slope  # noqa: E402
+
 from mpi4py import MPI  # noqa: E402
 
 from scripts import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
 
-from dolfinx_granular import generate_packing  # noqa: E402
-from dolfinx_granular.slope import SlopeOptions, load_restart, run_slope  # noqa: E402
-
 
 def run(tmp_path, load_factor, **kwargs):
     options = SlopeOptions(steps=4, load_factor=load_factor, **kwargs)
-    summary = run_slope(generate_packing(70, seed=1), options, out=str(tmp_path),
-                        comm=MPI.COMM_SELF, figure=False, verbose=False)
+    summary = run_slope(
+        generate_packing(70, seed=1),
+        options,
+        out=str(tmp_path),
+        comm=MPI.COMM_SELF,
+        figure=False,
+        verbose=False,
+    )
     on_disk, rows = read_outputs(tmp_path)
     return summary, on_disk, rows
 
@@ -133,8 +139,20 @@ def test_uplift_on_two_ranks_matches_serial(tmp_path):
     """The same cut-backs and the same stopping point under mpirun -n 2: RVE errors and singular
     factorisations on one rank are failures on all ranks, nobody hangs."""
     out = tmp_path / "np2"
-    cmd = slope_command("--particles", "70", "--seed", "1", "--steps", "4", "--no-figure",
-                        "--load-factor", "-0.25", "--out", out, ranks=2)
+    cmd = slope_command(
+        "--particles",
+        "70",
+        "--seed",
+        "1",
+        "--steps",
+        "4",
+        "--no-figure",
+        "--load-factor",
+        "-0.25",
+        "--out",
+        out,
+        ranks=2,
+    )
     serial, _, _ = run(tmp_path / "np1", -0.25)
     proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1, proc.stdout[-3000:] + proc.stderr[-3000:]  # stopped, not crashed

@@ -1,10 +1,11 @@
-"""Thousands of random, hostile F through the kernel: a finite answer or the clean error, never NaN."""
+"""Thousands of random, hostile F through the kernel: a finite answer or a clean error, no NaN."""
+
+from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, kernel
 
 import numpy as np
 import pytest
-from packings import random_packing
 
-from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, kernel
+from packings import random_packing
 
 # these tests use prestressed (overlapping) packings on purpose
 pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
@@ -38,8 +39,9 @@ def test_fuzz_batch_gives_finite_results_or_status(seed):
     F = hostile_F(rng, 1000)
     W, P, A = np.empty(1000), np.empty((1000, 2, 2)), np.empty((1000, 2, 2, 2, 2))
     status = np.empty(1000, np.int8)
-    kernel.evaluate_batch(F, rve._X, rve._Y, rve._R, rve._rho, rve._K, rve.min_stretch, False,
-                          True, W, P, A, status)
+    kernel.evaluate_batch(
+        F, rve._X, rve._Y, rve._R, rve._rho, rve._K, rve.min_stretch, False, True, W, P, A, status
+    )
     assert np.isfinite(W).all() and np.isfinite(P).all() and np.isfinite(A).all()
     ok = status == kernel.OK
     # every point the kernel accepts is valid, every point it rejects is invalid

@@ -1,13 +1,14 @@
 """Model levels: the small-strain model of eq. 15 and the adaptive linear/Taylor choice."""
 
-import numpy as np
-import pytest
-from packings import random_packing
-from reference import central_differences
-
 from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, generate_packing
 from dolfinx_granular.law import MaterialLaw
 from dolfinx_granular.levels import AdaptiveRVE, SmallStrainRVE, isotropic_lame, singular_values_2x2
+
+import numpy as np
+import pytest
+
+from packings import random_packing
+from reference import central_differences
 
 # these tests use prestressed (overlapping) packings on purpose
 pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
@@ -51,6 +52,7 @@ def near_rotations(rng, n, max_angle, stretch_lo, stretch_hi):
 
 
 # -- SmallStrainRVE -------------------------------------------------------------------------------
+
 
 def test_small_strain_is_C_colon_eps(jammed, rng):
     level = SmallStrainRVE(jammed)
@@ -106,12 +108,15 @@ def test_small_strain_writes_out_arrays_and_rejects_nan(jammed, rng):
 
 # -- AdaptiveRVE ----------------------------------------------------------------------------------
 
+
 def independent_bounds(rve):
     """Contact-test stretch limits from the reference contact set of TaylorRVE.contacts(I) and a
     brute-force search of the packing (no candidate list involved)."""
     pk = rve.packing
     ref = rve.contacts(np.eye(2))
-    closed_ratio = (ref.overlap + np.linalg.norm(ref.branch, axis=1)) / np.linalg.norm(ref.branch, axis=1)
+    closed_ratio = (ref.overlap + np.linalg.norm(ref.branch, axis=1)) / np.linalg.norm(
+        ref.branch, axis=1
+    )
     gap_ratio = 0.0
     for i in range(pk.n_particles):
         for j in range(i, pk.n_particles):
@@ -136,13 +141,15 @@ def test_adaptive_picks_linear_only_where_provable(which, request, rng):
     assert abs(level.stretch_bounds[0] / smax_ok - 1) <= 1.1e-12
     assert abs(level.stretch_bounds[1] / smin_req - 1) <= 1.1e-12
     lo, hi = smin_req + 0.3 * (1 - smin_req), 1.0 + 0.3 * (smax_ok - 1.0)
-    F = np.concatenate([
-        near_rotations(rng, 40, tol, lo, hi),          # mostly linear
-        near_rotations(rng, 10, 3 * tol, lo, hi),      # rotations too large
-        near_rotations(rng, 10, tol, 0.98, 1.0),        # compressed: gaps may close
-        near_rotations(rng, 10, tol, 1.0, 1.0 + 2e-3),  # stretched: contacts may open
-        random_F(rng, 20, 0.01),
-    ])
+    F = np.concatenate(
+        [
+            near_rotations(rng, 40, tol, lo, hi),  # mostly linear
+            near_rotations(rng, 10, 3 * tol, lo, hi),  # rotations too large
+            near_rotations(rng, 10, tol, 0.98, 1.0),  # compressed: gaps may close
+            near_rotations(rng, 10, tol, 1.0, 1.0 + 2e-3),  # stretched: contacts may open
+            random_F(rng, 20, 0.01),
+        ]
+    )
     W, P, A = level.evaluate(F)
     lin = level.linear_mask
     s = np.linalg.svd(F, compute_uv=False)
@@ -156,7 +163,9 @@ def test_adaptive_picks_linear_only_where_provable(which, request, rng):
     ref_keys = {(i, j, a, b) for (i, j), (a, b) in zip(ref.pairs.tolist(), ref.shift.tolist())}
     for q in np.flatnonzero(lin):
         c = rve.contacts(F[q])
-        assert {(i, j, a, b) for (i, j), (a, b) in zip(c.pairs.tolist(), c.shift.tolist())} == ref_keys
+        assert {
+            (i, j, a, b) for (i, j), (a, b) in zip(c.pairs.tolist(), c.shift.tolist())
+        } == ref_keys
     # Taylor points: bit for bit the full model
     Wt, Pt, At = rve.evaluate(F)
     full = ~lin
@@ -168,7 +177,9 @@ def test_adaptive_picks_linear_only_where_provable(which, request, rng):
     bound = level.error_bound(F)
     roundoff = 1e-14 * level.error_constant
     assert np.all(err[lin] <= bound[lin] + roundoff)
-    assert np.all(bound[lin] <= tol / (np.sqrt(3) * (1 - tol) ** 2) * level.error_constant * strain[lin])
+    assert np.all(
+        bound[lin] <= tol / (np.sqrt(3) * (1 - tol) ** 2) * level.error_constant * strain[lin]
+    )
 
 
 def test_adaptive_error_bound_is_not_vacuous(prestressed, rng):
@@ -235,8 +246,9 @@ def test_levels_wrap_the_full_model_only(jammed):
 def test_isotropic_lame(jammed):
     I = np.eye(2)
     lam, mu = 3.0e6, 5.0e6
-    C_iso = lam * np.einsum("ij,kl->ijkl", I, I) + mu * (np.einsum("ik,jl->ijkl", I, I)
-                                                         + np.einsum("il,jk->ijkl", I, I))
+    C_iso = lam * np.einsum("ij,kl->ijkl", I, I) + mu * (
+        np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)
+    )
     assert np.allclose(isotropic_lame(C_iso), (lam, mu), rtol=1e-15)
     # an anisotropic perturbation orthogonal to the isotropic part does not move the projection
     D = np.zeros((2, 2, 2, 2))
@@ -261,15 +273,16 @@ def test_singular_values_2x2(rng):
 
 # -- the levels and the stress-only final residual inside a Newton solve ---------------------------
 
+
 def column_problem(rve, prefix, skip_final_tangent=False, n=4, pressure=2e5, **solver_kwargs):
     """The shared column (tests/columns.py) under a top pressure (Pa), counting the material's
     stress-only and tangent updates."""
     pytest.importorskip("dolfinx")
     from columns import granular_column
 
-    solver, material, u, _ = granular_column(rve, prefix, n=n, pressure=pressure,
-                                             skip_final_tangent=skip_final_tangent,
-                                             **solver_kwargs)
+    solver, material, u, _ = granular_column(
+        rve, prefix, n=n, pressure=pressure, skip_final_tangent=skip_final_tangent, **solver_kwargs
+    )
     calls = {True: 0, False: 0}
     update = material.update
 
@@ -286,8 +299,9 @@ def test_final_residual_skips_the_tangent(jammed):
     runs = {}
     for skip in (False, True):
         # the energy-norm test alone (it, not the round-off test, is what the skip predicts)
-        solver, material, u, calls = column_problem(jammed, f"skip{int(skip)}_", skip,
-                                                    residual_rtol=0.0)
+        solver, material, u, calls = column_problem(
+            jammed, f"skip{int(skip)}_", skip, residual_rtol=0.0
+        )
         result = solver.solve()
         assert result.converged and result.reason_name == "CONVERGED_SNORM_RELATIVE"
         runs[skip] = (result, u.x.array.copy(), dict(calls), material.P.x.array.copy())
@@ -308,8 +322,11 @@ def test_levels_drop_into_granular_material(jammed):
 
     results = {}
     adaptive = AdaptiveRVE(jammed, 1e-3)
-    for name, rve in (("taylor", jammed), ("small", SmallStrainRVE(jammed)),
-                      ("adaptive", adaptive)):
+    for name, rve in (
+        ("taylor", jammed),
+        ("small", SmallStrainRVE(jammed)),
+        ("adaptive", adaptive),
+    ):
         solver, material, u, calls = column_problem(rve, f"lvl_{name}_")
         result = solver.solve()
         assert result.converged, name

@@ -5,24 +5,30 @@ import numpy as np
 import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
-import ufl  # noqa: E402
-from dolfinx import fem, mesh  # noqa: E402
-from mpi4py import MPI  # noqa: E402
-
-from columns import granular_column  # noqa: E402
-
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
 from dolfinx_granular._dolfinx import vector_space  # noqa: E402
 from dolfinx_granular.loading import LoadStepper  # noqa: E402
 from dolfinx_granular.material import GranularMaterial  # noqa: E402
 from dolfinx_granular.solver import STAGNATION, NewtonSolver  # noqa: E402
 
+import ufl  # noqa: E402
+from dolfinx import fem, mesh  # noqa: E402
+from mpi4py import MPI  # noqa: E402
+
+from columns import granular_column  # noqa: E402
+
 
 def column(prefix, n=4, stabilise=0.0, material_class=GranularMaterial, **solver_kwargs):
     """The shared column (tests/columns.py) of a 70-particle RVE, top pressure p = 0 to start."""
     solver_kwargs.setdefault("max_it", 10)
-    return granular_column(TaylorRVE(generate_packing(70, seed=4), 2.8e7), prefix, n=n,
-                           material_class=material_class, stabilise=stabilise, **solver_kwargs)
+    return granular_column(
+        TaylorRVE(generate_packing(70, seed=4), 2.8e7),
+        prefix,
+        n=n,
+        material_class=material_class,
+        stabilise=stabilise,
+        **solver_kwargs,
+    )
 
 
 def all_finite(a):
@@ -62,14 +68,19 @@ def test_crushing_load_fails_cleanly_at_the_last_converged_state():
         converged.update(step=step, t=t, u=u.x.array.copy())
 
     stepper = LoadStepper(solver, max_cutbacks=4)
-    assert not stepper.run("press", lambda t: setattr(p, "value", 1e7 * t), 1.0,
-                           on_converged=remember)
+    assert not stepper.run(
+        "press", lambda t: setattr(p, "value", 1e7 * t), 1.0, on_converged=remember
+    )
     assert stepper.failed["step"] == converged["step"] + 1 and stepper.failed["t"] == converged["t"]
     assert 0.5 < converged["t"] < 1.0
     reasons = " ".join(c.reason for c in stepper.cutbacks)
     assert "outside the Taylor RVE's range" in reasons
     limit = stepper.failed["limit_load"]
-    assert limit is not None and limit["t_converged"] == converged["t"] and limit["stiffness_ratio"] < 0.2
+    assert (
+        limit is not None
+        and limit["t_converged"] == converged["t"]
+        and limit["stiffness_ratio"] < 0.2
+    )
     assert converged["t"] - 1e-3 <= limit["t_estimate"] <= limit["t_failed"]
     assert all_finite(u.x.array) and np.array_equal(u.x.array, converged["u"])
     assert p.value == 1e7 * converged["t"]
@@ -115,7 +126,9 @@ def test_stagnation_is_detected_before_the_iteration_limit():
     result = solver.solve()
     assert not result.converged and result.reason_name == STAGNATION
     # the reason says what was measured
-    assert result.why.startswith("stagnation: |R| = ") and "has not gone below its best" in result.why
+    assert (
+        result.why.startswith("stagnation: |R| = ") and "has not gone below its best" in result.why
+    )
     assert 5 <= result.iterations < 15
     solver.destroy()
     solver, _, _, p = column("nostag_", material_class=Cycling, max_it=12, stagnation_it=0)
@@ -164,7 +177,9 @@ def test_block_pulled_partly_into_tension():
     left, lifted 0.6 m at the right, in one nominal step. The prescribed top displacement alone
     crushes the top cells beyond the RVE's range; two cut-backs later the block is in equilibrium
     with RVEs at the lifted corner that have lost every contact."""
-    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [6, 6], mesh.CellType.quadrilateral)
+    msh = mesh.create_rectangle(
+        MPI.COMM_WORLD, [[0, 0], [10, 10]], [6, 6], mesh.CellType.quadrilateral
+    )
     V = vector_space(msh)
     u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
     material = GranularMaterial(TaylorRVE(generate_packing(70, seed=4), 2.8e7), u)
@@ -176,11 +191,14 @@ def test_block_pulled_partly_into_tension():
         g.interpolate(lambda x: np.stack([0 * x[0], 2.0 * t * (x[0] / 10 - 0.7)]))
         lam.value = t
 
-    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
-           fem.dirichletbc(g, fem.locate_dofs_topological(V, 1, top))]
+    bcs = [
+        fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
+        fem.dirichletbc(g, fem.locate_dofs_topological(V, 1, top)),
+    ]
     residual = material.residual_form(v) + lam * 2.5e4 * v[1] * ufl.dx  # weight 25 kN/m³
-    solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material,
-                          prefix="pull_", max_it=15)
+    solver = NewtonSolver(
+        residual, material.jacobian_form(du, v), u, bcs, material, prefix="pull_", max_it=15
+    )
     stepper = LoadStepper(solver)
     assert stepper.run("pull", set_load, 1.0)
     assert len(stepper.cutbacks) >= 1
@@ -189,8 +207,9 @@ def test_block_pulled_partly_into_tension():
     assert all_finite(u.x.array)
     # the open RVEs are at the lifted corner
     opened = material.points[material.W == 0.0]
-    assert MPI.COMM_WORLD.allreduce(bool(np.all(opened[:, 0] > 5) and np.all(opened[:, 1] > 5)),
-                                    op=MPI.LAND)
+    assert MPI.COMM_WORLD.allreduce(
+        bool(np.all(opened[:, 0] > 5) and np.all(opened[:, 1] > 5)), op=MPI.LAND
+    )
     solver.destroy()
 
 
@@ -200,8 +219,10 @@ def smooth_limit_path(n, t_top=1.0, scale=3.0):
     t = t_top * (1 - 0.5 ** np.arange(1, n + 1))  # 0.5, 0.75, ... t_top
     u = scale * (1 - np.sqrt(1 - t / t_top))
     t0, u0 = np.concatenate([[0.0], t]), np.concatenate([[0.0], u])
-    return [{"phase": "p", "t": t0[k], "dt": t0[k] - t0[k - 1], "increment_norm": u0[k] - u0[k - 1]}
-            for k in range(1, n + 1)]
+    return [
+        {"phase": "p", "t": t0[k], "dt": t0[k] - t0[k - 1], "increment_norm": u0[k] - u0[k - 1]}
+        for k in range(1, n + 1)
+    ]
 
 
 def test_limit_point_is_recognised_and_located():
@@ -245,8 +266,10 @@ def test_limit_point_inside_the_failed_increment_needs_a_smaller_drop():
     assert limit_point(path, 0.97) is None  # t* = 1 beyond the failed target
     limit = limit_point(path, 1.01)
     assert limit is not None and limit["t_estimate"] == pytest.approx(1.0, abs=1e-12)
-    mild = [{"phase": "p", "t": 0.1 * k, "dt": 0.1, "increment_norm": 0.1 / S_k}
-            for k, S_k in enumerate([1.0, 0.9, 0.7], start=1)]  # extrapolates to t* = 0.403
+    mild = [
+        {"phase": "p", "t": 0.1 * k, "dt": 0.1, "increment_norm": 0.1 / S_k}
+        for k, S_k in enumerate([1.0, 0.9, 0.7], start=1)
+    ]  # extrapolates to t* = 0.403
     assert limit_point(mild, 0.45) is None
 
 
@@ -262,9 +285,12 @@ class SevenIterationSolver:
 
         self.calls += 1
         ok = self.calls > 1
-        return SolveResult(converged=ok, reason=2 if ok else -5,
-                           reason_name="CONVERGED_FNORM_ABS" if ok else "DIVERGED_MAX_IT",
-                           iterations=7)
+        return SolveResult(
+            converged=ok,
+            reason=2 if ok else -5,
+            reason_name="CONVERGED_FNORM_ABS" if ok else "DIVERGED_MAX_IT",
+            iterations=7,
+        )
 
 
 def test_increment_grows_back_after_ordinary_newton_steps():

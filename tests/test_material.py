@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
+from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
+from dolfinx_granular._dolfinx import function_space, petsc_vec, vector_space  # noqa: E402
+from dolfinx_granular.material import GranularMaterial  # noqa: E402
+from dolfinx_granular.solver import NewtonSolver  # noqa: E402
+
 import ufl  # noqa: E402
 from dolfinx import fem, mesh  # noqa: E402
 from dolfinx.fem.petsc import assemble_matrix, assemble_vector  # noqa: E402
 from mpi4py import MPI  # noqa: E402
 from petsc4py import PETSc  # noqa: E402
-
-from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import function_space, petsc_vec, vector_space  # noqa: E402
-from dolfinx_granular.material import GranularMaterial  # noqa: E402
-from dolfinx_granular.solver import NewtonSolver  # noqa: E402
 
 K_N = 2.8e7
 F0 = np.array([[0.975, 0.012], [-0.008, 0.962]])  # compressive, slightly sheared
@@ -31,8 +31,9 @@ def unit_square(n=3, cell=mesh.CellType.quadrilateral):
 
 
 def affine(F):
-    return lambda x: np.stack([(F[0, 0] - 1) * x[0] + F[0, 1] * x[1],
-                               F[1, 0] * x[0] + (F[1, 1] - 1) * x[1]])
+    return lambda x: np.stack(
+        [(F[0, 0] - 1) * x[0] + F[0, 1] * x[1], F[1, 0] * x[0] + (F[1, 1] - 1) * x[1]]
+    )
 
 
 @pytest.mark.mpi
@@ -47,11 +48,21 @@ def test_homogeneous_square_matches_kernel_and_reactions(cell):
     material = GranularMaterial(rve, u)
     v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
     boundary = fem.locate_dofs_geometrical(
-        V, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 1) | np.isclose(x[1], 0) | np.isclose(x[1], 1))
+        V,
+        lambda x: (
+            np.isclose(x[0], 0) | np.isclose(x[0], 1) | np.isclose(x[1], 0) | np.isclose(x[1], 1)
+        ),
+    )
     g = fem.Function(V)
     g.interpolate(affine(F0))
-    solver = NewtonSolver(material.residual_form(v), material.jacobian_form(du, v), u,
-                          [fem.dirichletbc(g, boundary)], material, prefix="homog_")
+    solver = NewtonSolver(
+        material.residual_form(v),
+        material.jacobian_form(du, v),
+        u,
+        [fem.dirichletbc(g, boundary)],
+        material,
+        prefix="homog_",
+    )
     result = solver.solve()
     assert result.converged, result
     _, P_ref, A_ref = rve.evaluate(F0[None])
@@ -68,11 +79,20 @@ def test_homogeneous_square_matches_kernel_and_reactions(cell):
     R.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     x = V.tabulate_dof_coordinates()[: V.dofmap.index_map.size_local]
     r = R.array_r.reshape(-1, 2)
-    for axis, side, normal in [(0, 1.0, (1, 0)), (0, 0.0, (-1, 0)), (1, 1.0, (0, 1)), (1, 0.0, (0, -1))]:
+    for axis, side, normal in [
+        (0, 1.0, (1, 0)),
+        (0, 0.0, (-1, 0)),
+        (1, 1.0, (0, 1)),
+        (1, 0.0, (0, -1)),
+    ]:
         on = np.isclose(x[:, axis], side)
         reaction = msh.comm.allreduce(r[on].sum(axis=0), op=MPI.SUM)
         expected = P_ref[0] @ np.array(normal, dtype=float) * 1.0  # edge length 1 m
-        assert np.allclose(reaction, expected, rtol=1e-10, atol=1e-10 * scale), (normal, reaction, expected)
+        assert np.allclose(reaction, expected, rtol=1e-10, atol=1e-10 * scale), (
+            normal,
+            reaction,
+            expected,
+        )
     solver.destroy()
 
 
@@ -90,7 +110,7 @@ def test_update_writes_owned_points_only_and_names_bad_cells():
     material.P.x.array[:] = np.nan
     material.update()
     assert np.isfinite(material.P.x.array[: 4 * material.n_points]).all()
-    assert np.isnan(material.P.x.array[4 * material.n_points:]).all()  # ghosts untouched
+    assert np.isnan(material.P.x.array[4 * material.n_points :]).all()  # ghosts untouched
     u.interpolate(lambda x: np.stack([-0.9 * x[0], 0 * x[1]]))  # F00 = 0.1 < min_stretch
     if material.n_points:
         with pytest.raises(ValueError, match="min_stretch.*Affected cells"):
@@ -114,8 +134,11 @@ def test_taylor_jacobian_against_residual():
     msh = unit_square(4)
     V = vector_space(msh)
     u = fem.Function(V)
-    u.interpolate(lambda x: np.stack([-0.02 * x[0] + 0.01 * np.sin(3 * x[1]),
-                                      -0.03 * x[1] + 0.01 * x[0] * x[1]]))
+    u.interpolate(
+        lambda x: np.stack(
+            [-0.02 * x[0] + 0.01 * np.sin(3 * x[1]), -0.03 * x[1] + 0.01 * x[0] * x[1]]
+        )
+    )
     d = fem.Function(V)
     d.interpolate(lambda x: np.stack([0.01 * np.cos(2 * x[0] + x[1]), -0.01 * x[0] * x[1] ** 2]))
     material = GranularMaterial(rve, u)

@@ -2,11 +2,12 @@
 
 import zipfile
 
+from dolfinx_granular import Packing, PackingFileError
+
 import numpy as np
 import pytest
-from packings import random_packing
 
-from dolfinx_granular import Packing, PackingFileError
+from packings import random_packing
 
 
 def test_attributes_and_wrapping():
@@ -83,22 +84,40 @@ def test_load_foreign_npz(tmp_path):
 
 
 def test_load_future_version(tmp_path):
-    np.savez(tmp_path / "v.npz", format=np.array("dolfinx_granular.packing"), version=np.array(99),
-             centers=np.zeros((2, 2)), radii=np.ones(2), box=np.ones(2) * 5)
+    np.savez(
+        tmp_path / "v.npz",
+        format=np.array("dolfinx_granular.packing"),
+        version=np.array(99),
+        centers=np.zeros((2, 2)),
+        radii=np.ones(2),
+        box=np.ones(2) * 5,
+    )
     with pytest.raises(PackingFileError, match="version 99"):
         Packing.load(tmp_path / "v.npz")
 
 
 def test_load_invalid_contents(tmp_path):
-    np.savez(tmp_path / "v.npz", format=np.array("dolfinx_granular.packing"), version=np.array(1),
-             centers=np.zeros((2, 2)), radii=np.array([1.0, -1.0]), box=np.ones(2) * 5)
+    np.savez(
+        tmp_path / "v.npz",
+        format=np.array("dolfinx_granular.packing"),
+        version=np.array(1),
+        centers=np.zeros((2, 2)),
+        radii=np.array([1.0, -1.0]),
+        box=np.ones(2) * 5,
+    )
     with pytest.raises(PackingFileError, match="radii must be > 0"):
         Packing.load(tmp_path / "v.npz")
 
 
 def test_load_pickled_object_array_is_refused(tmp_path):
-    np.savez(tmp_path / "o.npz", format=np.array("dolfinx_granular.packing"), version=np.array(1),
-             centers=np.array([None, None], dtype=object), radii=np.ones(2), box=np.ones(2))
+    np.savez(
+        tmp_path / "o.npz",
+        format=np.array("dolfinx_granular.packing"),
+        version=np.array(1),
+        centers=np.array([None, None], dtype=object),
+        radii=np.ones(2),
+        box=np.ones(2),
+    )
     with pytest.raises(PackingFileError):
         Packing.load(tmp_path / "o.npz")
 

@@ -1,14 +1,6 @@
 """The quadrature-material base: derivative() is the consistent Jacobian of any residual with P in
 it, materials on subdomains add up, and a granular layer on a linear elastic base solves."""
 
-import numpy as np
-import pytest
-import ufl
-from dolfinx import fem, mesh
-from dolfinx.fem.petsc import assemble_matrix, assemble_vector
-from mpi4py import MPI
-from petsc4py import PETSc
-
 from dolfinx_granular import TaylorRVE, generate_packing
 from dolfinx_granular._dolfinx import petsc_vec, vector_space
 from dolfinx_granular.linear import LinearElasticMaterial, lame_from_young
@@ -16,6 +8,14 @@ from dolfinx_granular.loading import LoadStepper
 from dolfinx_granular.material import GranularMaterial
 from dolfinx_granular.quadrature import check_quadrature_degree, derivative
 from dolfinx_granular.solver import NewtonSolver
+
+import numpy as np
+import pytest
+import ufl
+from dolfinx import fem, mesh
+from dolfinx.fem.petsc import assemble_matrix, assemble_vector
+from mpi4py import MPI
+from petsc4py import PETSc
 
 K_N = 2.8e7
 
@@ -26,8 +26,9 @@ def rve():
 
 
 def square(n=4):
-    return mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [2, 2]], [n, n],
-                                 mesh.CellType.quadrilateral)
+    return mesh.create_rectangle(
+        MPI.COMM_WORLD, [[0, 0], [2, 2]], [n, n], mesh.CellType.quadrilateral
+    )
 
 
 def lower_cells(msh, y=1.0):
@@ -69,8 +70,11 @@ def taylor_rates(materials, residual, u, direction, in_jacobian=None):
 
 def deformed(V):
     u, d = fem.Function(V), fem.Function(V)
-    u.interpolate(lambda x: np.stack([-0.015 * x[0] + 0.004 * np.sin(2 * x[1]),
-                                      -0.02 * x[1] + 0.003 * x[0] * x[1]]))
+    u.interpolate(
+        lambda x: np.stack(
+            [-0.015 * x[0] + 0.004 * np.sin(2 * x[1]), -0.02 * x[1] + 0.003 * x[0] * x[1]]
+        )
+    )
     d.interpolate(lambda x: np.stack([0.01 * np.cos(x[0] + 2 * x[1]), -0.01 * x[0] * x[1] ** 2]))
     return u, d
 
@@ -88,8 +92,11 @@ def test_derivative_is_the_consistent_jacobian_of_a_general_residual(rve):
     upper = mesh.locate_entities(msh, 2, lambda x: x[1] >= 1.0 - 1e-12)
     granular = GranularMaterial(rve, u, cells=lower)
     elastic = LinearElasticMaterial(u, *lame_from_young(5e6, 0.3), cells=upper)
-    residual = (2.5 * ufl.inner(granular.P, ufl.grad(v)) * granular.dx
-                + elastic.residual_form(v) + 1e5 * ufl.inner(u, u) * u[1] * v[1] * ufl.ds)
+    residual = (
+        2.5 * ufl.inner(granular.P, ufl.grad(v)) * granular.dx
+        + elastic.residual_form(v)
+        + 1e5 * ufl.inner(u, u) * u[1] * v[1] * ufl.ds
+    )
     rate1, rate2, r1, r2 = taylor_rates([granular, elastic], residual, u, d)
     assert np.all(np.abs(rate1 - 1.0) < 0.1), rate1
     assert np.all(rate2 > 1.9), rate2
@@ -106,8 +113,13 @@ def test_jacobian_form_equals_derivative_of_residual_form(rve):
     material = GranularMaterial(rve, u)
     material.update()
     v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
-    mats = [assemble_matrix(fem.form(f)) for f in (
-        material.jacobian_form(du, v), material.derivative(material.residual_form(v), u, du))]
+    mats = [
+        assemble_matrix(fem.form(f))
+        for f in (
+            material.jacobian_form(du, v),
+            material.derivative(material.residual_form(v), u, du),
+        )
+    ]
     for A in mats:
         A.assemble()
     mats[0].axpy(-1.0, mats[1])
@@ -150,9 +162,13 @@ def layered_column(rve, n=6):
     p = fem.Constant(msh, 0.0)
     residual = soil.residual_form(v) + rock.residual_form(v) + p * v[1] * ds(1)
     bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
-    walls = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 2))
-    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
-           fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0))]
+    walls = mesh.locate_entities_boundary(
+        msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 2)
+    )
+    bcs = [
+        fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
+        fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0)),
+    ]
     solver = NewtonSolver(residual, None, u, bcs, [soil, rock], prefix="layered_")
     return solver, soil, rock, u, p
 
@@ -175,8 +191,11 @@ def test_granular_layer_on_a_linear_elastic_base(rve):
         assert abs(mean + 3e5) < 1e-4 * 3e5 and -1.1 * 3e5 < lo <= hi < -0.9 * 3e5, (mean, lo, hi)
     x = V_coords(u)
     uy = u.x.array[1::2][: len(x)]
-    at = lambda y: comm.allreduce(float(np.abs(uy[np.isclose(x[:, 1], y)]).max(initial=0.0)),  # noqa: E731
-                                  op=MPI.MAX)
+
+    def at(y):
+        top = float(np.abs(uy[np.isclose(x[:, 1], y)]).max(initial=0.0))
+        return comm.allreduce(top, op=MPI.MAX)
+
     assert at(2.0) - at(1.0) > 5 * at(1.0)  # the layer compresses more than the base
     solver.destroy()
 

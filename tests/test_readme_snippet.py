@@ -60,17 +60,29 @@ def test_pyvista_snippet_reads_the_last_step(tmp_path):
     import sys
 
     out = tmp_path / "results" / "slope"
-    proc = subprocess.run(slope_command("--particles", "40", "--steps", "2", "--no-figure",
-                                        "--out", out), cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run(
+        slope_command("--particles", "40", "--steps", "2", "--no-figure", "--out", out),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    check = ("\nvm = slope.cell_data['von_mises']\n"
-             "print('steps', reader.time_values, 'cells', len(vm), vm.min() > 0)\n")
+    check = (
+        "\nvm = slope.cell_data['von_mises']\n"
+        "print('steps', reader.time_values, 'cells', len(vm), vm.min() > 0)\n"
+    )
     script = tmp_path / "look.py"
     script.write_text(readme_snippets()[2] + check)
     env = dict(os.environ, PYVISTA_OFF_SCREEN="true")
     if not env.get("DISPLAY"):  # headless: render through EGL as the package's figure does
         env["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkEGLRenderWindow"
-    proc = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(script)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "steps [1.0, 2.0, 3.0] cells 380 True" in proc.stdout

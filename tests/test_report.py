@@ -10,8 +10,10 @@ import report_markdown
 
 dolfinx = pytest.importorskip("dolfinx")
 
-STACKS_BLOCK = ("<!-- begin: benchmarks/stacks.py -->\n## 6. DOLFINx releases\n\nkept as it was\n"
-                "<!-- end: benchmarks/stacks.py -->")
+STACKS_BLOCK = (
+    "<!-- begin: benchmarks/stacks.py -->\n## 6. DOLFINx releases\n\nkept as it was\n"
+    "<!-- end: benchmarks/stacks.py -->"
+)
 
 
 def test_flops_measures_a_positive_peak():
@@ -35,9 +37,9 @@ def test_rewriting_the_report_keeps_the_stacks_section(tmp_path):
 
 @pytest.mark.slow
 def test_tiny_report(tmp_path):
-    import report
-
     import dolfinx_granular.solver
+
+    import report
 
     solver_class = dolfinx_granular.solver.NewtonSolver
     raw = tmp_path / "raw.json"
@@ -46,16 +48,25 @@ def test_tiny_report(tmp_path):
     assert dolfinx_granular.solver.NewtonSolver is solver_class  # nothing patched
     md = (tmp_path / "performance.md").read_text()
     assert md.rstrip("\n").endswith(STACKS_BLOCK) and "an older report" not in md
-    for heading in ("## 1. Kernel", "## 2. One Newton iteration on the slope", "## 3. Scaling",
-                    "## 4. Speed against error", "## 5. Paying only for what a scene needs",
-                    "## Targets"):
+    for heading in (
+        "## 1. Kernel",
+        "## 2. One Newton iteration on the slope",
+        "## 3. Scaling",
+        "## 4. Speed against error",
+        "## 5. Paying only for what a scene needs",
+        "## Targets",
+    ):
         assert heading in md, heading
     # header: machine, cores, versions, load
     assert re.search(r"\d+ cores", md) and f"dolfinx {dolfinx.__version__}" in md
     assert "load average" in md and "TINY" in md
     # every figure is referenced and is a real PNG of reasonable size
-    for name in ("perf_kernel.png", "perf_iteration.png", "perf_scaling.png",
-                 "perf_speed_error.png"):
+    for name in (
+        "perf_kernel.png",
+        "perf_iteration.png",
+        "perf_scaling.png",
+        "perf_speed_error.png",
+    ):
         assert f"]({name})" in md
         data = (tmp_path / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
@@ -65,16 +76,19 @@ def test_tiny_report(tmp_path):
     # scaling and refinement sections carry measured rows
     assert set(res["ranks"]) == {"1", "2"}
     assert all("error" not in r for r in res["ranks"].values()), res["ranks"]
-    assert res["ranks"]["2"]["points_per_rank"] and sum(res["ranks"]["2"]["points_per_rank"]) \
-        == res["ranks"]["1"]["points"]
+    assert (
+        res["ranks"]["2"]["points_per_rank"]
+        and sum(res["ranks"]["2"]["points_per_rank"]) == res["ranks"]["1"]["points"]
+    )
     assert [r["cells"] for r in res["refinement"]] == [380, 1520]
     check_speed_error(res, md)
     assert "| target | measured | status |" in md
     # the figures and markdown can be redrawn from the raw numbers alone
     redo = tmp_path / "redo"
     assert report.main(["--render", str(raw), "--out", str(redo)]) == 0
-    assert (redo / "performance.md").read_text().split("\n", 3)[3] == \
-        md.split("\n", 3)[3].replace("\n\n\n" + STACKS_BLOCK, "")
+    assert (redo / "performance.md").read_text().split("\n", 3)[3] == md.split("\n", 3)[3].replace(
+        "\n\n\n" + STACKS_BLOCK, ""
+    )
 
 
 def check_kernel(res, md):
@@ -115,12 +129,20 @@ def check_speed_error(res, md):
     sizes = res["config"]["error_sizes"]
     assert len(res["sizes"]) == len(sizes) * res["config"]["seeds"]
     assert all(r["generation_time"] > 0 for r in res["sizes"])
-    assert re.search(rf"\| Taylor RVE \(full\) \| {sizes[-1]} \| 1/1 \| \d+ \| [\d.]+ ± [\d.]+ "
-                     r"\| -[\d.]+ ± [\d.]+ \| 0\.00 % \|", md)
-    for label in ("SmallStrainRVE", "UFL linear", "AdaptiveRVE (provable)",
-                  "AdaptiveRVE (strain only)"):
+    assert re.search(
+        rf"\| Taylor RVE \(full\) \| {sizes[-1]} \| 1/1 \| \d+ \| [\d.]+ ± [\d.]+ "
+        r"\| -[\d.]+ ± [\d.]+ \| 0\.00 % \|",
+        md,
+    )
+    for label in (
+        "SmallStrainRVE",
+        "UFL linear",
+        "AdaptiveRVE (provable)",
+        "AdaptiveRVE (strain only)",
+    ):
         assert label in md
     ad = [r for r in res["levels"] if r["level"] == "adaptive"]
     base = [r for r in res["sizes"] if r["particles"] == res["config"]["particles"]]
-    assert ad and all(a["settlement"] == pytest.approx(b["settlement"], rel=1e-9)
-                      for a, b in zip(ad, base))
+    assert ad and all(
+        a["settlement"] == pytest.approx(b["settlement"], rel=1e-9) for a, b in zip(ad, base)
+    )

@@ -19,8 +19,14 @@ SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure"]
 
 
 def demo(*args, ranks=1):
-    proc = subprocess.run(command(*args, ranks=ranks), cwd=ROOT, env=MPI_ENV, capture_output=True,
-                          text=True, timeout=300)
+    proc = subprocess.run(
+        command(*args, ranks=ranks),
+        cwd=ROOT,
+        env=MPI_ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout
 
@@ -76,8 +82,13 @@ def test_killed_run_keeps_its_converged_steps_and_resumes(tmp_path, uninterrupte
     """SIGKILL once two steps are on disk: the files describe the converged steps exactly
     (summary.json and restart.npz are replaced atomically), and the run resumes from them."""
     out = tmp_path / "run"
-    proc = subprocess.Popen(command(*SMALL, "--out", str(out), "--steps", "12"), cwd=ROOT,
-                            env=MPI_ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        command(*SMALL, "--out", str(out), "--steps", "12"),
+        cwd=ROOT,
+        env=MPI_ENV,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.time() + 120
         while time.time() < deadline and proc.poll() is None:
@@ -132,12 +143,21 @@ def test_resume_on_two_ranks(tmp_path, uninterrupted):
 
 
 def test_resume_errors(tmp_path):
-    for folder, words in ((tmp_path / "empty", "does not exist"), (tmp_path / "bad", "not a usable")):
+    for folder, words in (
+        (tmp_path / "empty", "does not exist"),
+        (tmp_path / "bad", "not a usable"),
+    ):
         folder.mkdir()
         if folder.name == "bad":
             (folder / "restart.npz").write_bytes(b"PK\x03\x04 truncated")
-        proc = subprocess.run(command("--resume", str(folder)), cwd=ROOT, env=MPI_ENV,
-                              capture_output=True, text=True, timeout=300)
+        proc = subprocess.run(
+            command("--resume", str(folder)),
+            cwd=ROOT,
+            env=MPI_ENV,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert proc.returncode == 2 and "Traceback" not in proc.stderr
         assert proc.stderr.startswith("error: --resume") and words in proc.stderr
 

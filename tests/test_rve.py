@@ -1,11 +1,12 @@
 """The Taylor RVE against the paper's formulas: reference sums, derivatives, symmetries, limits."""
 
+from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError
+
 import numpy as np
 import pytest
+
 from packings import hex_lattice, random_packing, square_lattice
 from reference import central_differences, reference, reference_modulus
-
-from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError
 
 # these tests use prestressed (overlapping) packings on purpose
 pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
@@ -23,7 +24,9 @@ def random_F(rng, n, smin=0.9, smax=1.1):
     out = np.empty((n, 2, 2))
     for q in range(n):
         s = rng.uniform(smin, smax, 2)
-        out[q] = rotation(rng.uniform(0, 2 * np.pi)) @ np.diag(s) @ rotation(rng.uniform(0, 2 * np.pi))
+        out[q] = (
+            rotation(rng.uniform(0, 2 * np.pi)) @ np.diag(s) @ rotation(rng.uniform(0, 2 * np.pi))
+        )
     return out
 
 

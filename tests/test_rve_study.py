@@ -4,13 +4,13 @@ import csv
 import json
 import time
 
+from dolfinx_granular import Packing, TaylorRVE
+from dolfinx_granular.cache import PackingCache
+
 import numpy as np
 import pytest
 
 from scripts import load_demo
-
-from dolfinx_granular import Packing, TaylorRVE
-from dolfinx_granular.cache import PackingCache
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +30,13 @@ def read(path):
 def test_outputs_exist(study):
     mod, out, runtime = study
     assert runtime < 60
-    for name in ("fig2_sieve_curve.png", "fig3_packings_densities.png", "fig4_compression.png",
-                 "fig5_shear.png", "speed_error.png"):
+    for name in (
+        "fig2_sieve_curve.png",
+        "fig3_packings_densities.png",
+        "fig4_compression.png",
+        "fig5_shear.png",
+        "speed_error.png",
+    ):
         with open(out / name, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"
     summary = json.loads((out / "summary.json").read_text())
@@ -47,16 +52,23 @@ def test_stress_curves_are_mean_and_std_over_the_seeds(study):
     assert max(float(r["strain"]) for r in rows) >= 0.10
     # recompute one point from the cached packings, independently of the demo's code path
     n = mod.SMALL["fig_sizes"][0]
-    packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz")
-                for s in range(mod.SMALL["seeds"])]
+    packings = [
+        Packing.load(out / "packings" / f"n{n}_s{s}.npz") for s in range(mod.SMALL["seeds"])
+    ]
     F = np.array([[1.0, 0.0], [0.05, 1.0]])
     sig = np.array([TaylorRVE(p, mod.K_N).cauchy(F) for p in packings])
-    row = next(r for r in rows if r["path"] == "shear_21" and r["n"] == str(n)
-               and float(r["strain"]) == pytest.approx(0.05))
+    row = next(
+        r
+        for r in rows
+        if r["path"] == "shear_21"
+        and r["n"] == str(n)
+        and float(r["strain"]) == pytest.approx(0.05)
+    )
     for key, (a, b) in (("sigma11", (0, 0)), ("sigma22", (1, 1)), ("sigma12", (0, 1))):
         assert float(row[f"{key}_mean_Pa"]) == pytest.approx(sig[:, a, b].mean(), rel=1e-6)
-        assert float(row[f"{key}_std_Pa"]) == pytest.approx(sig[:, a, b].std(ddof=1), rel=1e-6,
-                                                           abs=1e-3)
+        assert float(row[f"{key}_std_Pa"]) == pytest.approx(
+            sig[:, a, b].std(ddof=1), rel=1e-6, abs=1e-3
+        )
     # compression loads the compressed direction hardest; unloaded reference is stress-free
     c11 = [r for r in rows if r["path"] == "compression_11" and r["n"] == str(n)]
     s11 = [float(r["sigma11_mean_Pa"]) for r in c11]
@@ -71,8 +83,10 @@ def test_speed_error_table(study):
     assert [int(r["n"]) for r in rows] == list(mod.SMALL["speed_sizes"])
     for r in rows:
         n = int(r["n"])
-        packings = [Packing.load(out / "packings" / f"n{n}_s{s}.npz")
-                    for s in range(mod.SMALL["speed_seeds"])]
+        packings = [
+            Packing.load(out / "packings" / f"n{n}_s{s}.npz")
+            for s in range(mod.SMALL["speed_seeds"])
+        ]
         assert int(r["seeds"]) == len(packings)
         sc = np.array([TaylorRVE(p, mod.K_N).cauchy(np.diag([0.95, 1.0]))[0, 0] for p in packings])
         cv = sc.std(ddof=1) / abs(sc.mean())

@@ -13,24 +13,39 @@ from scripts import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
 def test_mesh_and_footing_load():
     """380 structured Q1 cells on the reconstructed geometry; the footing pressure has the
     resultant -4e7 N/m at e = B/6 toward the slope, 0 at the heel and 2P/B at the edge."""
+    from dolfinx_granular.slope.geometry import (
+        BOTTOM,
+        FOOTING,
+        LEFT,
+        RIGHT,
+        SURFACE,
+        SlopeGeometry,
+        create_mesh,
+    )
+
     import ufl
     from dolfinx import fem
     from mpi4py import MPI
 
-    from dolfinx_granular.slope.geometry import BOTTOM, FOOTING, LEFT, RIGHT, SURFACE, SlopeGeometry, create_mesh
-
     g = SlopeGeometry()
     msh, _, facets = create_mesh(MPI.COMM_WORLD, g)
     comm = msh.comm
-    assert msh.topology.index_map(2).size_global == 380 and msh.topology.cell_name() == "quadrilateral"
+    assert (
+        msh.topology.index_map(2).size_global == 380 and msh.topology.cell_name() == "quadrilateral"
+    )
     assert msh.geometry.index_map().size_global == 420
     ds = ufl.Measure("ds", domain=msh, subdomain_data=facets)
     x = ufl.SpatialCoordinate(msh)
     integral = lambda form: comm.allreduce(fem.assemble_scalar(fem.form(form)), op=MPI.SUM)  # noqa: E731
     area = 38.75 * 58.125 + 19.375 * (58.125 + 38.75) / 2 + 19.375 * 38.75
     assert np.isclose(integral(1.0 * ufl.dx(domain=msh)), area, rtol=1e-12)
-    for tag, length in [(BOTTOM, 77.5), (LEFT, 58.125), (RIGHT, 38.75), (FOOTING, 23.25),
-                        (SURFACE, 77.5 - 23.25 - 19.375 + 19.375 * np.sqrt(2))]:
+    for tag, length in [
+        (BOTTOM, 77.5),
+        (LEFT, 58.125),
+        (RIGHT, 38.75),
+        (FOOTING, 23.25),
+        (SURFACE, 77.5 - 23.25 - 19.375 + 19.375 * np.sqrt(2)),
+    ]:
         assert np.isclose(integral(1.0 * ds(tag)), length, rtol=1e-10), tag
     q = g.footing_pressure_on_strip(x[0])
     P = integral(q * ds(FOOTING))
@@ -57,8 +72,9 @@ def test_geometry_rejects_off_grid_dimensions():
 
 
 def run_demo(out, *args, ranks=1):
-    cmd = slope_command("--particles", "70", "--seed", "1", "--steps", "2", "--out", out, *args,
-                        ranks=ranks)
+    cmd = slope_command(
+        "--particles", "70", "--seed", "1", "--steps", "2", "--out", out, *args, ranks=ranks
+    )
     proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout
@@ -74,10 +90,19 @@ def test_demo_reduced_size_writes_everything(tmp_path):
     assert "step  3/3" in stdout
     assert summary["ranks"] == 1 and summary["steps"] == 3 and summary["converged"]
     assert len(summary["iterations"]) == 3 and all(i >= 1 for i in summary["iterations"])
-    for key in ("footing_settlement", "max_von_mises", "min_von_mises", "wall_time", "time_rve",
-                "time_assembly", "time_solve"):
+    for key in (
+        "footing_settlement",
+        "max_von_mises",
+        "min_von_mises",
+        "wall_time",
+        "time_rve",
+        "time_assembly",
+        "time_solve",
+    ):
         assert np.isfinite(summary[key]), key
-    assert len(summary["max_von_mises_location"]) == 2 and len(summary["min_von_mises_location"]) == 2
+    assert (
+        len(summary["max_von_mises_location"]) == 2 and len(summary["min_von_mises_location"]) == 2
+    )
     assert summary["footing_settlement"] < 0  # the footing goes down
     assert 0 <= summary["min_von_mises"] < summary["max_von_mises"]
     assert summary["min_singular_value_F"] >= 0.5
@@ -114,7 +139,9 @@ def test_serial_and_two_ranks_agree(tmp_path):
     for key in ("footing_settlement", "max_von_mises"):
         assert rel(s1[key], s2[key]) <= 1e-10, (key, s1[key], s2[key])
     assert abs(s1["min_von_mises"] - s2["min_von_mises"]) <= 1e-10 * s1["max_von_mises"]
-    assert np.allclose(s1["max_von_mises_location"], s2["max_von_mises_location"], rtol=0, atol=1e-12)
+    assert np.allclose(
+        s1["max_von_mises_location"], s2["max_von_mises_location"], rtol=0, atol=1e-12
+    )
     for lab in s1["probes"]:
         F1, F2 = np.array(s1["probes"][lab]["F"]), np.array(s2["probes"][lab]["F"])
         assert np.abs(F1 - F2).max() <= 1e-10, lab
@@ -135,10 +162,20 @@ def test_prestressed_packing_is_reported(tmp_path):
 
     p = generate_packing(70, seed=1)
     Packing(p.centers, 1.02 * p.radii, p.box).save(tmp_path / "swollen.npz")
-    cmd = slope_command("--packing", tmp_path / "swollen.npz", "--steps", "1", "--no-figure",
-                        "--out", tmp_path / "out")
+    cmd = slope_command(
+        "--packing",
+        tmp_path / "swollen.npz",
+        "--steps",
+        "1",
+        "--no-figure",
+        "--out",
+        tmp_path / "out",
+    )
     proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "PrestressWarning" in proc.stderr and "reference state of the RVE: P(I) = [[-6" in proc.stdout
+    assert (
+        "PrestressWarning" in proc.stderr
+        and "reference state of the RVE: P(I) = [[-6" in proc.stdout
+    )
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert 1e-3 < summary["prestress_ratio"] < 0.1 and summary["prestress"][0][0] < -1e5

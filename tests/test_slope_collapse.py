@@ -10,8 +10,23 @@ from scripts import load_demo
 
 @pytest.mark.slow
 def test_collapse_study_runs(tmp_path, capsys):
-    assert load_demo("slope_collapse").main(["--particles", "70", "--seed", "1", "--steps", "4",
-                                             "--meshes", "1", "--out", str(tmp_path)]) == 0
+    assert (
+        load_demo("slope_collapse").main(
+            [
+                "--particles",
+                "70",
+                "--seed",
+                "1",
+                "--steps",
+                "4",
+                "--meshes",
+                "1",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     summary = json.loads((tmp_path / "collapse.json").read_text())
     assert set(summary) == {"load_control_380", "path_380", "uplift_path_380"}
     control, path = summary["load_control_380"], summary["path_380"]

@@ -13,8 +13,14 @@ SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure", "--p
 
 
 def demo(out, *args, ranks=1, status=0):
-    proc = subprocess.run(slope_command(*SMALL, "--out", out, *args, ranks=ranks), cwd=ROOT,
-                          env=MPI_ENV, capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        slope_command(*SMALL, "--out", out, *args, ranks=ranks),
+        cwd=ROOT,
+        env=MPI_ENV,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert proc.returncode == status, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout, *read_outputs(out)
 
@@ -71,15 +77,23 @@ def test_path_is_the_same_on_two_ranks(tmp_path, doubled):
 def test_resume_continues_the_path(tmp_path, doubled):
     out = tmp_path / "run"
     demo(out, "--load-factor", "2", "--stop-after", "5")
-    proc = subprocess.run(slope_command("--resume", out, "--no-figure"), cwd=ROOT, env=MPI_ENV,
-                          capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        slope_command("--resume", out, "--no-figure"),
+        cwd=ROOT,
+        env=MPI_ENV,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary, _ = read_outputs(out)
     assert summary["resumed_from"] == 5
     a, b = footing_path(doubled[1]), footing_path(summary)
     assert a.shape == b.shape and np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
-    assert summary["path_following"]["critical_points"] == doubled[1]["path_following"][
-        "critical_points"]
+    assert (
+        summary["path_following"]["critical_points"]
+        == doubled[1]["path_following"]["critical_points"]
+    )
 
 
 @pytest.mark.slow

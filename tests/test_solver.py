@@ -7,19 +7,24 @@ import numpy as np
 import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
-from mpi4py import MPI  # noqa: E402
-
-from columns import granular_column  # noqa: E402
-
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
 from dolfinx_granular._dolfinx import SNES_NAN_REASON  # noqa: E402
 from dolfinx_granular.slope import SlopeOptions, run_slope  # noqa: E402
 
+from mpi4py import MPI  # noqa: E402
+
+from columns import granular_column  # noqa: E402
+
 
 def column(pressure, petsc_options=None, prefix="col_", n=6):
     """The shared column (tests/columns.py) of a 70-particle RVE under a top pressure (Pa)."""
-    return granular_column(TaylorRVE(generate_packing(70, seed=4), 2.8e7), prefix, n=n,
-                           pressure=pressure, petsc_options=petsc_options)[:3]
+    return granular_column(
+        TaylorRVE(generate_packing(70, seed=4), 2.8e7),
+        prefix,
+        n=n,
+        pressure=pressure,
+        petsc_options=petsc_options,
+    )[:3]
 
 
 def energies(result):
@@ -36,7 +41,8 @@ def test_energy_norm_history_is_quadratic():
     assert e[0] == 1.0 and 3 <= len(e) <= 7
     # stopped by the paper's energy norm, or with the residual at round-off of the forces
     assert (e[-1] <= 1e-20 and result.stopped_by == "energy norm") or (
-        result.stopped_by == "round-off" and result.residual_norm <= 1e-12 * result.force_scale)
+        result.stopped_by == "round-off" and result.residual_norm <= 1e-12 * result.force_scale
+    )
     # quadratic: once in the asymptotic range, log e_{k+1} ~ 2 log e_k
     pairs = [(a, b) for a, b in zip(e[:-1], e[1:]) if a < 1e-3 and b > 1e-28]
     assert pairs, e
@@ -54,7 +60,9 @@ def test_tangent_consistent_under_line_search(linesearch):
     solution and quadratic convergence are those of plain Newton."""
     ref_solver, _, u_ref = column(2e5, prefix="ref_")
     ref = ref_solver.solve()
-    solver, material, u = column(2e5, {"snes_linesearch_type": linesearch}, prefix=f"ls{linesearch}_")
+    solver, material, u = column(
+        2e5, {"snes_linesearch_type": linesearch}, prefix=f"ls{linesearch}_"
+    )
     result = solver.solve()
     assert ref.converged and result.converged, (ref, result)
     if linesearch != "bt":  # bt takes full Newton steps here; l2 and cp evaluate trial points
@@ -84,8 +92,14 @@ def test_failure_is_reported_not_raised():
 
 def test_small_slope_run_converges_quadratically(tmp_path):
     """All 21 load steps of the slope with a 70-particle RVE, no figure."""
-    summary = run_slope(generate_packing(70, seed=2), SlopeOptions(steps=20), out=str(tmp_path),
-                        comm=MPI.COMM_SELF, figure=False, verbose=False)
+    summary = run_slope(
+        generate_packing(70, seed=2),
+        SlopeOptions(steps=20),
+        out=str(tmp_path),
+        comm=MPI.COMM_SELF,
+        figure=False,
+        verbose=False,
+    )
     assert summary["converged"], summary["failed"]
     assert len(summary["iterations"]) == 21
     with open(tmp_path / "convergence.csv") as f:
@@ -132,8 +146,9 @@ def test_readme_loop_from_zero_load_and_after_a_failure():
     round-off overlaps (P(I) ~ 1e-11 of the modulus) are all there is to balance, and Newton may
     open touching contacts and fail; a failed solve leaves u where it started, so that the next
     loads converge. A crushing load fails the same way, and the next solve converges."""
-    solver, material, u, p = granular_column(TaylorRVE(generate_packing(70, seed=4), 2.8e7),
-                                             "readme_loop_", n=6)
+    solver, material, u, p = granular_column(
+        TaylorRVE(generate_packing(70, seed=4), 2.8e7), "readme_loop_", n=6
+    )
     p.value = 0.0
     if not solver.solve().converged:
         assert not u.x.array.any()
@@ -153,6 +168,12 @@ def test_readme_loop_from_zero_load_and_after_a_failure():
 def test_gravity_only_slope_converges(tmp_path):
     """No footing load (--load-factor 0): every footing step starts converged and takes 0
     Newton steps; the run succeeds."""
-    summary = run_slope(generate_packing(70, seed=2), SlopeOptions(steps=2, load_factor=0.0),
-                        out=str(tmp_path), comm=MPI.COMM_SELF, figure=False, verbose=False)
+    summary = run_slope(
+        generate_packing(70, seed=2),
+        SlopeOptions(steps=2, load_factor=0.0),
+        out=str(tmp_path),
+        comm=MPI.COMM_SELF,
+        figure=False,
+        verbose=False,
+    )
     assert summary["converged"] and summary["iterations"][1:] == [0, 0], summary["iterations"]

@@ -9,9 +9,10 @@ MPI runs of this stack and, where the checkout has a second stack installed (``.
 
 import sys
 
+from dolfinx_granular import generate_packing
+
 import pytest
 
-from dolfinx_granular import generate_packing
 from scripts import load_benchmark
 
 stacks_module = load_benchmark("stacks")
@@ -44,8 +45,10 @@ def test_serial_and_two_ranks_agree(stacks, packing_file, tmp_path):
 
 def test_every_installed_stack_agrees(stacks, packing_file, tmp_path):
     if len(stacks) < 2:
-        pytest.skip("one DOLFINx stack installed in this checkout (make setup-current adds the "
-                    "0.11 wheel beside Debian's 0.5.2)")
+        pytest.skip(
+            "one DOLFINx stack installed in this checkout (make setup-current adds the "
+            "0.11 wheel beside Debian's 0.5.2)"
+        )
     rows = stacks_module.same_numbers(stacks, packing_file, str(tmp_path))
     assert len({r["stack"] for r in rows}) == len(stacks)
     assert_same(rows)

@@ -20,14 +20,14 @@ limit point the truss softens faster than the spring (EA h^2 / L0^3 > EA_s / Ls)
 
 from collections import namedtuple
 
+from dolfinx_granular._dolfinx import create_mesh, vector_space
+from dolfinx_granular.solver import NewtonSolver
+
 import numpy as np
 import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 from scipy.optimize import brentq
-
-from dolfinx_granular._dolfinx import create_mesh, vector_space
-from dolfinx_granular.solver import NewtonSolver
 
 A_HALF, H, EA = 1.0, 0.2, 1.0
 L_SPRING, EA_SPRING = 5.0, 0.15  # spring stiffness 0.03 < EA h^2 / L0^3 = 0.038: snap-back
@@ -46,20 +46,30 @@ def load_of_apex(w):
 def spring_compression(P):
     """Exact shortening c (m) of the spring under the load P."""
     g = lambda L: EA_SPRING * (L_SPRING**2 - L**2) * L / (2.0 * L_SPRING**3) - P  # noqa: E731
-    return L_SPRING - brentq(g, L_SPRING / np.sqrt(3.0) * (1 + 1e-12), 2.0 * L_SPRING,
-                             xtol=1e-15, rtol=1e-15, maxiter=200)
+    return L_SPRING - brentq(
+        g,
+        L_SPRING / np.sqrt(3.0) * (1 + 1e-12),
+        2.0 * L_SPRING,
+        xtol=1e-15,
+        rtol=1e-15,
+        maxiter=200,
+    )
 
 
 def truss(comm=MPI.COMM_WORLD, prefix="truss_"):
     """The truss model: a NewtonSolver of R(u) - lam f with lam = ``load`` (N, down)."""
     x = np.array([[-A_HALF, 0.0], [0.0, H], [A_HALF, 0.0], [0.0, H + L_SPRING]])
-    msh = create_mesh(comm, np.array([[0, 1], [1, 2], [1, 3]]), x, "interval", 2,
-                      max_facet_to_cell_links=3)  # three bars meet at the apex
+    msh = create_mesh(
+        comm, np.array([[0, 1], [1, 2], [1, 3]]), x, "interval", 2, max_facet_to_cell_links=3
+    )  # three bars meet at the apex
     V = vector_space(msh)
     u, v = fem.Function(V), ufl.TestFunction(V)
     cells = mesh.locate_entities(msh, 1, lambda p: np.isclose(p[0], 0.0))  # the spring
-    stiffness = fem.Function(fem.functionspace(msh, ("DG", 0)) if hasattr(fem, "functionspace")
-                             else fem.FunctionSpace(msh, ("DG", 0)))
+    stiffness = fem.Function(
+        fem.functionspace(msh, ("DG", 0))
+        if hasattr(fem, "functionspace")
+        else fem.FunctionSpace(msh, ("DG", 0))
+    )
     stiffness.x.array[:] = EA
     stiffness.x.array[cells] = EA_SPRING
     J = ufl.Jacobian(msh)
@@ -74,8 +84,10 @@ def truss(comm=MPI.COMM_WORLD, prefix="truss_"):
     residual = ufl.derivative(energy, u, v) - load * external
     supports = mesh.locate_entities_boundary(msh, 0, lambda p: np.isclose(p[1], 0.0))
     axis = mesh.locate_entities(msh, 0, lambda p: np.isclose(p[0], 0.0))
-    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 0, supports), V),
-           fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 0, axis), V.sub(0))]
+    bcs = [
+        fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 0, supports), V),
+        fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 0, axis), V.sub(0)),
+    ]
     solver = NewtonSolver(residual, None, u, bcs, prefix=prefix)
     n_owned = V.dofmap.index_map.size_local
     xs = V.tabulate_dof_coordinates()[:n_owned, :2]

@@ -14,5 +14,14 @@ from .geometry import SlopeGeometry, create_mesh
 from .model import SlopeModel, granular_material, newton_solver
 from .run import SlopeOptions, SlopeRun, load_restart, run_slope
 
-__all__ = ["SlopeGeometry", "create_mesh", "SlopeModel", "granular_material", "newton_solver",
-           "SlopeOptions", "SlopeRun", "load_restart", "run_slope"]
+__all__ = [
+    "SlopeGeometry",
+    "create_mesh",
+    "SlopeModel",
+    "granular_material",
+    "newton_solver",
+    "SlopeOptions",
+    "SlopeRun",
+    "load_restart",
+    "run_slope",
+]

@@ -42,6 +42,7 @@ def _int_at_least(low):
         if value < low:
             raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
         return value
+
     return parse
 
 
@@ -53,49 +54,106 @@ def _finite(low=None):
             raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
         if not np.isfinite(value) or (low is not None and value < low):
             raise argparse.ArgumentTypeError(
-                f"must be a finite number{f' >= {low}' if low is not None else ''}, got {text!r}")
+                f"must be a finite number{f' >= {low}' if low is not None else ''}, got {text!r}"
+            )
         return value
+
     return parse
 
 
 def build_parser(prog="demos/slope.py"):
-    p = _Parser(prog=prog, description="Slope stability benchmark (section 5 of Meier, "
-                "Steinmann & Kuhl): dead load, then an eccentric strip footing in load steps, a "
-                "Taylor RVE at every Gauss point.")
-    p.add_argument("--particles", type=_int_at_least(2), default=700,
-                   help="particles per RVE, >= 2 (default 700)")
-    p.add_argument("--seed", type=_int_at_least(0), default=0, help="packing generator seed (default 0)")
+    p = _Parser(
+        prog=prog,
+        description="Slope stability benchmark (section 5 of Meier, "
+        "Steinmann & Kuhl): dead load, then an eccentric strip footing in load steps, a "
+        "Taylor RVE at every Gauss point.",
+    )
+    p.add_argument(
+        "--particles",
+        type=_int_at_least(2),
+        default=700,
+        help="particles per RVE, >= 2 (default 700)",
+    )
+    p.add_argument(
+        "--seed", type=_int_at_least(0), default=0, help="packing generator seed (default 0)"
+    )
     p.add_argument("--packing", help="load the packing from this .npz file instead of generating")
-    p.add_argument("--steps", type=_int_at_least(1), default=20, help="footing load steps (default 20)")
+    p.add_argument(
+        "--steps", type=_int_at_least(1), default=20, help="footing load steps (default 20)"
+    )
     p.add_argument("--out", default="results/slope", help="output folder (default results/slope)")
     p.add_argument("--no-figure", action="store_true", help="skip slope.png")
-    p.add_argument("--load-factor", type=_finite(), default=1.0,
-                   help="multiplies the footing load (2: doubled, -0.25: uplift; default 1)")
-    p.add_argument("--stabilise", type=_finite(0.0), default=0.0,
-                   help="stiffness where an RVE has no loaded contact, relative to the eq. 15 "
-                        "modulus (default 0: off)")
-    p.add_argument("--line-search", choices=["basic", "bt", "l2", "cp"], default="basic",
-                   help="SNES line search (default basic: full Newton steps)")
-    p.add_argument("--friction", type=_finite(0.0), default=0.0, metavar="MU",
-                   help="Coulomb friction coefficient of the contacts (default 0: frictionless, "
-                        "the paper's model)")
-    p.add_argument("--tangential-stiffness", type=_finite(0.0), metavar="KT",
-                   help="tangential contact stiffness k_t in N/m² (default: the normal one, "
-                        "2.8e7, where --friction > 0)")
-    p.add_argument("--unload", action="store_true",
-                   help="after the footing load, remove it again in as many steps")
-    p.add_argument("--path-following", action="store_true",
-                   help="take the footing load by arc length (Riks/Crisfield): through the limit "
-                        "load and down the softening branch to 0.9 x the peak")
-    p.add_argument("--max-increments", type=_int_at_least(1), default=100, metavar="N",
-                   help="most arc-length increments with --path-following (default 100)")
-    p.add_argument("--refine", type=_int_at_least(1), default=1, metavar="K",
-                   help="mesh refinement: K times the columns and rows (K² x 380 cells)")
-    p.add_argument("--stop-after", type=_int_at_least(1), metavar="K",
-                   help="stop after K converged load steps (resume later with --resume)")
-    p.add_argument("--resume", metavar="DIR",
-                   help="continue the run in DIR from its restart.npz (its options and packing; "
-                        "the options above are ignored except --no-figure and --stop-after)")
+    p.add_argument(
+        "--load-factor",
+        type=_finite(),
+        default=1.0,
+        help="multiplies the footing load (2: doubled, -0.25: uplift; default 1)",
+    )
+    p.add_argument(
+        "--stabilise",
+        type=_finite(0.0),
+        default=0.0,
+        help="stiffness where an RVE has no loaded contact, relative to the eq. 15 "
+        "modulus (default 0: off)",
+    )
+    p.add_argument(
+        "--line-search",
+        choices=["basic", "bt", "l2", "cp"],
+        default="basic",
+        help="SNES line search (default basic: full Newton steps)",
+    )
+    p.add_argument(
+        "--friction",
+        type=_finite(0.0),
+        default=0.0,
+        metavar="MU",
+        help="Coulomb friction coefficient of the contacts (default 0: frictionless, "
+        "the paper's model)",
+    )
+    p.add_argument(
+        "--tangential-stiffness",
+        type=_finite(0.0),
+        metavar="KT",
+        help="tangential contact stiffness k_t in N/m² (default: the normal one, "
+        "2.8e7, where --friction > 0)",
+    )
+    p.add_argument(
+        "--unload",
+        action="store_true",
+        help="after the footing load, remove it again in as many steps",
+    )
+    p.add_argument(
+        "--path-following",
+        action="store_true",
+        help="take the footing load by arc length (Riks/Crisfield): through the limit "
+        "load and down the softening branch to 0.9 x the peak",
+    )
+    p.add_argument(
+        "--max-increments",
+        type=_int_at_least(1),
+        default=100,
+        metavar="N",
+        help="most arc-length increments with --path-following (default 100)",
+    )
+    p.add_argument(
+        "--refine",
+        type=_int_at_least(1),
+        default=1,
+        metavar="K",
+        help="mesh refinement: K times the columns and rows (K² x 380 cells)",
+    )
+    p.add_argument(
+        "--stop-after",
+        type=_int_at_least(1),
+        metavar="K",
+        help="stop after K converged load steps (resume later with --resume)",
+    )
+    p.add_argument(
+        "--resume",
+        metavar="DIR",
+        help="continue the run in DIR from its restart.npz (its options and packing; "
+        "the options above are ignored except --no-figure and --stop-after)",
+    )
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     return p
 
@@ -103,16 +161,25 @@ def build_parser(prog="demos/slope.py"):
 def options_of(a) -> SlopeOptions:
     """The run's options from parsed command-line arguments."""
     if a.tangential_stiffness is not None and a.friction == 0.0:
-        raise UserError("--tangential-stiffness needs --friction MU > 0 (frictionless contacts "
-                        "carry no tangential force)")
+        raise UserError(
+            "--tangential-stiffness needs --friction MU > 0 (frictionless contacts "
+            "carry no tangential force)"
+        )
     g = SlopeGeometry()
     geometry = SlopeGeometry(column_width=g.column_width / a.refine, rows=g.rows * a.refine)
     try:
-        return SlopeOptions(steps=a.steps, load_factor=a.load_factor, stabilise=a.stabilise,
-                            petsc_options={"snes_linesearch_type": a.line_search},
-                            friction=a.friction, tangential_stiffness=a.tangential_stiffness,
-                            unload=a.unload, path_following=a.path_following,
-                            max_increments=a.max_increments, geometry=geometry)
+        return SlopeOptions(
+            steps=a.steps,
+            load_factor=a.load_factor,
+            stabilise=a.stabilise,
+            petsc_options={"snes_linesearch_type": a.line_search},
+            friction=a.friction,
+            tangential_stiffness=a.tangential_stiffness,
+            unload=a.unload,
+            path_following=a.path_following,
+            max_increments=a.max_increments,
+            geometry=geometry,
+        )
     except ValueError as err:
         raise UserError(str(err)) from None
 
@@ -135,8 +202,9 @@ def _check_out(out):
             pass
         os.remove(probe)
     except OSError as err:
-        raise UserError(f"--out {out!r} cannot be written ({err.strerror or err}); choose a "
-                        "writable folder") from None
+        raise UserError(
+            f"--out {out!r} cannot be written ({err.strerror or err}); choose a writable folder"
+        ) from None
 
 
 def _prepare(a):
@@ -152,8 +220,10 @@ def _prepare(a):
     try:
         return make_packing(a.particles, a.seed, a.packing)
     except PackingFileError as err:
-        raise UserError(f"--packing: {err}; give a .npz written by 'python -m dolfinx_granular "
-                        "generate' or Packing.save") from err
+        raise UserError(
+            f"--packing: {err}; give a .npz written by 'python -m dolfinx_granular "
+            "generate' or Packing.save"
+        ) from err
 
 
 def _shared(a, comm):
@@ -174,11 +244,21 @@ def _resume(a, comm, started):
     restart = _shared(a, comm)
     if is_complete(restart):
         if comm.rank == 0:
-            print(f"slope: the run in {a.resume} completed all {restart['state']['step']} load "
-                  "steps; nothing to resume (its results are unchanged)", flush=True)
+            print(
+                f"slope: the run in {a.resume} completed all {restart['state']['step']} load "
+                "steps; nothing to resume (its results are unchanged)",
+                flush=True,
+            )
         return {"status": "converged"}
-    return run_slope(restart["packing"], out=a.resume, comm=comm, figure=not a.no_figure,
-                     restart=restart, stop_after=a.stop_after, started=started)
+    return run_slope(
+        restart["packing"],
+        out=a.resume,
+        comm=comm,
+        figure=not a.no_figure,
+        restart=restart,
+        stop_after=a.stop_after,
+        started=started,
+    )
 
 
 def main(argv=None, prog="demos/slope.py") -> int:
@@ -193,8 +273,15 @@ def main(argv=None, prog="demos/slope.py") -> int:
         else:
             options = options_of(a)
             packing = _shared(a, comm)
-            summary = run_slope(packing, options, out=a.out, comm=comm,
-                                figure=not a.no_figure, stop_after=a.stop_after, started=started)
+            summary = run_slope(
+                packing,
+                options,
+                out=a.out,
+                comm=comm,
+                figure=not a.no_figure,
+                stop_after=a.stop_after,
+                started=started,
+            )
     except (ValueError, OSError) as err:  # user errors: bad options, files, meshes
         if "--debug" in argv:
             raise

@@ -53,7 +53,9 @@ class SlopeGeometry:
                     f"column_width={self.column_width} m); move it or change column_width"
                 )
         if abs(cols - round(cols)) > 1e-9:
-            raise ValueError(f"width={self.width} m is not a multiple of column_width={self.column_width} m")
+            raise ValueError(
+                f"width={self.width} m is not a multiple of column_width={self.column_width} m"
+            )
         if not (0 <= self.footing_start < self.footing_end <= self.width):
             raise ValueError("need 0 <= footing_start < footing_end <= width")
         if not (0 < self.slope_start <= self.slope_end <= self.width):
@@ -80,8 +82,11 @@ class SlopeGeometry:
 
     def surface_height(self, x):
         """Ground height y_s(x) (m) for x (array) in [0, width]."""
-        return np.interp(x, [0.0, self.slope_start, self.slope_end, self.width],
-                         [self.crest_height, self.crest_height, self.toe_height, self.toe_height])
+        return np.interp(
+            x,
+            [0.0, self.slope_start, self.slope_end, self.width],
+            [self.crest_height, self.crest_height, self.toe_height, self.toe_height],
+        )
 
     def footing_pressure_on_strip(self, x):
         """Footing pressure q(x) (Pa, signed like ``footing_load``, so negative = downward) for
@@ -176,9 +181,11 @@ def check_physical_groups(comm):
         if not cells:
             missing.insert(0, "a 2-D cell group (soil)")
         if missing:
-            problem = (f"the gmsh model lacks the physical groups {', '.join(missing)}; tag the "
-                       "boundary curves and the surfaces with gmsh.model.addPhysicalGroup as "
-                       "dolfinx_granular.slope.geometry.build_gmsh_model does")
+            problem = (
+                f"the gmsh model lacks the physical groups {', '.join(missing)}; tag the "
+                "boundary curves and the surfaces with gmsh.model.addPhysicalGroup as "
+                "dolfinx_granular.slope.geometry.build_gmsh_model does"
+            )
     problem = comm.bcast(problem, root=0)
     if problem:
         raise MeshError(problem)

@@ -52,8 +52,15 @@ class SlopeModel:
         edge: (2,) the loaded footing edge (m), where the settlement is measured.
     """
 
-    def __init__(self, comm, law, geometry=None, load_factor=1.0,
-                 material_factory=granular_material, solver_factory=newton_solver):
+    def __init__(
+        self,
+        comm,
+        law,
+        geometry=None,
+        load_factor=1.0,
+        material_factory=granular_material,
+        solver_factory=newton_solver,
+    ):
         self.comm, self.law = comm, law
         self.geometry = g = geometry or SlopeGeometry()
         self.load_factor = float(load_factor)
@@ -67,30 +74,34 @@ class SlopeModel:
         q = g.footing_pressure_on_strip(ufl.SpatialCoordinate(self.mesh)[0])
         ds = ufl.Measure("ds", domain=self.mesh, subdomain_data=self.facets)
         self.footing_pattern = q * v[1] * ds(FOOTING)  # the footing load per unit factor
-        self.f_ext = (self.gravity * (-g.density * g.gravity) * v[1] * ufl.dx
-                      + self.footing * self.footing_pattern)
+        self.f_ext = (
+            self.gravity * (-g.density * g.gravity) * v[1] * ufl.dx
+            + self.footing * self.footing_pattern
+        )
         residual = self.material.residual_form(v) - self.f_ext
         self.bcs = self._supports()
-        self.solver = solver_factory(residual, self.material.jacobian_form(du, v), self.u,
-                                     self.bcs, self.material)
+        self.solver = solver_factory(
+            residual, self.material.jacobian_form(du, v), self.u, self.bcs, self.material
+        )
         self._f_ext_form = fem.form(self.f_ext)
         self._stab_form = None
         if getattr(self.material, "P_stab", None) is not None:
-            self._stab_form = fem.form(ufl.inner(self.material.P_stab, ufl.grad(v))
-                                       * self.material.dx)
+            self._stab_form = fem.form(
+                ufl.inner(self.material.P_stab, ufl.grad(v)) * self.material.dx
+            )
         self.edge = np.array([g.loaded_edge, float(g.surface_height(g.loaded_edge))])
         n_owned = self.V.dofmap.index_map.size_local
         dof_x = self.V.tabulate_dof_coordinates()[:n_owned, :2]
-        self._edge_dofs = np.flatnonzero(np.linalg.norm(dof_x - self.edge, axis=1)
-                                         < 1e-6 * g.width)
+        self._edge_dofs = np.flatnonzero(np.linalg.norm(dof_x - self.edge, axis=1) < 1e-6 * g.width)
 
     def _supports(self):
         """Fixed base, rollers on the left and right sides."""
         fdim = self.mesh.topology.dim - 1
         V = self.V
         zero = np.zeros(2, dtype=PETSc.ScalarType)
-        bcs = [fem.dirichletbc(zero, fem.locate_dofs_topological(V, fdim, self.facets.find(BOTTOM)),
-                               V)]
+        bcs = [
+            fem.dirichletbc(zero, fem.locate_dofs_topological(V, fdim, self.facets.find(BOTTOM)), V)
+        ]
         for tag in (LEFT, RIGHT):
             dofs = fem.locate_dofs_topological(V.sub(0), fdim, self.facets.find(tag))
             bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), dofs, V.sub(0)))
@@ -151,19 +162,27 @@ class SlopeModel:
         with their reference coordinates."""
         vm = self.von_mises()
         X = self.material.points
-        return vm, global_extremum(self.comm, vm, X, "max"), global_extremum(self.comm, vm, X, "min")
+        return (
+            vm,
+            global_extremum(self.comm, vm, X, "max"),
+            global_extremum(self.comm, vm, X, "min"),
+        )
 
     def probes(self, xmax):
         """The four probe points of figure 7: ``(label, point, F, text, state)`` at the Gauss
         point nearest to each spot (``state``: the committed state of that point for a law with
         history, else None); the same on every rank."""
         g = self.geometry
-        spots = [("A", xmax, "max von Mises"),
-                 ("B", [g.loaded_edge - 0.5 * g.column_width, 0.75 * g.crest_height],
-                  "under the footing"),
-                 ("C", [g.slope_end + 0.5 * g.column_width, 0.9 * g.toe_height], "at the toe"),
-                 ("D", [0.5 * g.footing_start + 0.5 * g.column_width, 0.1 * g.crest_height],
-                  "deep")]
+        spots = [
+            ("A", xmax, "max von Mises"),
+            (
+                "B",
+                [g.loaded_edge - 0.5 * g.column_width, 0.75 * g.crest_height],
+                "under the footing",
+            ),
+            ("C", [g.slope_end + 0.5 * g.column_width, 0.9 * g.toe_height], "at the toe"),
+            ("D", [0.5 * g.footing_start + 0.5 * g.column_width, 0.1 * g.crest_height], "deep"),
+        ]
         probes = []
         for label, spot, text in spots:
             rank, i, xp = nearest_point(self.comm, self.material.points, spot)
@@ -179,4 +198,5 @@ class SlopeModel:
     def min_singular_value(self) -> float:
         F = self.material.F
         return self.comm.allreduce(
-            float(np.linalg.svd(F, compute_uv=False).min()) if len(F) else np.inf, op=MPI.MIN)
+            float(np.linalg.svd(F, compute_uv=False).min()) if len(F) else np.inf, op=MPI.MIN
+        )

@@ -25,6 +25,7 @@ def _stop(load_factor, fraction):
 
     def stop(al):
         return past_peak(al) or carried(al)
+
     return stop
 
 
@@ -34,27 +35,47 @@ def follow_footing_path(run, phase_index, converged, t0=0.0, restart_state=None)
     an increment."""
     m, o = run.model, run.options
     m.set_footing(t0)  # the loads of the converged state: the weight and the footing at t0
-    al = ArcLength(m.solver, m.footing, m.footing_pattern, dlam=o.load_factor / o.steps,
-                   direction=np.sign(o.load_factor) or 1.0, max_it=15, peak_refinement=16.0,
-                   log=lambda line: run.say("  " + line))
+    al = ArcLength(
+        m.solver,
+        m.footing,
+        m.footing_pattern,
+        dlam=o.load_factor / o.steps,
+        direction=np.sign(o.load_factor) or 1.0,
+        max_it=15,
+        peak_refinement=16.0,
+        log=lambda line: run.say("  " + line),
+    )
     al.ds_max = al.ds  # the arc of the first (nominal) step at most: the softening branch bends
     if restart_state is not None:
         al.resume(restart_state, _last_increment(run))
     run.arclength = al
 
     def on_increment(inc):
-        result = SolveResult(converged=True, reason=2, reason_name="ARC_LENGTH",
-                             iterations=inc.iterations, history=list(inc.history),
-                             residual_norm=inc.residual_norm, stopped_by=inc.converged_by)
+        result = SolveResult(
+            converged=True,
+            reason=2,
+            reason_name="ARC_LENGTH",
+            iterations=inc.iterations,
+            history=list(inc.history),
+            residual_norm=inc.residual_norm,
+            stopped_by=inc.converged_by,
+        )
         run.stepper.step += 1
         return converged(phase_index, run.stepper.step, inc.lam / o.load_factor, result)
 
-    ok = al.run(o.max_increments - len(al.path), stop=_stop(o.load_factor, o.unload_fraction),
-                on_converged=on_increment)
+    ok = al.run(
+        o.max_increments - len(al.path),
+        stop=_stop(o.load_factor, o.unload_fraction),
+        on_converged=on_increment,
+    )
     if not ok:
-        run.stepper.failed = {"phase": "footing", "step": run.stepper.step + 1,
-                              "t": al.lam / o.load_factor, "reason": _why(run, al.failed),
-                              "limit_load": None}
+        run.stepper.failed = {
+            "phase": "footing",
+            "step": run.stepper.step + 1,
+            "t": al.lam / o.load_factor,
+            "reason": _why(run, al.failed),
+            "limit_load": None,
+        }
     return ok
 
 
@@ -62,8 +83,10 @@ def _why(run, failed):
     """The path's failure, with what the RVEs under the footing have to say about it."""
     open_points = run.model.open_points()
     if open_points:
-        return (f"{failed}; {open_points} RVEs have lost every contact (P = 0, a zero tangent): "
-                "no equilibrium path continues from here")
+        return (
+            f"{failed}; {open_points} RVEs have lost every contact (P = 0, a zero tangent): "
+            "no equilibrium path continues from here"
+        )
     return failed
 
 
@@ -87,16 +110,28 @@ def path_summary(run) -> dict | None:
     peak = max(footing, key=lambda s: abs(s["footing_load"]), default=None)
     estimate = al.peak_estimate()
     return {
-        "increments": len(al.path), "stopped": al.stopped, "failed": al.failed,
+        "increments": len(al.path),
+        "stopped": al.stopped,
+        "failed": al.failed,
         # the parabola through the sampled peak and its neighbours: the peak footing load
         # between the samples, in units of the nominal load (lam is the footing Constant)
         "peak_estimate": estimate,
-        "peak": None if peak is None else {"footing_load": peak["footing_load"],
-                                          "settlement": peak["settlement"], "step": peak["step"],
-                                          "load_factor": peak["footing_load"]
-                                          / run.options.geometry.footing_load},
+        "peak": None
+        if peak is None
+        else {
+            "footing_load": peak["footing_load"],
+            "settlement": peak["settlement"],
+            "step": peak["step"],
+            "load_factor": peak["footing_load"] / run.options.geometry.footing_load,
+        },
         "critical_points": [c.as_dict() for c in al.critical],
-        "path": [{"footing_load": s["footing_load"], "settlement": s["settlement"],
-                  "non_elliptic_points": s["non_elliptic_points"],
-                  "open_points": s["open_points"]} for s in footing],
+        "path": [
+            {
+                "footing_load": s["footing_load"],
+                "settlement": s["settlement"],
+                "non_elliptic_points": s["non_elliptic_points"],
+                "open_points": s["open_points"],
+            }
+            for s in footing
+        ],
     }

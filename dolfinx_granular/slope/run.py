@@ -27,8 +27,8 @@ from .. import _dolfinx as dfx
 from ..loading import Cutback, LoadStepper
 from ..packing import Packing
 from ..postprocess import cell_function
-from ..rve import TaylorRVE
 from ..runwriter import NodeOrder, PointOrder, RunWriter, read_npz
+from ..rve import TaylorRVE
 from .geometry import SlopeGeometry
 from .model import SlopeModel, granular_material, newton_solver
 from .path import follow_footing_path
@@ -77,8 +77,10 @@ class SlopeOptions:
 
     def __post_init__(self):
         if self.path_following and self.unload:
-            raise ValueError("path following ends past the limit load, where unloading has no "
-                             "meaning: choose --path-following or --unload")
+            raise ValueError(
+                "path following ends past the limit load, where unloading has no "
+                "meaning: choose --path-following or --unload"
+            )
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -93,10 +95,17 @@ class SlopeOptions:
         if self.friction > 0.0:
             from ..friction import FrictionalRVE
 
-            kt = self.normal_stiffness if self.tangential_stiffness is None \
+            kt = (
+                self.normal_stiffness
+                if self.tangential_stiffness is None
                 else self.tangential_stiffness
-            return FrictionalRVE(packing, normal_stiffness=self.normal_stiffness,
-                                 tangential_stiffness=kt, friction=self.friction)
+            )
+            return FrictionalRVE(
+                packing,
+                normal_stiffness=self.normal_stiffness,
+                tangential_stiffness=kt,
+                friction=self.friction,
+            )
         return TaylorRVE(packing, self.normal_stiffness)
 
     @classmethod
@@ -112,8 +121,16 @@ def convergence_rows(step, result):
     residuals = [r for _, r, _ in h] + [result.residual_norm]
     energies = [""] + [e for _, _, e in h]
     last = len(residuals) - 1
-    return [(step, i, float(residuals[i]), energies[i] if i else "",
-             result.stopped_by if i == last else "") for i in range(len(residuals))]
+    return [
+        (
+            step,
+            i,
+            float(residuals[i]),
+            energies[i] if i else "",
+            result.stopped_by if i == last else "",
+        )
+        for i in range(len(residuals))
+    ]
 
 
 def load_restart(folder) -> dict:
@@ -123,17 +140,21 @@ def load_restart(folder) -> dict:
     path = os.path.join(folder, "restart.npz")
     f = read_npz(path, RESTART_FORMAT)
     try:
-        return {"options": SlopeOptions.from_dict(json.loads(str(f["options"]))),
-                "state": json.loads(str(f["state"])),
-                "packing": Packing(f["centers"], f["radii"], f["box"]),
-                "nodes": f["nodes"], "u_history": f["u_history"], "path": path,
-                "history": {k[len("history_"):]: v for k, v in f.items()
-                            if k.startswith("history_")}}
+        return {
+            "options": SlopeOptions.from_dict(json.loads(str(f["options"]))),
+            "state": json.loads(str(f["state"])),
+            "packing": Packing(f["centers"], f["radii"], f["box"]),
+            "nodes": f["nodes"],
+            "u_history": f["u_history"],
+            "path": path,
+            "history": {k[len("history_") :]: v for k, v in f.items() if k.startswith("history_")},
+        }
     except Exception as err:  # JSON or packing errors
         from ..runwriter import RestartError
 
-        raise RestartError(f"{path!r} is not a usable restart file ({err}); start the run "
-                           "again without resuming") from err
+        raise RestartError(
+            f"{path!r} is not a usable restart file ({err}); start the run again without resuming"
+        ) from err
 
 
 class SlopeRun:
@@ -153,29 +174,50 @@ class SlopeRun:
         material_factory, solver_factory: see :class:`~dolfinx_granular.slope.model.SlopeModel`.
     """
 
-    def __init__(self, packing, options=None, out="results/slope", comm=MPI.COMM_WORLD,
-                 verbose=True, restart=None, stop_after=None, started=None, law_factory=None,
-                 material_factory=None, solver_factory=None):
+    def __init__(
+        self,
+        packing,
+        options=None,
+        out="results/slope",
+        comm=MPI.COMM_WORLD,
+        verbose=True,
+        restart=None,
+        stop_after=None,
+        started=None,
+        law_factory=None,
+        material_factory=None,
+        solver_factory=None,
+    ):
         self.t_start = time.perf_counter() if started is None else started
         self.options = o = restart["options"] if restart else (options or SlopeOptions())
         self.packing, self.comm, self.stop_after = packing, comm, stop_after
-        self.say = (lambda *a: print(*a, flush=True)) if (verbose and comm.rank == 0) else (
-            lambda *a: None)
+        self.say = (
+            (lambda *a: print(*a, flush=True))
+            if (verbose and comm.rank == 0)
+            else (lambda *a: None)
+        )
         material_factory = material_factory or (
-            lambda law, u: granular_material(law, u, stabilise=o.stabilise))
+            lambda law, u: granular_material(law, u, stabilise=o.stabilise)
+        )
         solver_factory = solver_factory or (
-            lambda *a: newton_solver(*a, petsc_options=o.petsc_options, verbose=verbose))
+            lambda *a: newton_solver(*a, petsc_options=o.petsc_options, verbose=verbose)
+        )
         self.law = law_factory(packing, o.normal_stiffness) if law_factory else o.law(packing)
-        self.model = SlopeModel(comm, self.law, o.geometry, o.load_factor, material_factory,
-                                solver_factory)
+        self.model = SlopeModel(
+            comm, self.law, o.geometry, o.load_factor, material_factory, solver_factory
+        )
         self.writer = RunWriter(out, comm)
         self.nodes = NodeOrder(comm, self.model.V, tolerance=1e-9 * o.geometry.width)
         # the history of a law with it (frictional contacts) travels with the restart, keyed by
         # the quadrature points' coordinates
-        self.points = (PointOrder(comm, self.model.material.points, 1e-9 * o.geometry.width)
-                       if getattr(self.model.material, "history", False) else None)
-        self.stepper = LoadStepper(self.model.solver, max_cutbacks=o.max_cutbacks,
-                                   log=lambda line: self.say("  " + line))
+        self.points = (
+            PointOrder(comm, self.model.material.points, 1e-9 * o.geometry.width)
+            if getattr(self.model.material, "history", False)
+            else None
+        )
+        self.stepper = LoadStepper(
+            self.model.solver, max_cutbacks=o.max_cutbacks, log=lambda line: self.say("  " + line)
+        )
         self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
         self.arclength, self.restart_state = None, None  # the path of path_following
         self.resumed_from, self.time_output = None, 0.0
@@ -220,11 +262,18 @@ class SlopeRun:
         self.comm.barrier()  # (the next append reads the file on every rank)
 
     def _state(self, phase_index, step, t):
-        return {"step": step, "phase": phase_index, "t": t, "dt": self.stepper.dt,
-                "iterations": self.iterations, "step_info": self.step_info, "rows": self.rows,
-                "cutbacks": [c.as_dict() for c in self.stepper.cutbacks],
-                "path": self.stepper.path,
-                "arclength": self.arclength.state() if self.arclength is not None else None}
+        return {
+            "step": step,
+            "phase": phase_index,
+            "t": t,
+            "dt": self.stepper.dt,
+            "iterations": self.iterations,
+            "step_info": self.step_info,
+            "rows": self.rows,
+            "cutbacks": [c.as_dict() for c in self.stepper.cutbacks],
+            "path": self.stepper.path,
+            "arclength": self.arclength.state() if self.arclength is not None else None,
+        }
 
     def _write_step(self, phase_index, step, t):
         """Everything of a converged step on disk (XDMF appended, the rest replaced)."""
@@ -241,18 +290,35 @@ class SlopeRun:
                 history = {f"history_{k}": v for k, v in gathered.to_arrays().items()}
                 history["history_points"] = self.points.X
         self.writer.csv("convergence.csv", CONVERGENCE_HEADER, self.rows)
-        self.writer.npz("restart.npz", format=np.array(RESTART_FORMAT), version=np.array(2),
-                        options=np.array(json.dumps(self.options.as_dict())),
-                        state=np.array(json.dumps(state)), centers=self.packing.centers,
-                        radii=self.packing.radii, box=self.packing.box, nodes=self.nodes.X,
-                        u_history=np.asarray(self.u_history), **history)
-        self.writer.json("summary.json", {
-            "status": "running", "ranks": self.comm.size, "steps": self.n_nominal,
-            "completed_steps": step, "resumed_from": self.resumed_from,
-            "cutbacks": state["cutbacks"], "iterations": self.iterations,
-            "footing_settlement": self.step_info[-1]["settlement"],
-            "load_factor": self.options.load_factor, "stabilise": self.options.stabilise,
-            "step_info": self.step_info})
+        self.writer.npz(
+            "restart.npz",
+            format=np.array(RESTART_FORMAT),
+            version=np.array(2),
+            options=np.array(json.dumps(self.options.as_dict())),
+            state=np.array(json.dumps(state)),
+            centers=self.packing.centers,
+            radii=self.packing.radii,
+            box=self.packing.box,
+            nodes=self.nodes.X,
+            u_history=np.asarray(self.u_history),
+            **history,
+        )
+        self.writer.json(
+            "summary.json",
+            {
+                "status": "running",
+                "ranks": self.comm.size,
+                "steps": self.n_nominal,
+                "completed_steps": step,
+                "resumed_from": self.resumed_from,
+                "cutbacks": state["cutbacks"],
+                "iterations": self.iterations,
+                "footing_settlement": self.step_info[-1]["settlement"],
+                "load_factor": self.options.load_factor,
+                "stabilise": self.options.stabilise,
+                "step_info": self.step_info,
+            },
+        )
         self.time_output += time.perf_counter() - t_out
 
     # -- the load path ---------------------------------------------------------------------------
@@ -286,31 +352,50 @@ class SlopeRun:
         if t >= 1.0:  # the stored step ended a phase: go on with the next one
             phase, t, dt = phase + 1, 0.0, None
         self._start = (phase, t, dt)
-        self.say(f"slope: resumed from {restart['path']} after step {self.resumed_from} "
-                 f"({self.options.phases[min(phase, len(self.options.phases) - 1)]}, t = {t:.6g})")
+        self.say(
+            f"slope: resumed from {restart['path']} after step {self.resumed_from} "
+            f"({self.options.phases[min(phase, len(self.options.phases) - 1)]}, t = {t:.6g})"
+        )
 
     def _record(self, phase_index, step, t, result, elapsed):
         m = self.model
         lam_g, lam_f = (t, 0.0) if phase_index == 0 else (1.0, float(m.footing.value))
         self.iterations.append(result.iterations)
         self.rows.extend(convergence_rows(step, result))
-        self.step_info.append({
-            "step": step, "phase": self.options.phases[phase_index], "t": t, "gravity": lam_g,
-            "footing_load": lam_f * m.geometry.footing_load, "iterations": result.iterations,
-            "converged": True, "residual_norm": result.residual_norm,
-            "converged_by": result.stopped_by, "reason": result.reason_name,
-            "open_points": m.open_points(), "non_elliptic_points": m.non_elliptic_points(),
-            "settlement": m.settlement(), "stabiliser_force": m.stabiliser_share(),
-            "dissipated_energy": m.material.dissipated_energy(), "time": elapsed})
-        self.say(f"step {step:2d}/{self.n_nominal}: gravity x{lam_g:.2f}, footing "
-                 f"{lam_f * m.geometry.footing_load:.3e} N/m, {result.iterations} iterations, "
-                 f"{elapsed:.2f} s")
+        self.step_info.append(
+            {
+                "step": step,
+                "phase": self.options.phases[phase_index],
+                "t": t,
+                "gravity": lam_g,
+                "footing_load": lam_f * m.geometry.footing_load,
+                "iterations": result.iterations,
+                "converged": True,
+                "residual_norm": result.residual_norm,
+                "converged_by": result.stopped_by,
+                "reason": result.reason_name,
+                "open_points": m.open_points(),
+                "non_elliptic_points": m.non_elliptic_points(),
+                "settlement": m.settlement(),
+                "stabiliser_force": m.stabiliser_share(),
+                "dissipated_energy": m.material.dissipated_energy(),
+                "time": elapsed,
+            }
+        )
+        self.say(
+            f"step {step:2d}/{self.n_nominal}: gravity x{lam_g:.2f}, footing "
+            f"{lam_f * m.geometry.footing_load:.3e} N/m, {result.iterations} iterations, "
+            f"{elapsed:.2f} s"
+        )
 
     def run(self) -> bool:
         """Take the load phases from where the run stands; True if every phase completed."""
         phases = self.options.phases
-        setters = (self.model.set_gravity, self.model.set_footing,
-                   lambda t: self.model.set_footing(1.0 - t))[: len(phases)]
+        setters = (
+            self.model.set_gravity,
+            self.model.set_footing,
+            lambda t: self.model.set_footing(1.0 - t),
+        )[: len(phases)]
         increments = (1.0, 1.0 / self.options.steps, 1.0 / self.options.steps)
         clock = [time.perf_counter()]
 
@@ -329,9 +414,14 @@ class SlopeRun:
                     return False
                 continue
             setters[i](t0)  # the loads of the converged state the phase starts from
-            if not self.stepper.run(phases[i], setters[i], increments[i], t=t0,
-                                    dt=start_dt if i == start_phase else None,
-                                    on_converged=lambda *a, i=i: converged(i, *a)):
+            if not self.stepper.run(
+                phases[i],
+                setters[i],
+                increments[i],
+                t=t0,
+                dt=start_dt if i == start_phase else None,
+                on_converged=lambda *a, i=i: converged(i, *a),
+            ):
                 return False
         return True
 
@@ -345,21 +435,26 @@ def is_complete(restart) -> bool:
     return state["phase"] == len(restart["options"].phases) - 1 and state["t"] >= 1.0
 
 
-def run_slope(packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, figure=True,
-              **kwargs) -> dict:
+def run_slope(
+    packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, figure=True, **kwargs
+) -> dict:
     """Run the slope benchmark (or continue it: ``restart=``) and write its results to ``out``;
     returns the summary dict (also in ``out/summary.json``). Keyword arguments as
     :class:`SlopeRun`; ``figure`` draws ``out/slope.png``."""
     run = SlopeRun(packing, options, out, comm, **kwargs)
     o, m = run.options, run.model
-    run.say(f"slope: {m.mesh.topology.index_map(2).size_global} cells, "
-            f"{comm.allreduce(m.material.n_points)} RVEs of {packing.n_particles} particles, "
-            f"{comm.size} rank(s), {run.n_nominal} load steps, footing load x{o.load_factor:g}"
-            + (f", stabiliser {o.stabilise:g}" if o.stabilise else ""))
+    run.say(
+        f"slope: {m.mesh.topology.index_map(2).size_global} cells, "
+        f"{comm.allreduce(m.material.n_points)} RVEs of {packing.n_particles} particles, "
+        f"{comm.size} rank(s), {run.n_nominal} load steps, footing load x{o.load_factor:g}"
+        + (f", stabiliser {o.stabilise:g}" if o.stabilise else "")
+    )
     if getattr(run.law, "prestress", None) is not None:
-        run.say(f"slope: reference state of the RVE: P(I) = "
-                f"{np.array2string(run.law.prestress, precision=3)} Pa "
-                f"({run.law.prestress_ratio:.2g} of its modulus)")
+        run.say(
+            f"slope: reference state of the RVE: P(I) = "
+            f"{np.array2string(run.law.prestress, precision=3)} Pa "
+            f"({run.law.prestress_ratio:.2g} of its modulus)"
+        )
     run.run()
     report_stop(run)
     extremes = m.extremes()
@@ -368,16 +463,19 @@ def run_slope(packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, f
     m.solver.destroy()  # collective PETSc clean-up while all ranks are here (rank 0 draws next)
     seconds, colour_range = 0.0, None
     if figure and comm.rank == 0:
-        seconds, colour_range = draw_figure(run, run.writer.path("slope.png"), data, extremes,
-                                            probes)
+        seconds, colour_range = draw_figure(
+            run, run.writer.path("slope.png"), data, extremes, probes
+        )
         draw_load_settlement(run, run.writer.path("load_settlement.png"))
     summary = summarise(run, extremes, probes, seconds, colour_range)
     run.writer.csv("convergence.csv", CONVERGENCE_HEADER, run.rows)
     run.writer.json("summary.json", summary)
     t = summary
-    run.say(f"slope: done in {t['wall_time']:.1f} s (set-up {t['time_setup']:.1f} s, RVE "
-            f"{t['time_rve']:.1f} s, assembly {t['time_assembly']:.1f} s, solve "
-            f"{t['time_solve']:.1f} s, output {t['time_output']:.1f} s); settlement "
-            f"{t['footing_settlement']:.4f} m; von Mises {t['min_von_mises']:.4g} .. "
-            f"{t['max_von_mises']:.4g} Pa; results in {run.writer.out}")
+    run.say(
+        f"slope: done in {t['wall_time']:.1f} s (set-up {t['time_setup']:.1f} s, RVE "
+        f"{t['time_rve']:.1f} s, assembly {t['time_assembly']:.1f} s, solve "
+        f"{t['time_solve']:.1f} s, output {t['time_output']:.1f} s); settlement "
+        f"{t['footing_settlement']:.4f} m; von Mises {t['min_von_mises']:.4g} .. "
+        f"{t['max_von_mises']:.4g} Pa; results in {run.writer.out}"
+    )
     return summary

@@ -24,11 +24,13 @@ def limit_message(failed, run) -> str | None:
         return None
     lf = run.options.load_factor
     limit["footing_load"] = lf * limit["t_converged"] * run.options.geometry.footing_load
-    return (f"slope: limit load: the slope carries at most {abs(limit['footing_load']):.4g} N/m "
-            f"of footing {'uplift' if lf < 0 else 'load'} ({abs(lf) * limit['t_converged']:.4g} x "
-            f"the nominal footing load); the displacement per load increment has grown "
-            f"{1 / limit['stiffness_ratio']:.3g}-fold. Past a limit point load control finds no "
-            "equilibrium.")
+    return (
+        f"slope: limit load: the slope carries at most {abs(limit['footing_load']):.4g} N/m "
+        f"of footing {'uplift' if lf < 0 else 'load'} ({abs(lf) * limit['t_converged']:.4g} x "
+        f"the nominal footing load); the displacement per load increment has grown "
+        f"{1 / limit['stiffness_ratio']:.3g}-fold. Past a limit point load control finds no "
+        "equilibrium."
+    )
 
 
 def report_stop(run):
@@ -37,19 +39,25 @@ def report_stop(run):
     path = path_summary(run)
     if path is not None and path["peak"] is not None:
         peak = path["peak"]
-        run.say(f"slope: path: {len(run.arclength.path)} increments, peak footing load "
-                f"{abs(peak['footing_load']):.4g} N/m ({abs(peak['load_factor']):.4g} x the "
-                f"nominal load) at a settlement of {peak['settlement']:.4f} m"
-                + (f"; stopped: {path['stopped']}" if path["stopped"] else ""))
+        run.say(
+            f"slope: path: {len(run.arclength.path)} increments, peak footing load "
+            f"{abs(peak['footing_load']):.4g} N/m ({abs(peak['load_factor']):.4g} x the "
+            f"nominal load) at a settlement of {peak['settlement']:.4f} m"
+            + (f"; stopped: {path['stopped']}" if path["stopped"] else "")
+        )
     if failed is not None:
-        run.say(f"slope: load step {failed['step']} ({failed['phase']}, t = {failed['t']:.6g} "
-                f"reached) did not converge: {failed['reason']}; stopping.")
+        run.say(
+            f"slope: load step {failed['step']} ({failed['phase']}, t = {failed['t']:.6g} "
+            f"reached) did not converge: {failed['reason']}; stopping."
+        )
         line = limit_message(failed, run)
         if line:
             run.say(line)
     elif stepper.stopped:
-        run.say(f"slope: stopped after step {stepper.step} as asked (--stop-after); continue "
-                f"with --resume {run.writer.out}")
+        run.say(
+            f"slope: stopped after step {stepper.step} as asked (--stop-after); continue "
+            f"with --resume {run.writer.out}"
+        )
 
 
 def summarise(run, extremes, probes, figure_time=0.0, colour_range=None) -> dict:
@@ -64,40 +72,52 @@ def summarise(run, extremes, probes, figure_time=0.0, colour_range=None) -> dict
     info = run.step_info
     prestress = getattr(run.law, "prestress", None)
     return {
-        "ranks": comm.size, "steps": run.n_nominal, "completed_steps": stepper.step,
-        "status": status, "converged": status == "converged", "failed": failed,
+        "ranks": comm.size,
+        "steps": run.n_nominal,
+        "completed_steps": stepper.step,
+        "status": status,
+        "converged": status == "converged",
+        "failed": failed,
         "resumed_from": run.resumed_from,
         "cutbacks": [c.as_dict() for c in stepper.cutbacks],
-        "load_factor": run.options.load_factor, "stabilise": run.options.stabilise,
+        "load_factor": run.options.load_factor,
+        "stabilise": run.options.stabilise,
         "open_points": m.open_points(),
         # at the last converged step: points whose tangent lost strong ellipticity
         "non_elliptic_points": info[-1].get("non_elliptic_points", 0) if info else 0,
         # largest |nodal force of the stabilising stress| / |external load| over the steps
         "stabiliser_force_max": max([s.get("stabiliser_force", 0.0) for s in info] or [0.0]),
         "iterations": run.iterations,
-        "footing_settlement": m.settlement(), "footing_settlement_point": m.edge.tolist(),
-        "friction": run.options.friction, "unload": run.options.unload,
+        "footing_settlement": m.settlement(),
+        "footing_settlement_point": m.edge.tolist(),
+        "friction": run.options.friction,
+        "unload": run.options.unload,
         # J per metre of slope: the energy the contacts' sliding dissipated (0 without friction)
         "dissipated_energy": m.material.dissipated_energy(),
         # after the footing load came off again (``--unload``): the settlement it left behind,
         # beyond that of the soil's own weight (m, negative = down)
         "permanent_settlement": _permanent_settlement(run),
-        "max_von_mises": vmax, "max_von_mises_location": xmax,
-        "min_von_mises": vmin, "min_von_mises_location": xmin,
+        "max_von_mises": vmax,
+        "max_von_mises_location": xmax,
+        "min_von_mises": vmin,
+        "min_von_mises_location": xmin,
         "min_singular_value_F": m.min_singular_value(),
-        "particles": run.packing.n_particles, "rves": comm.allreduce(m.material.n_points),
+        "particles": run.packing.n_particles,
+        "rves": comm.allreduce(m.material.n_points),
         # the reference state of the RVE: P(I) in Pa, and |P(I)| / |C|
         "prestress": None if prestress is None else prestress.tolist(),
         "prestress_ratio": getattr(run.law, "prestress_ratio", None),
-        "wall_time": time.perf_counter() - run.t_start, "time_setup": run.setup_time,
+        "wall_time": time.perf_counter() - run.t_start,
+        "time_setup": run.setup_time,
         "time_rve": t["rve"],
         "time_rve_kernel": comm.allreduce(m.material.timings["rve"], op=MPI.MAX),
-        "time_assembly": t["assembly"], "time_solve": t["solve"],
-        "time_output": run.time_output + figure_time, "step_info": info,
+        "time_assembly": t["assembly"],
+        "time_solve": t["solve"],
+        "time_output": run.time_output + figure_time,
+        "step_info": info,
         # the figure's colour bar (MPa), which spans the Gauss-point extremes its markers name
         "figure_colour_range": colour_range,
-        "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()}
-                   for label, xp, Fp, *_ in probes},
+        "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()} for label, xp, Fp, *_ in probes},
         # path following (SlopeOptions.path_following): the peak, the critical points, the path
         "path_following": path_summary(run),
     }
@@ -125,13 +145,20 @@ def draw_figure(run, path, data, extremes, probes):
     markers = [(label, xp, text) for label, xp, _, text, _ in probes]
     markers[0] = ("A", xmax, f"max {vmax / 1e6:.3f} MPa")
     markers.append(("min", xmin, f"{vmin / 1e6:.3f} MPa"))
-    insets = [(label, run.law, Fp, f"{text}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m", state)
-              for label, xp, Fp, text, state in probes]
+    insets = [
+        (label, run.law, Fp, f"{text}, x = ({xp[0]:.1f}, {xp[1]:.1f}) m", state)
+        for label, xp, Fp, text, state in probes
+    ]
     settlement = run.step_info[-1]["settlement"] if run.step_info else 0.0
     colour_range = plot_slope(
-        path, data, markers, insets, value_range=(vmin, vmax),
+        path,
+        data,
+        markers,
+        insets,
+        value_range=(vmin, vmax),
         title=f"step {run.stepper.step}/{run.n_nominal}: settlement {settlement:.3f} m, "
-              f"{run.packing.n_particles} particles, deformation x1")
+        f"{run.packing.n_particles} particles, deformation x1",
+    )
     return time.perf_counter() - t0, colour_range
 
 
@@ -139,8 +166,10 @@ def load_settlement_curve(step_info):
     """(settlement (m, down positive), footing load (N/m, down positive)) of the converged steps
     from the gravity state on (loading, and unloading where there is one)."""
     steps = [s for s in step_info if s["phase"] != "gravity" or s["t"] >= 1.0]
-    return (np.array([-s["settlement"] for s in steps]),
-            np.array([-s["footing_load"] for s in steps]))
+    return (
+        np.array([-s["settlement"] for s in steps]),
+        np.array([-s["footing_load"] for s in steps]),
+    )
 
 
 def draw_load_settlement(run, path):
@@ -149,5 +178,8 @@ def draw_load_settlement(run, path):
     settlement, load = load_settlement_curve(run.step_info)
     o = run.options
     law = f"Coulomb friction mu = {o.friction:g}" if o.friction > 0 else "frictionless contacts"
-    plot_load_settlement(path, [(law, settlement, load, {"marker": "o", "ms": 3})],
-                         title=f"slope, {run.packing.n_particles}-particle RVE, {law}")
+    plot_load_settlement(
+        path,
+        [(law, settlement, load, {"marker": "o", "ms": 3})],
+        title=f"slope, {run.packing.n_particles}-particle RVE, {law}",
+    )
