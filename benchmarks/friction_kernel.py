@@ -15,22 +15,23 @@ The frictional stress is checked against the frictionless one at mu = 0 before t
 
 ``--breakdown`` adds where the time goes, per point (the first point's F and history, each phase
 repeated in a compiled loop, so without call overhead and with warm caches): copying the history
-in, the contact loop with the small-increment polynomial atan and with the general rational one,
-the tangent loop, the per-point rest (W, P, A from the sums), and the frictionless kernel's moment
-sums without and with the tangent terms.
+in, the contact loop for the stress only and with the tangent sums (small-increment polynomial
+atan), the same with the general rational atan, the dissipation sum, the per-point rest (spin,
+angle set-up, W, P, A from the sums), and the frictionless kernel's moment sums without and with
+the tangent terms.
 """
 
 import argparse
 import platform
 import time
 
-import numba
-import numpy as np
-from numba import njit
-
 from dolfinx_granular import TaylorRVE, generate_packing, kernel
 from dolfinx_granular import friction_kernel as fk
 from dolfinx_granular.friction import FrictionalRVE
+
+import numba
+import numpy as np
+from numba import njit
 
 K_N = 2.8e7
 K_T = 0.5 * K_N
@@ -62,15 +63,15 @@ def committed_state(rve, F0):
 # Drivers for --breakdown: each phase `reps` times in compiled code (no on-disk cache: it breaks
 # when the script is loaded under another module name).
 @njit
-def _drive_contact(reps, F, G, lmax2, X, Y, R, n_visit, history, ft, winv, acc, general):
+def _drive_contact(reps, F, G, lmax2, X, Y, R, n_visit, history, work, ft, acc, general, tangent):
     F00, F01, F10, F11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
-    G00, G01, G10, G11 = G[0, 0], G[0, 1], G[1, 0], G[1, 1]
-    dth = fk._rotation(F00, F01, F10, F11, G00, G01, G10, G11)[0]
-    cq = fk._quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2)
+    H = fk._spun_history(F00, F01, F10, F11, G[0, 0], G[0, 1], G[1, 0], G[1, 1])
+    cq = fk._quadratic_forms(F00, F01, F10, F11, H[0], H[1], H[2], H[3], lmax2)
     for _ in range(reps):
-        fk._copy_history(history, ft)
-        fk._contact_pass(F00, F01, F10, F11, cq, dth, X, Y, R, n_visit, K_N, K_T, MU, general, ft,
-                         winv, acc)
+        fk._copy_history(history, work)
+        fk._contact_pass(
+            F00, F01, F10, F11, cq, X, Y, R, n_visit, K_N, K_T, MU, general, tangent, work, ft, acc
+        )
 
 
 @njit
@@ -80,17 +81,21 @@ def _drive_copy(reps, history, ft):
 
 
 @njit
-def _drive_tangent(reps, X, Y, R, n_visit, ft, winv, acc):
+def _drive_total(reps, dis, n_visit):
+    s = 0.0
     for _ in range(reps):
-        fk._tangent_pass(X, Y, R, n_visit, ft, winv, K_N, K_T, MU * K_N, acc)
+        s += fk._total(dis, n_visit)
+    return s
 
 
 @njit
 def _drive_finish(reps, F, G, acc, inv_area, W, P, A, M):
-    _, th, alpha, beta = fk._rotation(F[0, 0], F[0, 1], F[1, 0], F[1, 1],
-                                      G[0, 0], G[0, 1], G[1, 0], G[1, 1])
+    H = fk._spun_history(F[0, 0], F[0, 1], F[1, 0], F[1, 1], G[0, 0], G[0, 1], G[1, 0], G[1, 1])
     for _ in range(reps):
-        fk._finish_point(0, F, acc, (th, alpha, beta), K_N, inv_area, K_T, True, W, P, A, M)
+        rot = fk._rotation(F[0, 0], F[0, 1], F[1, 0], F[1, 1])
+        cq = fk._quadratic_forms(F[0, 0], F[0, 1], F[1, 0], F[1, 1], H[0], H[1], H[2], H[3], 1.0)
+        acc[0] += cq[0] * 1e-300  # keep it
+        fk._finish_point(0, F, acc, rot, K_N, inv_area, K_T, True, W, P, A, M)
 
 
 @njit
@@ -106,16 +111,16 @@ def breakdown(rve, F, state, repeats, reps=300):
     fk.prefix_lengths(F[None], rve._rho, rve.min_stretch, status, lengths)
     m = int(lengths[0])
     history = np.array(state.forces(0))
-    ft, winv, acc = np.empty(m), np.empty(m), np.zeros(fk.N_ACC)
+    work, ft, acc = np.empty(m), np.empty(m), np.zeros(fk.N_ACC)
     X, Y, R = rve._X, rve._Y, rve._R
     out = (np.empty(1), np.empty((1, 2, 2)), np.empty((1, 2, 2, 2, 2)), np.empty((6, 2, 2)))
+    c = (F, G, rve._lmax2, X, Y, R, m, history, work, ft, acc)
     phases = {
-        "copy history": lambda: _drive_copy(reps, history, ft),
-        "contact, small": lambda: _drive_contact(reps, F, G, rve._lmax2, X, Y, R, m, history, ft,
-                                                 winv, acc, None),
-        "contact, general": lambda: _drive_contact(reps, F, G, rve._lmax2, X, Y, R, m, history,
-                                                   ft, winv, acc, True),
-        "tangent loop": lambda: _drive_tangent(reps, X, Y, R, m, ft, winv, acc),
+        "copy history": lambda: _drive_copy(reps, history, work),
+        "contact P": lambda: _drive_contact(reps, *c, None, None),
+        "contact P+A": lambda: _drive_contact(reps, *c, None, True),
+        "general P+A": lambda: _drive_contact(reps, *c, True, True),
+        "dissipation": lambda: _drive_total(reps, work, m),
         "per point": lambda: _drive_finish(reps, F, G, acc, rve._inv_area, *out),
         "frictionless P": lambda: _drive_frictionless(reps, F, X, Y, R, m, False, acc),
         "frictionless P+A": lambda: _drive_frictionless(reps, F, X, Y, R, m, True, acc),
@@ -124,8 +129,8 @@ def breakdown(rve, F, state, repeats, reps=300):
     for name, fn in phases.items():
         fn()  # compile
         result[name] = best_time(fn, repeats) / reps
-    result["contact, small"] -= result["copy history"]
-    result["contact, general"] -= result["copy history"]
+    for name in ("contact P", "contact P+A", "general P+A"):
+        result[name] -= result["copy history"]
     return result
 
 
@@ -149,9 +154,17 @@ def run_size(n, F0, repeats, with_breakdown=False):
     t1 = best_time(lambda: rve.evaluate(F, state), repeats) / m
     t2 = best_time(lambda: rve.stress(F, state), repeats) / m
     phases = breakdown(rve, F, state, repeats) if with_breakdown else None
-    return {"n": n, "candidates": rve.n_candidates, "contacts": contacts, "sliding": sliding,
-            "t0": t0, "t1": t1, "t2": t2, "bytes": state.nbytes / state.n_points,
-            "breakdown": phases}
+    return {
+        "n": n,
+        "candidates": rve.n_candidates,
+        "contacts": contacts,
+        "sliding": sliding,
+        "t0": t0,
+        "t1": t1,
+        "t2": t2,
+        "bytes": state.nbytes / state.n_points,
+        "breakdown": phases,
+    }
 
 
 def main(argv=None):
@@ -164,26 +177,34 @@ def main(argv=None):
 
     rng = np.random.default_rng(0)
     F0 = 0.98 * np.eye(2) + rng.normal(0.0, 2e-3, (args.points, 2, 2))
-    print(f"# friction kernel benchmark: {platform.processor() or platform.machine()}, "
-          f"numba {numba.__version__}, numpy {np.__version__}, 1 thread, {args.points} points, "
-          f"k_t/k_n = {K_T / K_N}, mu = {MU}")
-    header = (f"{'particles':>9} {'candidates':>10} {'contacts':>8} {'sliding':>7} | "
-              f"{'frictionless P+A':>16} {'friction P+A':>12} {'friction P':>10} | "
-              f"{'ratio':>6} | {'state B/pt':>10}")
+    print(
+        f"# friction kernel benchmark: {platform.processor() or platform.machine()}, "
+        f"numba {numba.__version__}, numpy {np.__version__}, 1 thread, {args.points} points, "
+        f"k_t/k_n = {K_T / K_N}, mu = {MU}"
+    )
+    header = (
+        f"{'particles':>9} {'candidates':>10} {'contacts':>8} {'sliding':>7} | "
+        f"{'frictionless P+A':>16} {'friction P+A':>12} {'friction P':>10} | "
+        f"{'ratio':>6} | {'state B/pt':>10}"
+    )
     print(header + "\n" + "-" * len(header))
     us = 1e6
     rows = []
     for n in args.sizes:
         r = run_size(n, F0, args.repeats, args.breakdown)
         rows.append(r)
-        print(f"{n:>9} {r['candidates']:>10} {r['contacts']:>8.0f} {r['sliding']:>7.1%} | "
-              f"{r['t0'] * us:>16.2f} {r['t1'] * us:>12.2f} {r['t2'] * us:>10.2f} | "
-              f"{r['t1'] / r['t0']:>5.2f}x | {r['bytes']:>10.0f}")
+        print(
+            f"{n:>9} {r['candidates']:>10} {r['contacts']:>8.0f} {r['sliding']:>7.1%} | "
+            f"{r['t0'] * us:>16.2f} {r['t1'] * us:>12.2f} {r['t2'] * us:>10.2f} | "
+            f"{r['t1'] / r['t0']:>5.2f}x | {r['bytes']:>10.0f}"
+        )
     print("(µs per quadrature point; 'sliding': share of the active contacts at the Coulomb limit)")
     if args.breakdown:
         names = list(rows[0]["breakdown"])
-        print(f"\n# where the time goes (µs per point)\n{'particles':>9} "
-              + " ".join(f"{k:>16}" for k in names))
+        print(
+            f"\n# where the time goes (µs per point)\n{'particles':>9} "
+            + " ".join(f"{k:>16}" for k in names)
+        )
         for r in rows:
             print(f"{r['n']:>9} " + " ".join(f"{r['breakdown'][k] * us:>16.2f}" for k in names))
     return rows

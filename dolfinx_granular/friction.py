@@ -1,15 +1,35 @@
 """Frictional Taylor RVE: linear normal springs plus Coulomb friction with tangential springs.
 
-The model is fixed by ``shared/notes/friction-taylor.md`` (the paper stops at normal springs).
-Every particle follows F and spins with its polar rotation theta(F) = atan2(F21 - F12, F11 + F22);
-the sliding of contact c over a load step from the committed F_n to F is
+The model is fixed by ``shared/notes/friction-taylor.md`` (the paper stops at normal springs),
+with one correction (below). Every particle follows F and spins with its polar rotation
+theta(F) = atan2(F21 - F12, F11 + F22); the sliding of contact c over a load step from the
+committed F_n to F is
 
-    ds = R (wrap(phi - phi_n) - wrap(theta - theta_n)),   R = r_i + r_j,  phi = branch angle
+    ds = R wrap((phi - phi_n) - (theta - theta_n)) = R atan2(cross(Q l_n, l), dot(Q l_n, l)),
 
-the trial force f* = f_t,n + k_t ds sticks if |f*| <= mu f_n, else f_t = mu f_n sign(f*), with
-f_n = k_n eps. Stress P = (1/V) sum_c [-f_n n (x) L + f_t ds/dF] (Hill-Mandel), consistent tangent
-at fixed history (symmetric in stick, not in slip). History (:class:`FrictionState`) moves only
-when the caller commits the returned state.
+R = r_i + r_j, phi the branch angle, l = F L, l_n = F_n L, Q the rotation by theta - theta_n: the
+branch's turn relative to the committed branch carried along with the particles. The trial force
+f* = f_t,n + k_t ds sticks if |f*| <= mu f_n, else f_t = mu f_n sign(f*), with f_n = k_n eps.
+Stress P = (1/V) sum_c [-f_n n (x) L + f_t ds/dF] (Hill-Mandel), consistent tangent at fixed
+history (symmetric in stick, not in slip). History (:class:`FrictionState`) moves only when the
+caller commits the returned state.
+
+Error in the note, corrected here. The note's ds = rho (wrap(phi - phi_n) - wrap(theta - theta_n))
+wraps the two increments separately. A superposed rotation increment alpha shifts both by alpha,
+and ds stays the same only while neither wraps differently; when alpha carries one across +-pi
+and not the other (alpha near a half turn), ds jumps by +-2 pi rho, so the note's model is not
+objective there, contrary to its claim, and a barely deformed contact slides by ~2 pi rho. The
+corrected formula above wraps once; it has the same derivatives (same P and A), equals the note's
+wherever the note's |ds| < pi rho (every realistic load step: the two differ by a multiple of
+2 pi rho), and is objective for any rotation increment. Shown by
+``tests/test_friction.py::test_note_wraps_are_not_objective_near_a_half_turn``: with
+alpha = -pi + 0.002 superposed on a 2 % shear step (40 disks, mu = 0.05), the note's formula (an
+independent NumPy reference in the test) gives 20 of the 87 contacts |ds| ~ 2 pi R more and
+raises the step's dissipation from 216 Pa to 45525 Pa, while this package's forces, dissipation
+and rotated stress stay those of the unrotated step to round-off (also at alpha = 1,
+pi - 0.002 and random angles), and equal the note's wherever the note is objective. In the kernel
+(:mod:`~dolfinx_granular.friction_kernel`) the committed F_n is replaced by Q F_n, Q from
+theta(F) and theta(F_n) without trigonometry; theta's derivatives enter P and A as in the note.
 
 Conventions where the note leaves a choice (all measure-zero cases):
 
@@ -17,30 +37,15 @@ Conventions where the note leaves a choice (all measure-zero cases):
   eps = 0); the tangential law, and the stored history, only for eps > 0.
 - mu = 0 never sticks: with mu f_n = 0 the trial f* = 0 (e.g. at F = F_n) would otherwise stick and
   add k_t ds/dF (x) ds/dF to the tangent, and mu = 0 must give the frictionless tangent.
-- In the 2-D wrap(theta - theta_n) = atan2(sin, cos) of the rotation increment; both wraps use an
-  in-kernel atan2 accurate to ~1 ulp (:func:`~dolfinx_granular.friction_kernel.atan2`).
+- The angle is evaluated in-kernel: a polynomial atan for steps whose increment without its spin,
+  |F (Q F_n)^-1 - I|, is at most 0.045 (whatever the rotation), else a rational atan2; both are
+  accurate to ~1 ulp (:func:`~dolfinx_granular.friction_kernel.atan2`).
 
 Verification of the note (tests/test_friction.py): its derivatives dphi/dF, dtheta/dF, ds/dF, the
 stick and slip tangents, P = dPsi/dF in stick and the symmetry of sigma = P F^T / J all check out
 against central differences and an independent NumPy reference. (Its d²s/dF² is left implicit;
 here d²phi/dF² = -(t (x) n + n (x) t) L L / d², d²theta/dF² in
 :func:`~dolfinx_granular.friction_kernel._rotation`.)
-
-Error in the note (documented, not changed: the kernel follows the note). The formula
-ds = rho (wrap(phi - phi_n) - wrap(theta - theta_n)) wraps the two increments separately. A
-superposed rotation increment alpha shifts both by alpha, and ds stays the same only while neither
-wraps differently; when alpha carries one across +-pi and not the other (alpha near a half turn),
-ds jumps by +-2 pi rho, so the model is not objective there, contrary to the note's claim, and a
-barely deformed contact slides by ~2 pi rho. Shown by
-``test_note_wraps_are_not_objective_near_a_half_turn``: with alpha = -pi + 0.002 superposed on a
-2 % shear step (40 disks, mu = 0.05), 20 of the 87 contacts get |ds| ~ 2 pi R and the step's
-dissipation rises from 216 Pa to 45525 Pa (alpha = 1 or pi - 0.002: unchanged). Corrected formula,
-wrapped once: ds = rho wrap((phi - phi_n) - (theta - theta_n)) = rho atan2(cross(Q l_n, l),
-dot(Q l_n, l)) with Q the rotation by theta - theta_n. It has the same derivatives (same P and A),
-equals the note's wherever |phi - phi_n| and |theta - theta_n| stay below pi - |ds|/rho (every
-realistic load step), and is objective for any rotation increment. Switching is local to
-:mod:`~dolfinx_granular.friction_kernel`: rotate F_n by Q before ``_quadratic_forms`` and
-``_small_increment`` and use dtheta = 0 in the contact loop (theta's derivatives stay).
 
 Units: k_n, k_t in N/m² (force per unit length per unit thickness), mu dimensionless, forces in N
 per unit thickness, lengths in the packing's units, W, P, A and dissipation in Pa.
@@ -100,13 +105,17 @@ class FrictionState:
         if D.shape != (n,):
             raise ValueError(f"FrictionState.dissipation must have shape ({n},), got {D.shape}")
         if off.shape != (n + 1,) or not np.issubdtype(off.dtype, np.integer):
-            raise ValueError(f"FrictionState.offsets must be integers of shape ({n + 1},), got "
-                             f"{off.dtype} {off.shape}")
+            raise ValueError(
+                f"FrictionState.offsets must be integers of shape ({n + 1},), got "
+                f"{off.dtype} {off.shape}"
+            )
         if f.ndim != 1:
             raise ValueError(f"FrictionState.force must be 1-D, got shape {f.shape}")
         if off[0] != 0 or np.any(np.diff(off) < 0) or off[-1] != f.shape[0]:
-            raise ValueError("FrictionState.offsets must start at 0, never decrease and end at "
-                             f"len(force) = {f.shape[0]}")
+            raise ValueError(
+                "FrictionState.offsets must start at 0, never decrease and end at "
+                f"len(force) = {f.shape[0]}"
+            )
         if not (np.isfinite(F).all() and np.isfinite(D).all() and np.isfinite(f).all()):
             raise ValueError("FrictionState has NaN or inf entries")
         bad = np.flatnonzero(F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0] <= 0.0)
@@ -116,8 +125,10 @@ class FrictionState:
             object.__setattr__(self, name, _readonly(a))
 
     def __repr__(self):
-        return (f"FrictionState(n_points={self.n_points}, stored_forces={self.force.size}, "
-                f"nbytes={self.nbytes})")
+        return (
+            f"FrictionState(n_points={self.n_points}, stored_forces={self.force.size}, "
+            f"nbytes={self.nbytes})"
+        )
 
     @classmethod
     def _trusted(cls, F, dissipation, offsets, force):
@@ -143,7 +154,7 @@ class FrictionState:
 
     def forces(self, q: int) -> np.ndarray:
         """Stored tangential forces of point q (candidates in the RVE's order)."""
-        return self.force[self.offsets[q]:self.offsets[q + 1]]
+        return self.force[self.offsets[q] : self.offsets[q + 1]]
 
     def take(self, indices) -> FrictionState:
         """The points ``indices`` (int array, any order, repeats allowed) as a new state."""
@@ -169,9 +180,12 @@ class FrictionState:
         lengths = np.concatenate([np.diff(s.offsets) for s in states])
         off = np.zeros(lengths.size + 1, np.int64)
         np.cumsum(lengths, out=off[1:])
-        return cls._trusted(np.concatenate([s.F for s in states]),
-                            np.concatenate([s.dissipation for s in states]), off,
-                            np.concatenate([s.force for s in states]))
+        return cls._trusted(
+            np.concatenate([s.F for s in states]),
+            np.concatenate([s.dissipation for s in states]),
+            off,
+            np.concatenate([s.force for s in states]),
+        )
 
     def to_arrays(self) -> dict:
         """Plain numpy arrays (copies) for ``np.savez``: keys F, dissipation, offsets, force."""
@@ -189,7 +203,9 @@ class FrictionState:
         """Bit-for-bit equality of all arrays."""
         return isinstance(other, FrictionState) and all(
             getattr(self, k).shape == getattr(other, k).shape
-            and getattr(self, k).tobytes() == getattr(other, k).tobytes() for k in _KEYS)
+            and getattr(self, k).tobytes() == getattr(other, k).tobytes()
+            for k in _KEYS
+        )
 
     def __eq__(self, other):
         if not isinstance(other, FrictionState):
@@ -246,8 +262,14 @@ class FrictionalRVE:
     supported range raises :class:`~dolfinx_granular.rve.UnsupportedDeformationError`.
     """
 
-    def __init__(self, packing: Packing, normal_stiffness: float, tangential_stiffness: float,
-                 friction: float, min_stretch: float = 0.5):
+    def __init__(
+        self,
+        packing: Packing,
+        normal_stiffness: float,
+        tangential_stiffness: float,
+        friction: float,
+        min_stretch: float = 0.5,
+    ):
         kt = _parameter("tangential_stiffness", tangential_stiffness, 0.0, False, " (N/m²)")
         mu = _parameter("friction", friction, 0.0, False, "")
         self._taylor = TaylorRVE(packing, normal_stiffness, min_stretch)
@@ -272,8 +294,9 @@ class FrictionalRVE:
         n = int(n)
         if n < 0:
             raise ValueError(f"initial_state needs n >= 0 points, got {n}")
-        return FrictionState._trusted(np.tile(np.eye(2), (n, 1, 1)), np.zeros(n),
-                                      np.zeros(n + 1, np.int64), np.zeros(0))
+        return FrictionState._trusted(
+            np.tile(np.eye(2), (n, 1, 1)), np.zeros(n), np.zeros(n + 1, np.int64), np.zeros(0)
+        )
 
     # -- batch evaluation -------------------------------------------------------------------------
 
@@ -281,12 +304,16 @@ class FrictionalRVE:
         if not isinstance(state, FrictionState):
             raise TypeError(f"state must be a FrictionState, got {type(state).__name__}")
         if state.n_points != n:
-            raise ValueError(f"state holds {state.n_points} points but F has {n}; pass the "
-                             "committed state of exactly these points (FrictionState.take)")
+            raise ValueError(
+                f"state holds {state.n_points} points but F has {n}; pass the "
+                "committed state of exactly these points (FrictionState.take)"
+            )
         longest = int(state.lengths.max()) if n else 0
         if longest > self.n_candidates:
-            raise ValueError(f"state stores {longest} candidate forces for a point but this RVE "
-                             f"has {self.n_candidates} candidates: it belongs to another RVE")
+            raise ValueError(
+                f"state stores {longest} candidate forces for a point but this RVE "
+                f"has {self.n_candidates} candidates: it belongs to another RVE"
+            )
 
     def _run(self, F, state, tangent, out):
         F, single = _as_batch(F)
@@ -304,19 +331,43 @@ class FrictionalRVE:
             A = np.empty((n, 2, 2, 2, 2)) if tangent else None
         else:
             W, P, A = out
-        for name, a, shape in (("W", W, (n,)), ("P", P, (n, 2, 2)),
-                               ("A", A, (n, 2, 2, 2, 2) if tangent else None)):
-            if shape is not None and (a is None or a.shape != shape or a.dtype != np.float64
-                                      or not a.flags.c_contiguous):
+        for name, a, shape in (
+            ("W", W, (n,)),
+            ("P", P, (n, 2, 2)),
+            ("A", A, (n, 2, 2, 2, 2) if tangent else None),
+        ):
+            if shape is not None and (
+                a is None or a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous
+            ):
                 raise ValueError(
-                    f"out {name} must be a C-contiguous float64 array of shape {shape}")
+                    f"out {name} must be a C-contiguous float64 array of shape {shape}"
+                )
         f = np.empty(off[-1])
         D = np.empty(n)
         fk.evaluate_batch(
-            F, self._X, self._Y, self._R, self._rho, self._lmax2, self.normal_stiffness,
-            self.tangential_stiffness, self.friction, self._inv_area, self.min_stretch, tangent,
-            state.F, state.offsets, state.force, state.dissipation, off, f, W, P,
-            A if tangent else np.empty((0, 2, 2, 2, 2)), D, status,
+            F,
+            self._X,
+            self._Y,
+            self._R,
+            self._rho,
+            self._lmax2,
+            self.normal_stiffness,
+            self.tangential_stiffness,
+            self.friction,
+            self._inv_area,
+            self.min_stretch,
+            tangent,
+            state.F,
+            state.offsets,
+            state.force,
+            state.dissipation,
+            off,
+            f,
+            W,
+            P,
+            A if tangent else np.empty((0, 2, 2, 2, 2)),
+            D,
+            status,
         )
         new = FrictionState._trusted(F.copy(), D, off, f)
         if single:
@@ -358,8 +409,10 @@ class FrictionalRVE:
         """Spatial tangent a_abcd = F_bB F_dD A_aBcD / J (n, 2, 2, 2, 2), in Pa."""
         Fb = _as_batch(F)[0]
         A = self._run(Fb, state, True, None)[2]
-        a = np.einsum("qbB,qdD,qaBcD->qabcd", Fb, Fb, A) / np.linalg.det(Fb)[:, None, None, None,
-                                                                               None]
+        a = (
+            np.einsum("qbB,qdD,qaBcD->qabcd", Fb, Fb, A)
+            / np.linalg.det(Fb)[:, None, None, None, None]
+        )
         return a[0] if np.ndim(F) == 2 else a
 
     def small_strain_modulus(self):
@@ -395,15 +448,31 @@ class FrictionalRVE:
         m = int(lengths[0])
         buf = np.zeros(m)
         stored = state.forces(0)[:m]
-        buf[:stored.size] = stored
+        buf[: stored.size] = stored
         eps, stick = np.empty(m), np.empty(m, np.int8)
-        fk.contact_step(F, np.ascontiguousarray(state.F[0]), self._X, self._Y, self._R, m,
-                        self._lmax2, buf,
-                        self.normal_stiffness, self.tangential_stiffness, self.friction, eps, stick)
+        fk.contact_step(
+            F,
+            np.ascontiguousarray(state.F[0]),
+            self._X,
+            self._Y,
+            self._R,
+            m,
+            self._lmax2,
+            buf,
+            self.normal_stiffness,
+            self.tangential_stiffness,
+            self.friction,
+            eps,
+            stick,
+        )
         on = np.flatnonzero(eps >= 0.0)
         L = self._L[on]
         return FrictionContactSet(
-            pairs=self._ij[on], shift=self._shift[on], branch=L @ F.T, overlap=eps[on],
-            normal_force=self.normal_stiffness * eps[on], tangential_force=buf[on],
+            pairs=self._ij[on],
+            shift=self._shift[on],
+            branch=L @ F.T,
+            overlap=eps[on],
+            normal_force=self.normal_stiffness * eps[on],
+            tangential_force=buf[on],
             sliding=(eps[on] > 0.0) & (stick[on] == 0),
         )

@@ -2,13 +2,18 @@
 
 Notation as in :mod:`dolfinx_granular.kernel`: candidate c has reference branch vector L = (x, y),
 radius sum R (the note's rho), l = F L, d = |l|, n = l / d, t = J n with J = [[0, -1], [1, 0]],
-overlap eps = R - d. History per point: the committed F_n (= G below) and the tangential forces
-f_t,n of a prefix of the candidates (zero where a contact was not active at F_n).
+overlap eps = R - d. History per point: the committed F_n and the tangential forces f_t,n of a
+prefix of the candidates (zero where a contact was not active at F_n).
 
 Per contact with eps > 0 the step from F_n to F is (closed form, no local iteration)
 
-    ds = R (dphi - dtheta),  dphi = atan2(cross(G L, F L), dot(G L, F L)),  dtheta per point,
-    f* = f_t,n + k_t ds;  stick if |f*| <= lim = mu k_n eps and lim > 0, else f_t = sign(f*) lim.
+    ds = R wrap(dphi - dtheta) = R atan2(cross(G L, F L), dot(G L, F L)),   G = Q F_n,
+    f* = f_t,n + k_t ds;  stick if |f*| <= lim = mu k_n eps and lim > 0, else f_t = sign(f*) lim,
+
+with Q the rotation by the particle spin increment theta(F) - theta(F_n): the branch's turn is
+measured against the committed branch carried along with the particles, so the angle is wrapped
+once and ds is objective for any rotation increment (the note wraps dphi and dtheta separately,
+which is not: see :mod:`dolfinx_granular.friction`). Same derivatives as the note's formula.
 
 Every output is a contraction of moment sums over the contacts (weighted LL and LLLL products of
 the reference branch vector, as in the frictionless kernel) with the per-point matrices F,
@@ -29,12 +34,15 @@ adds -sign(f*) mu k_n ds/dF (x) (n (x) L). Per contact the 4th-order part is M_a
 M = a n n + b n t + c t n + e t t; t t = I - n n and t n = n t + J give
 M = (a - e) n n + (b + c) n t + e I + c J, hence two LLLL sums instead of four.
 
-The contact loops have no branch (atan by selects and a rational or, for small rotation
-increments, a polynomial) and call only small helpers that LLVM inlines, so LLVM vectorises them
-like the frictionless loop. (The helpers are plain njit functions: numba's own inline="always"
-made the first compilation ~8 times slower.) The helpers are compiled without fast-math, so the
-angle and the contact law round the same wherever they are inlined. Every point is computed
-independently by the same code path: results do not depend on how the points are batched.
+Speed: one pass over the contacts, as in the frictionless kernel. The pass is bound by its
+multiplications (time ~ vector products per contact), so the per-point constants k_n, k_t, mu k_n
+are taken out of the sums and the TA and TB weights reuse those of Z1 and Z2. The loop has no
+branch (selects; a polynomial or a rational atan) and calls only helpers that LLVM inlines, so it
+vectorises. The helpers that decide the forces and the active set (:func:`_kinematics`,
+:func:`_inverse_and_turn` or :func:`_inverse_and_angle`, :func:`_contact_law`) are compiled
+without fast-math: they round the same with or without the tangent sums, and d as in
+:func:`kernel._moment_sums`; only the sums use fast-math. Every point is computed independently
+by the same code path: results do not depend on how the points are batched.
 """
 
 from __future__ import annotations
@@ -113,11 +121,16 @@ def atan2(y, x):
 
 
 @njit(cache=True)
-def _atan_small(y, x):
-    """atan(y / x) for x > 0 and |y / x| <= 0.05 (one division, five multiply-adds)."""
-    z = y / x
+def _atan_poly(z):
+    """atan(z) for |z| <= 0.05 (five multiply-adds)."""
     zz = z * z
     return z + z * (zz * (_C1 + zz * (_C2 + zz * (_C3 + zz * (_C4 + zz * _C5)))))
+
+
+@njit(cache=True)
+def _atan_small(y, x):
+    """atan(y / x) for x > 0 and |y / x| <= 0.05."""
+    return _atan_poly(y / x)
 
 
 @njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
@@ -162,175 +175,14 @@ def _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2):
 
 @njit(cache=True)
 def _small_increment(F00, F01, F10, F11, G00, G01, G10, G11):
-    """True if |F G^-1 - I| <= _SMALL_INCREMENT: every branch turns by |tan dphi| <= 0.05."""
+    """True if |F G^-1 - I| <= _SMALL_INCREMENT: every branch turns by |tan dphi| <= 0.05
+    relative to G L. With G = Q F_n this is the increment without its spin."""
     jg = G00 * G11 - G01 * G10
     e00 = (F00 * G11 - F01 * G10) / jg - 1.0
     e01 = (F01 * G00 - F00 * G01) / jg
     e10 = (F10 * G11 - F11 * G10) / jg
     e11 = (F11 * G00 - F10 * G01) / jg - 1.0
     return e00 * e00 + e01 * e01 + e10 * e10 + e11 * e11 <= _SMALL_INCREMENT**2
-
-
-@njit(cache=True)
-def _contact_law(ftn, ds, ee, kt, mukn):
-    """Trial force f*, new tangential force f_t and the stick flag of one contact."""
-    fstar = ftn + kt * ds
-    lim = mukn * ee
-    ft = fstar if abs(fstar) <= lim else (lim if fstar >= 0.0 else -lim)
-    return fstar, ft, (abs(fstar) <= lim) & (lim > 0.0)  # mu = 0: never sticks
-
-
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def _contact_pass(F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, general, ft_io,
-                  winv, acc):
-    """Contact law and the stress sums e2, S, ft2, dis, sR, U of one point into ``acc``.
-
-    ``ft_io`` (n_visit,) holds f_t,n on entry and the new f_t on exit; ``winv`` (>= n_visit,) gets
-    1/d (0 if open), negated unless the contact sticks, for :func:`_tangent_pass`. Only these two
-    arrays are written: with more LLVM needs more runtime alias checks than it allows and leaves
-    the loop scalar; a branch on a flag inside the loop does the same, so ``general`` is None
-    (small increment: polynomial atan, branch pruned at compile time) or True (any angle).
-    """
-    cxx, cxy, cyy, dxx, dxy, dyy = cq
-    mukn = mu * kn
-    e2 = 0.0
-    s0 = 0.0
-    s1 = 0.0
-    s2 = 0.0
-    ft2 = 0.0
-    dis = 0.0
-    sr = 0.0
-    u0 = 0.0
-    u1 = 0.0
-    u2 = 0.0
-    for c in range(n_visit):
-        x = X[c]
-        y = Y[c]
-        r = R[c]
-        lx = F00 * x + F01 * y  # same arithmetic as kernel._moment_sums: same active set
-        ly = F10 * x + F11 * y
-        d = np.sqrt(lx * lx + ly * ly)
-        eps = r - d
-        on = 1.0 if eps >= 0.0 else 0.0
-        ee = eps if eps >= 0.0 else 0.0  # noqa: FURB136 (a select, as in kernel.py)
-        inv = on / d
-        xx = x * x
-        xy = x * y
-        yy = y * y
-        b = ee * inv
-        e2 += ee * ee
-        s0 += b * xx
-        s1 += b * xy
-        s2 += b * yy
-        # sliding since F_n: the branch's turn relative to the spun history Q F_n (wrapped once)
-        cr = cxx * xx + cxy * xy + cyy * yy
-        dt = dxx * xx + dxy * xy + dyy * yy
-        if general is None:
-            dphi = _atan_small(cr, dt)
-        else:
-            dphi = _atan2_unit(cr, dt)
-        fstar, ft, stick = _contact_law(ft_io[c], r * dphi, ee, kt, mukn)
-        ft_io[c] = ft
-        winv[c] = inv if stick else -inv
-        ft2 += ft * ft
-        dis += abs(ft) * abs(fstar - ft)  # 0 in stick and for open contacts
-        ftr = ft * r
-        u = ftr * inv * inv
-        sr += ftr
-        u0 += u * xx
-        u1 += u * xy
-        u2 += u * yy
-    acc[_E2] = e2
-    acc[_S] = s0
-    acc[_S + 1] = s1
-    acc[_S + 2] = s2
-    acc[_FT2] = ft2
-    acc[_DIS] = dis
-    acc[_SR] = sr
-    acc[_U] = u0
-    acc[_U + 1] = u1
-    acc[_U + 2] = u2
-
-
-# The tangent sums decide nothing (no active set), so they may use fused multiply-adds.
-_FASTMATH_SUMS = _FASTMATH | {"contract"}
-
-
-@njit(cache=True, fastmath=_FASTMATH_SUMS, error_model="numpy")
-def _tangent_pass(X, Y, R, n_visit, fts, winv, kn, kt, mukn, acc):
-    """The tangent sums TA, TB, Z1, Z2, skr of one point into ``acc``, from the new forces
-    ``fts`` and the signed 1/d ``winv`` of :func:`_contact_pass`.
-
-    Stick: winv > 0, w_st = k_t R². Slip: winv < 0 and f_t != 0, w_sl = sign(f_t) mu k_n R
-    (f_t = 0 when open, at eps = 0 or for mu = 0: no slip weight)."""
-    a0 = a1 = a2 = a3 = a4 = 0.0
-    b0 = b1 = b2 = b3 = b4 = 0.0
-    z0 = z1 = z2 = 0.0
-    w0 = w1 = w2 = 0.0
-    skr = 0.0
-    for c in range(n_visit):
-        x = X[c]
-        y = Y[c]
-        r = R[c]
-        ft = fts[c]
-        w = winv[c]
-        inv = abs(w)
-        wst = kt * r * r if w > 0.0 else 0.0
-        wsl = mukn * r if ft > 0.0 else -mukn * r
-        wsl = wsl if (w < 0.0) & (ft != 0.0) else 0.0
-        xx = x * x
-        xy = x * y
-        yy = y * y
-        inv2 = inv * inv
-        inv3 = inv2 * inv
-        g = kn * r * inv3 - wst * inv2 * inv2
-        h = -2.0 * ft * r * inv2 * inv2 - wsl * inv3
-        q = xx * xx
-        a0 += g * q
-        b0 += h * q
-        q = xx * xy
-        a1 += g * q
-        b1 += h * q
-        q = xx * yy
-        a2 += g * q
-        b2 += h * q
-        q = xy * yy
-        a3 += g * q
-        b3 += h * q
-        q = yy * yy
-        a4 += g * q
-        b4 += h * q
-        g = wst * inv2
-        z0 += g * xx
-        z1 += g * xy
-        z2 += g * yy
-        g = wsl * inv
-        w0 += g * xx
-        w1 += g * xy
-        w2 += g * yy
-        skr += wst
-    acc[_TA], acc[_TA + 1], acc[_TA + 2], acc[_TA + 3], acc[_TA + 4] = a0, a1, a2, a3, a4
-    acc[_TB], acc[_TB + 1], acc[_TB + 2], acc[_TB + 3], acc[_TB + 4] = b0, b1, b2, b3, b4
-    acc[_Z1], acc[_Z1 + 1], acc[_Z1 + 2] = z0, z1, z2
-    acc[_Z2], acc[_Z2 + 1], acc[_Z2 + 2] = w0, w1, w2
-    acc[_SKR] = skr
-
-
-@njit(cache=True)
-def _rotation(F00, F01, F10, F11):
-    """Theta = dtheta/dF (4 entries, row major) of theta(F) = atan2(F10 - F01, F00 + F11) and the
-    coefficients (alpha, beta) of its Hessian H = alpha (J x J - I x I) + beta (J x I + I x J)."""
-    a = F10 - F01
-    b = F00 + F11
-    r = np.sqrt(a * a + b * b)  # = tr U >= 2 s_min: never small for a supported F
-    ca = a / r
-    cb = b / r
-    ir = 1.0 / r
-    # Theta = (cb J - ca I) / r,  H = -(2 / r²) [ca cb (JxJ - IxI) + (cb² - ca²)/2 (JxI + IxJ)]
-    th = (-ca * ir, -cb * ir, cb * ir, -ca * ir)
-    alpha = -2.0 * ca * cb * ir * ir
-    beta = -(cb * cb - ca * ca) * ir * ir
-    return th, alpha, beta
 
 
 @njit(cache=True)
@@ -350,6 +202,160 @@ def _spun_history(F00, F01, F10, F11, G00, G01, G10, G11):
     c = cq / h
     s = sq / h
     return c * G00 - s * G10, c * G01 - s * G11, s * G00 + c * G10, s * G01 + c * G11
+
+
+@njit(cache=True)
+def _contact_law(ftn, r, dphi, ee, kt, mukn):
+    """Trial force f*, new tangential force f_t and the stick flag of one contact with
+    ds = r dphi."""
+    fstar = ftn + kt * (r * dphi)
+    lim = mukn * ee
+    ft = fstar if abs(fstar) <= lim else (lim if fstar >= 0.0 else -lim)
+    return fstar, ft, (abs(fstar) <= lim) & (lim > 0.0)  # mu = 0: never sticks
+
+
+@njit(cache=True)
+def _kinematics(F00, F01, F10, F11, cq, x, y, r):
+    """eps = R - |F L| (as kernel._moment_sums: same active set), xx, xy, yy and the scaled
+    cross and dot of (G L, F L) of one candidate, and d = |F L|."""
+    lx = F00 * x + F01 * y
+    ly = F10 * x + F11 * y
+    d = np.sqrt(lx * lx + ly * ly)
+    xx = x * x
+    xy = x * y
+    yy = y * y
+    cr = cq[0] * xx + cq[1] * xy + cq[2] * yy
+    dt = cq[3] * xx + cq[4] * xy + cq[5] * yy
+    return r - d, d, xx, xy, yy, cr, dt
+
+
+@njit(cache=True)
+def _inverse_and_turn(eps, d, cr, dt):
+    """1/d (0 if open, eps < 0) and the turn dphi = atan(cr / dt) for a small increment
+    (dt > 0, |cr / dt| <= 0.05: polynomial). (One shared division, 1/(d dt), was no faster.)"""
+    return (1.0 / d if eps >= 0.0 else 0.0), _atan_poly(cr / dt)
+
+
+@njit(cache=True)
+def _inverse_and_angle(eps, d, cr, dt):
+    """1/d (0 if open) and dphi = atan2(cr, dt) for any angle."""
+    return (1.0 / d if eps >= 0.0 else 0.0), _atan2_unit(cr, dt)
+
+
+# The sums decide nothing (the forces and the active set come from the helpers above), so they
+# may use fused multiply-adds.
+_FASTMATH_SUMS = _FASTMATH | {"contract"}
+
+
+@njit(cache=True, fastmath=_FASTMATH_SUMS, error_model="numpy")
+def _contact_pass(
+    F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, general, tangent, work, ft_out, acc
+):
+    """Contact law and every moment sum of one point into ``acc`` (layout: N_ACC), one pass.
+
+    ``work`` (>= n_visit,) holds f_t,n on entry and each contact's dissipation |f_t| |f* - f_t|
+    (0 in stick and when open) on exit, which :func:`_total` sums in one fixed order, so that the
+    state does not depend on ``tangent``; ``ft_out`` (n_visit,) gets the new f_t. ``work`` is a
+    reused scratch array (it stays in cache) and the new state is written once, in the loop,
+    where its memory traffic overlaps the arithmetic. Only these two arrays are written (with
+    more, LLVM 14 needs more runtime alias checks than it allows and leaves the loop scalar); for
+    the same reason the flags are compile-time: ``general`` None (small increment) or True (any
+    angle), ``tangent`` None (stress sums only) or True (also TA, TB, Z1, Z2, skr).
+    Per contact, with p = R/d: Z1 = k_t sum p² LL, Z2 = mu k_n sum +-p LL, skr = k_t sum R²,
+    TA weight (k_n p - k_t p²) / d², TB weight -(2 f_t R/d² + mu k_n (+-p)) / d².
+    """
+    mukn = mu * kn
+    e2 = s0 = s1 = s2 = ft2 = sr = u0 = u1 = u2 = 0.0
+    a0 = a1 = a2 = a3 = a4 = b0 = b1 = b2 = b3 = b4 = 0.0
+    z0 = z1 = z2 = w0 = w1 = w2 = skr = 0.0
+    for c in range(n_visit):
+        r = R[c]
+        # the forces and the active set: helpers without fast-math (module docstring)
+        eps, d, xx, xy, yy, cr, dt = _kinematics(F00, F01, F10, F11, cq, X[c], Y[c], r)
+        if general is None:
+            inv, dphi = _inverse_and_turn(eps, d, cr, dt)
+        else:
+            inv, dphi = _inverse_and_angle(eps, d, cr, dt)
+        ee = eps if eps >= 0.0 else 0.0  # noqa: FURB136 (a select, as in kernel.py)
+        fstar, ft, stick = _contact_law(work[c], r, dphi, ee, kt, mukn)
+        ft_out[c] = ft
+        work[c] = abs(ft) * abs(fstar - ft)
+        b = ee * inv
+        e2 += ee * ee
+        s0 += b * xx
+        s1 += b * xy
+        s2 += b * yy
+        ft2 += ft * ft
+        ftr = ft * r
+        inv2 = inv * inv
+        u = ftr * inv2
+        sr += ftr
+        u0 += u * xx
+        u1 += u * xy
+        u2 += u * yy
+        if tangent is not None:
+            p = r * inv
+            zeta = p * p if stick else 0.0  # k_t zeta: stick weight of Z1
+            omega = p if ft > 0.0 else -p  # mu k_n omega: slip weight of Z2 (f_t = 0: none)
+            omega = omega if (not stick) & (ft != 0.0) else 0.0
+            skr += r * r if stick else 0.0
+            g = inv2 * (kn * p - kt * zeta)
+            h = -inv2 * (u + u + mukn * omega)
+            q = xx * xx
+            a0 += g * q
+            b0 += h * q
+            q = xx * xy
+            a1 += g * q
+            b1 += h * q
+            q = xx * yy
+            a2 += g * q
+            b2 += h * q
+            q = xy * yy
+            a3 += g * q
+            b3 += h * q
+            q = yy * yy
+            a4 += g * q
+            b4 += h * q
+            z0 += zeta * xx
+            z1 += zeta * xy
+            z2 += zeta * yy
+            w0 += omega * xx
+            w1 += omega * xy
+            w2 += omega * yy
+    acc[_E2], acc[_S], acc[_S + 1], acc[_S + 2], acc[_FT2] = e2, s0, s1, s2, ft2
+    acc[_SR], acc[_U], acc[_U + 1], acc[_U + 2] = sr, u0, u1, u2
+    if tangent is not None:
+        acc[_TA], acc[_TA + 1], acc[_TA + 2], acc[_TA + 3], acc[_TA + 4] = a0, a1, a2, a3, a4
+        acc[_TB], acc[_TB + 1], acc[_TB + 2], acc[_TB + 3], acc[_TB + 4] = b0, b1, b2, b3, b4
+        acc[_Z1], acc[_Z1 + 1], acc[_Z1 + 2] = kt * z0, kt * z1, kt * z2
+        acc[_Z2], acc[_Z2 + 1], acc[_Z2 + 2] = mukn * w0, mukn * w1, mukn * w2
+        acc[_SKR] = kt * skr
+
+
+@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+def _total(a, n):
+    """sum(a[:n]), vectorised; one call site, so one summation order."""
+    s = 0.0
+    for c in range(n):
+        s += a[c]
+    return s
+
+
+@njit(cache=True)
+def _rotation(F00, F01, F10, F11):
+    """Theta = dtheta/dF (4 entries, row major) of theta(F) = atan2(F10 - F01, F00 + F11) and the
+    coefficients (alpha, beta) of its Hessian H = alpha (J x J - I x I) + beta (J x I + I x J)."""
+    a = F10 - F01
+    b = F00 + F11
+    r = np.sqrt(a * a + b * b)  # = tr U >= 2 s_min: never small for a supported F
+    ca = a / r
+    cb = b / r
+    ir = 1.0 / r
+    # Theta = (cb J - ca I) / r,  H = -(2 / r²) [ca cb (JxJ - IxI) + (cb² - ca²)/2 (JxI + IxJ)]
+    th = (-ca * ir, -cb * ir, cb * ir, -ca * ir)
+    alpha = -2.0 * ca * cb * ir * ir
+    beta = -(cb * cb - ca * ca) * ir * ir
+    return th, alpha, beta
 
 
 @njit(cache=True)
@@ -389,12 +395,19 @@ def _finish_point(q, Fq, acc, rot, kn, inv_area, kt, tangent, W, P, A, M):
                             i = e + f + b + d
                             v += Fq[a, e] * (Fq[c, f] * acc[_TA + i] + JF[c, f] * acc[_TB + i])
                     bd = b + d
-                    v += (I2[a, c] * (acc[_Z1 + bd] - kn * acc[_S + bd])
-                          - J2[a, c] * (acc[_U + bd] + acc[_Z2 + bd]))
-                    H = (alpha * (J2[a, b] * J2[c, d] - I2[a, b] * I2[c, d])
-                         + beta * (J2[a, b] * I2[c, d] + I2[a, b] * J2[c, d]))
-                    v += (-sr * H - Z1[a, b] * Th[c, d] - Th[a, b] * Z1[c, d]
-                          + skr * Th[a, b] * Th[c, d] + Th[a, b] * Z2[c, d])
+                    v += I2[a, c] * (acc[_Z1 + bd] - kn * acc[_S + bd]) - J2[a, c] * (
+                        acc[_U + bd] + acc[_Z2 + bd]
+                    )
+                    H = alpha * (J2[a, b] * J2[c, d] - I2[a, b] * I2[c, d]) + beta * (
+                        J2[a, b] * I2[c, d] + I2[a, b] * J2[c, d]
+                    )
+                    v += (
+                        -sr * H
+                        - Z1[a, b] * Th[c, d]
+                        - Th[a, b] * Z1[c, d]
+                        + skr * Th[a, b] * Th[c, d]
+                        + Th[a, b] * Z2[c, d]
+                    )
                     A[q, a, b, c, d] = inv_area * v
 
 
@@ -409,8 +422,31 @@ def _copy_history(src, dst):
 
 
 @njit(cache=True)
-def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, tangent,
-                   Fn, off_n, f_n, D_n, off, f, W, P, A, D, status):
+def evaluate_batch(
+    F,
+    X,
+    Y,
+    R,
+    rho,
+    lmax2,
+    kn,
+    kt,
+    mu,
+    inv_area,
+    min_stretch,
+    tangent,
+    Fn,
+    off_n,
+    f_n,
+    D_n,
+    off,
+    f,
+    W,
+    P,
+    A,
+    D,
+    status,
+):
     """Energy, stress, tangent and the new history at n points, from their committed history.
 
     Args:
@@ -431,7 +467,7 @@ def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, ta
         status: (n,) int8 out: OK or the reason F was rejected (outputs then zero).
     """
     acc = np.zeros(N_ACC)
-    winv = np.empty(R.shape[0])
+    work = np.empty(R.shape[0])
     M = np.empty((6, 2, 2))
     for q in range(F.shape[0]):
         F00, F01, F10, F11 = F[q, 0, 0], F[q, 0, 1], F[q, 1, 0], F[q, 1, 1]
@@ -446,51 +482,49 @@ def evaluate_batch(F, X, Y, R, rho, lmax2, kn, kt, mu, inv_area, min_stretch, ta
             continue
         o = off[q]
         n_visit = off[q + 1] - o
-        ft = f[o:o + n_visit]  # the new forces, computed in place from the committed ones
-        _copy_history(f_n[off_n[q]:off_n[q + 1]], ft)
-        G00, G01, G10, G11 = Fn[q, 0, 0], Fn[q, 0, 1], Fn[q, 1, 0], Fn[q, 1, 1]
-        th, alpha, beta = _rotation(F00, F01, F10, F11)
-        G00, G01, G10, G11 = _spun_history(F00, F01, F10, F11, G00, G01, G10, G11)
-        cq = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11, lmax2)
-        if _small_increment(F00, F01, F10, F11, G00, G01, G10, G11):
-            _contact_pass(F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, None,
-                          ft, winv, acc)
+        ft = f[o : o + n_visit]  # the new forces
+        _copy_history(f_n[off_n[q] : off_n[q + 1]], work[:n_visit])  # f_t,n, zero-padded
+        G = _spun_history(F00, F01, F10, F11, Fn[q, 0, 0], Fn[q, 0, 1], Fn[q, 1, 0], Fn[q, 1, 1])
+        cq = _quadratic_forms(F00, F01, F10, F11, G[0], G[1], G[2], G[3], lmax2)
+        small = _small_increment(F00, F01, F10, F11, G[0], G[1], G[2], G[3])
+        # one specialisation per (angle path, tangent): the flags must be compile-time
+        if tangent and small:
+            _contact_pass(
+                F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, None, True, work, ft, acc
+            )
+        elif tangent:
+            _contact_pass(
+                F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, True, True, work, ft, acc
+            )
+        elif small:
+            _contact_pass(
+                F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, None, None, work, ft, acc
+            )
         else:
-            _contact_pass(F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, True,
-                          ft, winv, acc)
-        if tangent:
-            _tangent_pass(X, Y, R, n_visit, ft, winv, kn, kt, mu * kn, acc)
+            _contact_pass(
+                F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, True, None, work, ft, acc
+            )
+        acc[_DIS] = _total(work, n_visit)
         D[q] = D_n[q] + (inv_area * acc[_DIS] / kt if kt > 0.0 else 0.0)
+        th, alpha, beta = _rotation(F00, F01, F10, F11)
         _finish_point(q, F[q], acc, (th, alpha, beta), kn, inv_area, kt, tangent, W, P, A, M)
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+@njit(cache=True)
 def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick_out):
-    """Per-candidate step of one point, for diagnostics: the arithmetic of :func:`_contact_pass`.
+    """Per-candidate step of one point, for diagnostics: the helpers of :func:`_contact_pass`.
 
     ``buf`` (n_visit,) holds f_t,n on entry and f_t on exit; ``eps_out`` gets the overlaps and
     ``stick_out`` 1 for a sticking contact, 0 otherwise."""
     F00, F01, F10, F11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
-    G00, G01, G10, G11 = Fn[0, 0], Fn[0, 1], Fn[1, 0], Fn[1, 1]
-    G00, G01, G10, G11 = _spun_history(F00, F01, F10, F11, G00, G01, G10, G11)
-    cxx, cxy, cyy, dxx, dxy, dyy = _quadratic_forms(F00, F01, F10, F11, G00, G01, G10, G11,
-                                                    lmax2)
-    small = _small_increment(F00, F01, F10, F11, G00, G01, G10, G11)
+    G = _spun_history(F00, F01, F10, F11, Fn[0, 0], Fn[0, 1], Fn[1, 0], Fn[1, 1])
+    cq = _quadratic_forms(F00, F01, F10, F11, G[0], G[1], G[2], G[3], lmax2)
+    small = _small_increment(F00, F01, F10, F11, G[0], G[1], G[2], G[3])
     for c in range(n_visit):
-        x = X[c]
-        y = Y[c]
-        r = R[c]
-        lx = F00 * x + F01 * y
-        ly = F10 * x + F11 * y
-        eps = r - np.sqrt(lx * lx + ly * ly)
+        eps, d, _, _, _, cr, dt = _kinematics(F00, F01, F10, F11, cq, X[c], Y[c], R[c])
+        dphi = _inverse_and_turn(eps, d, cr, dt)[1] if small else _atan2_unit(cr, dt)
         ee = eps if eps >= 0.0 else 0.0  # noqa: FURB136 (a select, as in kernel.py)
-        xx = x * x
-        xy = x * y
-        yy = y * y
-        cr = cxx * xx + cxy * xy + cyy * yy
-        dt = dxx * xx + dxy * xy + dyy * yy
-        dphi = _atan_small(cr, dt) if small else _atan2_unit(cr, dt)
-        _, ft, stick = _contact_law(buf[c], r * dphi, ee, kt, mu * kn)
+        _, ft, stick = _contact_law(buf[c], R[c], dphi, ee, kt, mu * kn)
         buf[c] = ft
         eps_out[c] = eps
         stick_out[c] = 1 if stick else 0
