@@ -10,7 +10,7 @@ from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
 import numpy as np
 import pytest
 
-from scripts import MPI_ENV, ROOT, slope_command
+from helpers import MPI_ENV, ROOT, slope_command
 
 
 def demo(*args, ranks=1, cwd=ROOT):

@@ -17,7 +17,7 @@ import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 
-from scripts import ROOT
+from helpers import ROOT
 
 LIBRARIES = ("dolfinx", "ufl", "basix", "ffcx")
 

@@ -12,7 +12,7 @@ from dolfinx_granular.fabric import (
 import numpy as np
 import pytest
 
-from packings import hex_lattice, square_lattice
+from helpers import hex_lattice, square_lattice
 
 DEG = np.pi / 180
 

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from columns import granular_column
-from scripts import MPI_ENV, ROOT, read_outputs, slope_command
+from helpers import MPI_ENV, ROOT, granular_column, read_outputs, slope_command
 
 K_N = 2.8e7
 

@@ -10,7 +10,7 @@ from dolfinx_granular.friction import FrictionalRVE
 import numpy as np
 import pytest
 
-from scripts import load_demo
+from helpers import load_demo
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
 import numpy as np
 import pytest
 
-from scripts import load_benchmark
+from helpers import load_benchmark
 
 # (70, 68): the first jammed state has 17 % rattlers and is rejected
 CASES = [(70, 0), (70, 1), (70, 2), (70, 68), (350, 1), (700, 3)]

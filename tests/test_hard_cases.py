@@ -16,7 +16,7 @@ from dolfinx_granular.slope import SlopeOptions, load_restart, run_slope  # noqa
 
 from mpi4py import MPI  # noqa: E402
 
-from scripts import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
+from helpers import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
 
 
 def run(tmp_path, load_factor, **kwargs):

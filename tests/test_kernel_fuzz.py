@@ -5,7 +5,7 @@ from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, kernel
 import numpy as np
 import pytest
 
-from packings import random_packing
+from helpers import random_packing
 
 # these tests use prestressed (overlapping) packings on purpose
 pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")

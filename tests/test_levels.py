@@ -7,7 +7,7 @@ from dolfinx_granular.levels import AdaptiveRVE, SmallStrainRVE, isotropic_lame,
 import numpy as np
 import pytest
 
-from packings import random_packing
+from helpers import random_packing
 from reference import central_differences
 
 # these tests use prestressed (overlapping) packings on purpose
@@ -275,10 +275,10 @@ def test_singular_values_2x2(rng):
 
 
 def column_problem(rve, prefix, skip_final_tangent=False, n=4, pressure=2e5, **solver_kwargs):
-    """The shared column (tests/columns.py) under a top pressure (Pa), counting the material's
+    """The shared column (tests/helpers.py) under a top pressure (Pa), counting the material's
     stress-only and tangent updates."""
     pytest.importorskip("dolfinx")
-    from columns import granular_column
+    from helpers import granular_column
 
     solver, material, u, _ = granular_column(
         rve, prefix, n=n, pressure=pressure, skip_final_tangent=skip_final_tangent, **solver_kwargs

@@ -15,7 +15,7 @@ import ufl  # noqa: E402
 from dolfinx import fem, mesh  # noqa: E402
 from mpi4py import MPI  # noqa: E402
 
-from columns import granular_column  # noqa: E402
+from helpers import granular_column  # noqa: E402
 
 
 def column(prefix, n=4, stabilise=0.0, material_class=GranularMaterial, **solver_kwargs):

@@ -7,7 +7,7 @@ from dolfinx_granular import Packing, PackingFileError
 import numpy as np
 import pytest
 
-from packings import random_packing
+from helpers import random_packing
 
 
 def test_attributes_and_wrapping():

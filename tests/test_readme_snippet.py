@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from scripts import ROOT, slope_command
+from helpers import ROOT, slope_command
 
 SECTION = "## Use it in your own DOLFINx model"
 

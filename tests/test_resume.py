@@ -12,8 +12,8 @@ import pytest
 
 pytest.importorskip("dolfinx")
 
-from scripts import MPI_ENV, ROOT, read_outputs  # noqa: E402
-from scripts import slope_command as command  # noqa: E402
+from helpers import MPI_ENV, ROOT, read_outputs  # noqa: E402
+from helpers import slope_command as command  # noqa: E402
 
 SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure"]
 

@@ -5,7 +5,7 @@ from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError
 import numpy as np
 import pytest
 
-from packings import hex_lattice, random_packing, square_lattice
+from helpers import hex_lattice, random_packing, square_lattice
 from reference import central_differences, reference, reference_modulus
 
 # these tests use prestressed (overlapping) packings on purpose

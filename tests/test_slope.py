@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("dolfinx")
-from scripts import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
+from helpers import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
 
 
 @pytest.mark.mpi

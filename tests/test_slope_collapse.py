@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from scripts import load_demo
+from helpers import load_demo
 
 
 @pytest.mark.slow

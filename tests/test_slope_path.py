@@ -7,7 +7,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from scripts import MPI_ENV, ROOT, read_outputs, slope_command
+from helpers import MPI_ENV, ROOT, read_outputs, slope_command
 
 SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure", "--path-following"]
 

@@ -13,7 +13,7 @@ from dolfinx_granular.slope import SlopeOptions, run_slope  # noqa: E402
 
 from mpi4py import MPI  # noqa: E402
 
-from columns import granular_column  # noqa: E402
+from helpers import granular_column  # noqa: E402
 
 
 def column(pressure, petsc_options=None, prefix="col_", n=6):

@@ -13,7 +13,7 @@ from dolfinx_granular import generate_packing
 
 import pytest
 
-from scripts import load_benchmark
+from helpers import load_benchmark
 
 stacks_module = load_benchmark("stacks")
 TOLERANCE = 1e-9

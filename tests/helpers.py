@@ -1,0 +1,137 @@
+"""What the tests share: the scripts they run (demos imported as modules, the slope's command
+line, serially or under MPI, and its outputs), small packings with known properties built without
+the generator, and the granular column the solver, loading and model-level tests solve.
+
+Benchmark scripts need nothing here: pytest puts ``benchmarks/`` on the path (``pythonpath`` in
+pyproject.toml), so tests ``import kernel``."""
+
+import csv
+import importlib
+import importlib.util
+import json
+import os
+import sys
+from collections import namedtuple
+
+from dolfinx_granular import Packing
+
+import numpy as np
+
+# -- scripts ---------------------------------------------------------------------------------------
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SLOPE = os.path.join(ROOT, "demos", "slope.py")
+# mpirun as root (CI containers) needs these
+MPI_ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+
+
+def load_benchmark(name):
+    """The module ``benchmarks/<name>.py`` (a plain import: ``benchmarks/`` is on pytest's path)."""
+    return importlib.import_module(name)
+
+
+def load_demo(name):
+    """The module ``demos/<name>.py``."""
+    spec = importlib.util.spec_from_file_location(name, os.path.join(ROOT, "demos", f"{name}.py"))
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # (dataclasses look their module up there)
+    spec.loader.exec_module(module)
+    return module
+
+
+def slope_command(*args, ranks=1):
+    """``python demos/slope.py *args``, under MPI with ``ranks`` processes if ranks > 1 (with the
+    launcher of this Python's MPI; the test fails without one)."""
+    cmd = [sys.executable, SLOPE, *map(str, args)]
+    if ranks > 1:
+        from dolfinx_granular._dolfinx import mpi_command
+
+        launcher = mpi_command(ranks)
+        assert launcher is not None, "no MPI launcher (mpiexec/mpirun) found"
+        cmd = [*launcher, *cmd]
+    return cmd
+
+
+def read_outputs(out):
+    """The slope demo's ``summary.json`` (a dict) and ``convergence.csv`` (a list of row dicts)
+    in the folder ``out``."""
+    with open(os.path.join(out, "summary.json")) as f:
+        summary = json.load(f)
+    with open(os.path.join(out, "convergence.csv")) as f:
+        rows = list(csv.DictReader(f))
+    return summary, rows
+
+
+# -- packings --------------------------------------------------------------------------------------
+
+
+def random_packing(n=40, phi=0.85, seed=0):
+    """Disks at random centres: many overlapping (prestressed) contacts in random directions."""
+    rng = np.random.default_rng(seed)
+    radii = rng.uniform(0.35, 0.65, n)
+    side = np.sqrt(np.pi * np.sum(radii**2) / phi)
+    return Packing(rng.uniform(0.0, side, (n, 2)), radii, (side, side))
+
+
+def square_lattice(n=6):
+    """n x n unit-spaced disks of radius 1/2: exactly touching, branch vectors exact in floats."""
+    xs = np.arange(n) + 0.5
+    centers = np.array([(x, y) for y in xs for x in xs])
+    return Packing(centers, np.full(n * n, 0.5), (float(n), float(n)))
+
+
+def hex_lattice(nx=6, ny=6, overlap=1e-9):
+    """Triangular lattice of unit disks (6 contacts each, isotropic fabric), radii enlarged by a
+    relative ``overlap`` so that every lattice contact is active despite rounding. ``ny`` even."""
+    h = np.sqrt(3.0) / 2.0
+    centers = np.array(
+        [((ix + 0.5 * (iy % 2)) + 0.25, (iy + 0.5) * h) for iy in range(ny) for ix in range(nx)]
+    )
+    return Packing(centers, np.full(nx * ny, 0.5 * (1.0 + overlap)), (float(nx), ny * h))
+
+
+# -- the granular column ---------------------------------------------------------------------------
+
+Column = namedtuple("Column", "solver material u p")
+
+
+def granular_column(
+    rve, prefix, n=4, pressure=0.0, material_class=None, stabilise=0.0, **solver_kwargs
+):
+    """A 10 m x 10 m column of n x n Q1 cells: fixed base, rollers on the sides, a top pressure
+    ``p * (1 + 0.05 x)`` (p a Constant in Pa, positive = downward; the variation makes the
+    solution non-homogeneous). ``material_class`` defaults to GranularMaterial. Returns
+    ``Column(solver, material, u, p)``."""
+    # DOLFINx only here: the packings and scripts above serve tests that run without it
+    from dolfinx_granular._dolfinx import vector_space
+    from dolfinx_granular.material import GranularMaterial
+    from dolfinx_granular.solver import NewtonSolver
+
+    import ufl
+    from dolfinx import fem, mesh
+    from mpi4py import MPI
+
+    material_class = material_class or GranularMaterial
+    msh = mesh.create_rectangle(
+        MPI.COMM_WORLD, [[0, 0], [10, 10]], [n, n], mesh.CellType.quadrilateral
+    )
+    V = vector_space(msh)
+    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
+    material = material_class(rve, u, **({"stabilise": stabilise} if stabilise else {}))
+    top = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 10))
+    bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
+    walls = mesh.locate_entities_boundary(
+        msh, 1, lambda x: np.isclose(x[0], 0) | np.isclose(x[0], 10)
+    )
+    ds = ufl.Measure("ds", msh, subdomain_data=mesh.meshtags(msh, 1, top, np.full_like(top, 1)))
+    x = ufl.SpatialCoordinate(msh)
+    p = fem.Constant(msh, float(pressure))
+    residual = material.residual_form(v) + p * (1 + 0.05 * x[0]) * v[1] * ds(1)
+    bcs = [
+        fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
+        fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0)),
+    ]
+    solver = NewtonSolver(
+        residual, material.jacobian_form(du, v), u, bcs, material, prefix=prefix, **solver_kwargs
+    )
+    return Column(solver, material, u, p)
