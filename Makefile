@@ -18,7 +18,7 @@ define current
 	[ $$rc -eq 0 ] || exit $$rc; set -ex; $(1)
 endef
 
-.PHONY: setup demo test test-serial test-mpi bench setup-current demo-current test-current bench-current clean
+.PHONY: setup demo test test-serial test-mpi lint bench setup-current demo-current test-current bench-current clean
 
 setup: .venv/.setup-done
 
@@ -36,6 +36,13 @@ test-serial: setup
 
 test-mpi: setup
 	$(MPIRUN) $(PY) -m pytest -q --color=no -m mpi -p no:cacheprovider tests
+
+# ruff pinned: another version may format differently (configuration in pyproject.toml)
+RUFF_VERSION := 0.17.6
+lint: setup
+	$(PY) -m pip install -q --disable-pip-version-check "ruff==$(RUFF_VERSION)"
+	.venv/bin/ruff check .
+	.venv/bin/ruff format --check .
 
 bench: setup
 	$(PY) benchmarks/report.py
