@@ -13,6 +13,7 @@ if _importlib_util.find_spec("dolfinx_solver") is not None:
     import dolfinx_solver  # noqa: F401
 
 from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
+from .friction import FrictionalRVE, FrictionState
 from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
 from .gsd import SieveCurve, cen_standard_sand
 from .levels import AdaptiveRVE, SmallStrainRVE
@@ -23,6 +24,8 @@ __all__ = [
     "Packing",
     "PackingFileError",
     "TaylorRVE",
+    "FrictionalRVE",
+    "FrictionState",
     "ContactSet",
     "UnsupportedDeformationError",
     "SieveCurve",
@@ -49,6 +52,9 @@ _LAZY = {
     "NewtonSolver": "solver",
     "SolveResult": "solver",
     "LoadStepper": "loading",
+    "ArcLength": "arclength",
+    "QuadratureMaterial": "quadrature",
+    "RunWriter": "runwriter",
     "LinearElasticMaterial": "linear",
     "derivative": "quadrature",
     "von_mises": "postprocess",
