@@ -3,8 +3,6 @@ section that ``benchmarks/stacks.py`` keeps in the same file."""
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from report_measure import FLOPS_CANDIDATE
@@ -18,7 +16,7 @@ from report_tables import (
     speed_error_table,
     targets,
 )
-from stacks import BEGIN, END
+from sections import write_keeping_sections
 
 
 def _f(x, nd=2) -> str:
@@ -41,18 +39,9 @@ def markdown(res, paths, command, elapsed) -> str:
 
 
 def write(path, text):
-    """Write ``text`` to ``path``, carrying over the marked section of ``benchmarks/stacks.py``
-    (between its BEGIN and END markers) from the file there before, at the end."""
-    block = None
-    if os.path.isfile(path):
-        with open(path) as f:
-            old = f.read()
-        if BEGIN in old and END in old.split(BEGIN, 1)[1]:
-            block = BEGIN + old.split(BEGIN, 1)[1].split(END, 1)[0] + END
-    if block:
-        text = text.rstrip("\n") + "\n\n\n" + block + "\n"
-    with open(path, "w") as f:
-        f.write(text)
+    """Write ``text`` to ``path``, carrying over the sections that other benchmark scripts
+    (``stacks.py``, ``friction_path.py``) wrote there before."""
+    write_keeping_sections(path, text)
 
 
 def header(res, command, elapsed) -> str:

@@ -31,10 +31,11 @@ import tempfile
 import time
 from dataclasses import dataclass
 
+from sections import markers, write_section
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SLOPE = os.path.join(ROOT, "demos", "slope.py")
-BEGIN = "<!-- begin: benchmarks/stacks.py -->"
-END = "<!-- end: benchmarks/stacks.py -->"
+BEGIN, END = markers("stacks.py")
 #: the stacks of a checkout: (label, venv folder)
 VENVS = (("Debian bookworm", ".venv"), ("PyPI wheel", ".venv-current"))
 MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1"}
@@ -303,18 +304,6 @@ def figure(path, same, speeds):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def write_section(md_path, section):
-    """Replace the marked section of ``md_path`` (or append it)."""
-    text = open(md_path).read() if os.path.exists(md_path) else ""
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + section.rstrip("\n") + rest.split(END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n\n" + section
-    with open(md_path, "w") as f:
-        f.write(text)
 
 
 def main(argv=None):

@@ -3,7 +3,9 @@
 from dolfinx_granular import TaylorRVE, generate_packing
 
 import numpy as np
+import pytest
 
+import friction_path
 import kernel
 
 
@@ -22,3 +24,22 @@ def test_kernel_comparison_agrees_and_times_every_implementation():
     assert r["agree"] < 1e-12 and r["candidates"] == rve.n_candidates
     assert 0 < r["active"] <= r["visited"] <= r["candidates"]
     assert all(r[k] > 0 for k in ("us_pa", "us_p", "us_loop", "us_numpy"))
+
+
+@pytest.mark.slow
+def test_friction_path_benchmark_writes_its_section(tmp_path):
+    pytest.importorskip("dolfinx")
+    args = ["--particles", "70", "--steps", "2", "--ranks", "1", "--sizes", "70"]
+    args += ["--points", "20", "--repeats", "1", "--no-refine", "--out", str(tmp_path)]
+    res = friction_path.main(args)
+    text = (tmp_path / "performance.md").read_text()
+    assert text.count(friction_path.BEGIN) == 1 and "## 7. Friction and path following" in text
+    slope = res["slope"]
+    assert set(slope) == set(friction_path.slope_cases(refine=False))
+    assert all(s["converged"] for name, s in slope.items() if "load control" not in name)
+    friction = slope[f"friction mu = {friction_path.MU}, unloaded"]
+    assert friction["permanent_settlement"] < 0 < friction["dissipated_energy"]
+    path = slope["2x load, path following"]["path_following"]
+    assert path["peak"] is not None and path["critical_points"]
+    for name, s in slope.items():
+        assert f"| {name} | {s['completed_steps']} | {sum(s['iterations'])} |" in text

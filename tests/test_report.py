@@ -7,6 +7,7 @@ import pytest
 
 import flops
 import report_markdown
+import sections
 
 dolfinx = pytest.importorskip("dolfinx")
 
@@ -33,6 +34,21 @@ def test_rewriting_the_report_keeps_the_stacks_section(tmp_path):
     assert text.rstrip("\n").endswith(STACKS_BLOCK) and text.count(STACKS_BLOCK) == 1
     report_markdown.write(path, "# newer report\n")  # and again: still exactly one copy
     assert path.read_text() == "# newer report\n\n\n" + STACKS_BLOCK + "\n"
+
+
+def test_each_script_replaces_only_its_own_section(tmp_path):
+    path = str(tmp_path / "performance.md")
+    begin, end = sections.markers("friction_path.py")
+    seventh = f"{begin}\n## 7. Friction and path following\n\nfirst\n{end}\n"
+    sections.write_section(path, seventh)  # no file yet: the section alone
+    sections.write_section(path, STACKS_BLOCK)  # appended after it
+    sections.write_section(path, seventh.replace("first", "second"))  # replaced in place
+    text = open(path).read()
+    assert text.count(begin) == 1 and "second" in text and "first" not in text
+    assert text.index(begin) < text.index(STACKS_BLOCK)
+    report_markdown.write(path, "# report\n")  # both kept, in the order of their headings
+    kept = sections.marked_sections(open(path).read())
+    assert kept == [STACKS_BLOCK, seventh.replace("first", "second").strip("\n")]
 
 
 @pytest.mark.slow
