@@ -15,12 +15,21 @@ import logging
 import os
 import shutil
 import sys
+from typing import TYPE_CHECKING, Any
 
 import basix
 import numpy as np
 import ufl
 from dolfinx import fem
 from petsc4py import PETSc
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from dolfinx.mesh import Mesh
+    from mpi4py.MPI import Comm
+    from numpy.typing import ArrayLike
+    from ufl.core.expr import Expr
 
 # basix.ufl.quadrature_element exists from DOLFINx 0.7; earlier releases use UFL's legacy elements
 try:
@@ -53,7 +62,9 @@ _NEW_SPACES = hasattr(fem, "functionspace")
 _EVAL_TAKES_MESH = "mesh" in inspect.signature(fem.Expression.eval).parameters
 
 
-def function_space(msh, family: str, degree: int, shape: tuple = ()):
+def function_space(
+    msh: Mesh, family: str, degree: int, shape: tuple[int, ...] = ()
+) -> fem.FunctionSpace:
     """Lagrange/DG space of the given value ``shape`` (``()`` scalar, ``(2,)`` vector)."""
     if _NEW_SPACES:
         return fem.functionspace(msh, (family, degree, tuple(shape)) if shape else (family, degree))
@@ -62,12 +73,12 @@ def function_space(msh, family: str, degree: int, shape: tuple = ()):
     return fem.FunctionSpace(msh, (family, degree))
 
 
-def vector_space(msh, degree: int = 1, family: str = "Lagrange"):
+def vector_space(msh: Mesh, degree: int = 1, family: str = "Lagrange") -> fem.FunctionSpace:
     """Vector space with one component per geometric dimension (displacements)."""
     return function_space(msh, family, degree, (msh.geometry.dim,))
 
 
-def quadrature_space(msh, degree: int, shape: tuple):
+def quadrature_space(msh: Mesh, degree: int, shape: tuple[int, ...]) -> fem.FunctionSpace:
     """Space of values of ``shape`` at the points of the "default" quadrature scheme of
     ``degree`` (the scheme that a measure with matching metadata integrates with)."""
     cell = msh.topology.cell_type.name
@@ -85,19 +96,19 @@ def quadrature_space(msh, degree: int, shape: tuple):
     return fem.FunctionSpace(msh, element)
 
 
-def quadrature_points(msh, degree: int) -> np.ndarray:
+def quadrature_points(msh: Mesh, degree: int) -> np.ndarray:
     """Reference points (n_qp, tdim) of the "default" scheme of ``degree`` on the mesh's cells."""
     celltype = getattr(basix.CellType, msh.topology.cell_type.name)
     X, _ = basix.make_quadrature(celltype, degree)
     return X
 
 
-def expression(e, X):
+def expression(e: Expr, X: np.ndarray) -> fem.Expression:
     """A compiled :class:`dolfinx.fem.Expression` of the UFL expression ``e`` at points ``X``."""
     return fem.Expression(e, X)
 
 
-def evaluate(expr, msh, cells) -> np.ndarray:
+def evaluate(expr: fem.Expression, msh: Mesh, cells: ArrayLike) -> np.ndarray:
     """Values of ``expr`` on ``cells`` as (n_cells, n_points * value_size), row-major per point."""
     cells = np.asarray(cells, dtype=np.int32)
     if cells.size == 0:
@@ -106,19 +117,19 @@ def evaluate(expr, msh, cells) -> np.ndarray:
     return np.asarray(values).reshape(cells.size, -1)
 
 
-def petsc_vec(u):
+def petsc_vec(u: fem.Function) -> PETSc.Vec:
     """The PETSc vector (ghosted) behind a Function: ``u.x.petsc_vec`` (0.8+) or ``u.vector``."""
     vec = getattr(u.x, "petsc_vec", None)
     return vec if vec is not None else u.vector
 
 
-def cell_dofs(dofmap) -> np.ndarray:
+def cell_dofs(dofmap: fem.DofMap) -> np.ndarray:
     """The dofmap as (n_cells, dofs per cell) (an AdjacencyList in 0.5/0.6, an array later)."""
     dofs = dofmap.list
     return np.asarray(getattr(dofs, "array", dofs)).reshape(-1, dofmap.dof_layout.num_dofs)
 
 
-def vtk_mesh(V):
+def vtk_mesh(V: fem.FunctionSpace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(topology, cell_types, geometry)`` of a space for pyvista/VTK."""
     from dolfinx import plot
 
@@ -126,8 +137,9 @@ def vtk_mesh(V):
     return make(V)
 
 
-def gmsh_model_to_mesh(model, comm, rank: int, gdim: int):
+def gmsh_model_to_mesh(model: Any, comm: Comm, rank: int, gdim: int) -> tuple[Mesh, Any, Any]:
     """Distribute a gmsh model built on ``rank``: ``(mesh, cell_tags, facet_tags)``."""
+    # model: the ``gmsh.model`` module; the tags: MeshTagsMetaClass (0.5) / MeshTags (0.9+)
     try:
         from dolfinx.io import gmsh as gmshio  # 0.10+
     except ImportError:
@@ -138,7 +150,14 @@ def gmsh_model_to_mesh(model, comm, rank: int, gdim: int):
     return tuple(data)
 
 
-def create_mesh(comm, cells, x, cell: str, gdim: int, max_facet_to_cell_links: int = 2):
+def create_mesh(
+    comm: Comm,
+    cells: ArrayLike,
+    x: ArrayLike,
+    cell: str,
+    gdim: int,
+    max_facet_to_cell_links: int = 2,
+) -> Mesh:
     """A mesh of affine ``cell`` s ("interval", "triangle", ...) from node coordinates ``x``
     (n, gdim) and connectivity ``cells`` (m, nodes per cell), given on rank 0 (other ranks'
     arrays are ignored) and distributed over ``comm``. ``max_facet_to_cell_links`` > 2 allows
@@ -186,7 +205,7 @@ _XINCLUDE_WRONG = 'xmlns:xi="https://www.w3.org/2001/XInclude"'
 _XINCLUDE = 'xmlns:xi="http://www.w3.org/2001/XInclude"'
 
 
-def repair_xdmf(path) -> None:
+def repair_xdmf(path: str | PathLike[str]) -> None:
     """Give an XDMF file written by DOLFINx the XInclude namespace of the W3C standard.
 
     DOLFINx 0.9 and later write ``xmlns:xi="https://..."``; XInclude's namespace is the ``http``

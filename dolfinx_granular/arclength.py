@@ -28,6 +28,7 @@ and f a linear form (``external``, the load pattern); this is checked once at co
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from dolfinx import fem
@@ -35,6 +36,13 @@ from dolfinx.fem.petsc import assemble_vector, set_bc
 from petsc4py import PETSc
 
 from ._dolfinx import petsc_vec
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import ufl
+
+    from .solver import NewtonSolver
 
 
 @dataclass
@@ -50,7 +58,7 @@ class Increment:
     increment_norm: float  # |Du| over all dofs (m)
     control: float | None = None  # value of the control dof at the end (m), if any
     residual_norm: float = float("nan")  # |R| at the end (N)
-    history: list = None  # (iteration, |R| at its start (N), relative energy norm) per step
+    history: list | None = None  # (iteration, |R| at its start (N), relative energy norm) per step
     converged_by: str = ""  # "energy norm" or "round-off"
 
     def as_dict(self) -> dict:
@@ -105,24 +113,24 @@ class ArcLength:
 
     def __init__(
         self,
-        solver,
-        load,
-        external,
-        ds=None,
+        solver: NewtonSolver,
+        load: fem.Constant,
+        external: ufl.Form,
+        ds: float | None = None,
         *,
-        dlam=None,
-        psi=0.0,
-        control=None,
-        direction=1.0,
-        max_it=15,
-        target_iterations=5,
-        ds_max=None,
-        ds_min=None,
-        max_cutbacks=8,
-        energy_rtol=1e-20,
-        peak_refinement=1.0,
-        log=None,
-    ):
+        dlam: float | None = None,
+        psi: float = 0.0,
+        control: tuple[int, float] | None = None,
+        direction: float = 1.0,
+        max_it: int = 15,
+        target_iterations: int = 5,
+        ds_max: float | None = None,
+        ds_min: float | None = None,
+        max_cutbacks: int = 8,
+        energy_rtol: float = 1e-20,
+        peak_refinement: float = 1.0,
+        log: Callable[[str], object] | None = None,
+    ) -> None:
         self.solver, self.load = solver, load
         self.psi = float(psi)
         self.control = control
@@ -210,7 +218,7 @@ class ArcLength:
             "stopped": self.stopped,
         }
 
-    def resume(self, state, du_prev):
+    def resume(self, state: dict, du_prev: PETSc.Vec | None) -> None:
         """Continue from :meth:`state` at the converged state in ``solver.u``; ``du_prev``: its
         last increment Du (a vector like u's; None at the start of the path)."""
         self.lam = float(state["lam"])
@@ -347,7 +355,7 @@ class ArcLength:
             for v in (R, a, b):
                 v.destroy()
 
-    def advance(self):
+    def advance(self) -> Increment | None:
         """One converged increment (cut back and retried as needed); the :class:`Increment`, or
         None once the path cannot go on (:attr:`failed` says why)."""
         u_vec = petsc_vec(self.solver.u)
@@ -454,7 +462,12 @@ class ArcLength:
 
     # -- the path ------------------------------------------------------------------------------
 
-    def run(self, max_steps=100, stop=None, on_converged=None) -> bool:
+    def run(
+        self,
+        max_steps: int = 100,
+        stop: Callable[[ArcLength], str | None] | None = None,
+        on_converged: Callable[[Increment], bool | None] | None = None,
+    ) -> bool:
         """Follow the path for at most ``max_steps`` increments; True unless it failed.
 
         Args:
@@ -479,11 +492,11 @@ class ArcLength:
         return True
 
     @property
-    def peak(self):
+    def peak(self) -> Increment | None:
         """The converged increment with the largest |lam| so far (None before the first)."""
         return max(self.path, key=lambda inc: abs(inc.lam), default=None)
 
-    def peak_estimate(self):
+    def peak_estimate(self) -> float | None:
         """The largest |lam| of the parabola through the sampled maximum and its neighbours
         (lam against the cumulative arc length): where the true peak lies between samples.
         None unless the maximum has a converged increment on each side."""
@@ -498,7 +511,7 @@ class ArcLength:
         s_top = float(np.clip(-b / (2 * a), s[0], s[2]))
         return float(np.polyval([a, b, _], s_top))
 
-    def destroy(self):
+    def destroy(self) -> None:
         for v in (self.f, self._du_prev):
             if v is not None:
                 v.destroy()
@@ -554,7 +567,7 @@ class _Newton:
         self.history.append((len(self.history) + 1, self.rnorm, self.energy))
 
 
-def load_reaches(target):
+def load_reaches(target: float) -> Callable[[ArcLength], str | None]:
     """Stop once lam has reached ``target`` from the side of zero (lam >= target for a positive
     target, lam <= target for a negative one)."""
 
@@ -565,7 +578,7 @@ def load_reaches(target):
     return stop
 
 
-def unloaded_to(fraction):
+def unloaded_to(fraction: float) -> Callable[[ArcLength], str | None]:
     """Stop once the load has fallen to ``fraction`` of its peak after a limit point."""
 
     def stop(al):
@@ -579,7 +592,7 @@ def unloaded_to(fraction):
     return stop
 
 
-def control_reaches(target):
+def control_reaches(target: float) -> Callable[[ArcLength], str | None]:
     """Stop once the control dof's displacement has gone past ``target`` (m)."""
 
     def stop(al):

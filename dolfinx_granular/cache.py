@@ -10,9 +10,13 @@ from __future__ import annotations
 import json
 import os
 import time
+from typing import TYPE_CHECKING
 
 from .generation import generate_packing
 from .packing import Packing
+
+if TYPE_CHECKING:
+    from os import PathLike
 
 
 class PackingCache:
@@ -36,7 +40,7 @@ class PackingCache:
 
     TIMES_FILE = "generation_times.json"
 
-    def __init__(self, directory, use_cache: bool = True):
+    def __init__(self, directory: str | PathLike[str], use_cache: bool = True) -> None:
         self.directory = str(directory)
         self.use_cache = bool(use_cache)
         os.makedirs(self.directory, exist_ok=True)

@@ -16,12 +16,17 @@ Bathurst, Geotechnique 39, 1989).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .packing import Packing
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
-def contact_angles(packing: Packing, F=None) -> np.ndarray:
+
+def contact_angles(packing: Packing, F: ArrayLike | None = None) -> np.ndarray:
     """Angles theta_c = atan2(l_y, l_x) in (-pi, pi] of the active contacts at ``F`` (default I).
 
     Uses the kernel's own contact rule (eps >= 0, periodic images included), so a generated
@@ -54,7 +59,9 @@ def _as_angles(angles) -> np.ndarray:
     return a
 
 
-def normal_density(angles, delta, theta=None, n_theta: int = 720):
+def normal_density(
+    angles: ArrayLike, delta: float, theta: ArrayLike | None = None, n_theta: int = 720
+) -> tuple[np.ndarray, np.ndarray]:
     """Contact-normal density with angle of influence ``delta``.
 
     Args:
@@ -86,14 +93,14 @@ def normal_density(angles, delta, theta=None, n_theta: int = 720):
     return theta, rho
 
 
-def fabric_tensor(angles) -> np.ndarray:
+def fabric_tensor(angles: ArrayLike) -> np.ndarray:
     """Fabric tensor (1/N_c) sum n ⊗ n (2, 2) of contact angles (rad) or vectors (N_c, 2)."""
     a = _as_angles(angles)
     c, s = np.cos(a), np.sin(a)
     return np.array([[np.mean(c * c), np.mean(c * s)], [np.mean(c * s), np.mean(s * s)]])
 
 
-def anisotropy(fabric):
+def anisotropy(fabric: ArrayLike) -> tuple[float, float]:
     """``(a, theta_a)``: a = 2 (A_1 - A_2) >= 0 of a fabric tensor (2, 2) and the direction
     theta_a in [0, pi) rad of its major principal axis."""
     A = np.asarray(fabric, dtype=float)
@@ -104,7 +111,7 @@ def anisotropy(fabric):
     return float(2.0 * (w[1] - w[0])), theta
 
 
-def density_deviation(angles, delta, n_theta: int = 720) -> float:
+def density_deviation(angles: ArrayLike, delta: float, n_theta: int = 720) -> float:
     """Isotropy indicator max_theta |2 pi rho_delta(theta) - 1| (0 for a perfectly uniform set)."""
     _, rho = normal_density(angles, delta, n_theta=n_theta)
     return float(np.max(np.abs(2.0 * np.pi * rho - 1.0)))

@@ -54,12 +54,18 @@ per unit thickness, lengths in the packing's units, W, P, A and dissipation in P
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import friction_kernel as fk
 from .packing import Packing
 from .rve import TaylorRVE, _as_batch
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping
+
+    from numpy.typing import ArrayLike
 
 _KEYS = ("F", "dissipation", "offsets", "force")
 
@@ -156,7 +162,7 @@ class FrictionState:
         """Stored tangential forces of point q (candidates in the RVE's order)."""
         return self.force[self.offsets[q] : self.offsets[q + 1]]
 
-    def take(self, indices) -> FrictionState:
+    def take(self, indices: ArrayLike) -> FrictionState:
         """The points ``indices`` (int array, any order, repeats allowed) as a new state."""
         idx = np.asarray(indices)
         if idx.ndim != 1 or not (idx.size == 0 or np.issubdtype(idx.dtype, np.integer)):
@@ -172,7 +178,7 @@ class FrictionState:
         return FrictionState._trusted(self.F[idx], self.dissipation[idx], off, self.force[gather])
 
     @classmethod
-    def concatenate(cls, states) -> FrictionState:
+    def concatenate(cls, states: Iterable[FrictionState]) -> FrictionState:
         """The points of ``states`` (a sequence of FrictionState) one after the other."""
         states = list(states)
         if not states or not all(isinstance(s, FrictionState) for s in states):
@@ -192,14 +198,14 @@ class FrictionState:
         return {k: np.array(getattr(self, k)) for k in _KEYS}
 
     @classmethod
-    def from_arrays(cls, arrays) -> FrictionState:
+    def from_arrays(cls, arrays: Mapping[str, ArrayLike]) -> FrictionState:
         """Inverse of :meth:`to_arrays` (a dict or an ``np.load`` result), validated."""
         missing = [k for k in _KEYS if k not in arrays]
         if missing:
             raise ValueError(f"friction state arrays lack {missing}; expected keys {list(_KEYS)}")
         return cls(*(np.asarray(arrays[k]) for k in _KEYS))
 
-    def equals(self, other) -> bool:
+    def equals(self, other: object) -> bool:
         """Bit-for-bit equality of all arrays."""
         return isinstance(other, FrictionState) and all(
             getattr(self, k).shape == getattr(other, k).shape
@@ -269,7 +275,7 @@ class FrictionalRVE:
         tangential_stiffness: float,
         friction: float,
         min_stretch: float = 0.5,
-    ):
+    ) -> None:
         kt = _parameter("tangential_stiffness", tangential_stiffness, 0.0, False, " (N/m²)")
         mu = _parameter("friction", friction, 0.0, False, "")
         self._taylor = TaylorRVE(packing, normal_stiffness, min_stretch)
@@ -374,7 +380,9 @@ class FrictionalRVE:
             return W[0], P[0], (A[0] if tangent else None), new
         return W, P, A, new
 
-    def evaluate(self, F, state: FrictionState, out=None):
+    def evaluate(
+        self, F: ArrayLike, state: FrictionState, out: tuple | None = None
+    ) -> tuple[np.ndarray | float, np.ndarray, np.ndarray, FrictionState]:
         """Energy, first Piola stress, tangent at fixed history and the new state.
 
         Args:
@@ -390,7 +398,9 @@ class FrictionalRVE:
         """
         return self._run(F, state, True, out)
 
-    def stress(self, F, state: FrictionState, out=None):
+    def stress(
+        self, F: ArrayLike, state: FrictionState, out: tuple | None = None
+    ) -> tuple[np.ndarray | float, np.ndarray, FrictionState]:
         """``(W (n,), P (n, 2, 2), new_state)`` without the tangent; ``out`` may be
         ``(W, P)`` or ``(W, P, None)``."""
         if out is not None:
@@ -398,14 +408,14 @@ class FrictionalRVE:
         W, P, _, new = self._run(F, state, False, out)
         return W, P, new
 
-    def cauchy(self, F, state: FrictionState):
+    def cauchy(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
         """Cauchy stress sigma = P F^T / J (n, 2, 2), in Pa; symmetric (Hill-Mandel)."""
         Fb = _as_batch(F)[0]
         P = self._run(Fb, state, False, None)[1]
         sigma = np.einsum("qab,qcb->qac", P, Fb) / np.linalg.det(Fb)[:, None, None]
         return sigma[0] if np.ndim(F) == 2 else sigma
 
-    def spatial_tangent(self, F, state: FrictionState):
+    def spatial_tangent(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
         """Spatial tangent a_abcd = F_bB F_dD A_aBcD / J (n, 2, 2, 2, 2), in Pa."""
         Fb = _as_batch(F)[0]
         A = self._run(Fb, state, True, None)[2]
@@ -415,7 +425,7 @@ class FrictionalRVE:
         )
         return a[0] if np.ndim(F) == 2 else a
 
-    def small_strain_modulus(self):
+    def small_strain_modulus(self) -> np.ndarray:
         """Stick tangent (2, 2, 2, 2) at F = I from the initial state, in Pa (fully symmetric).
 
         Eq. 15 of the normal springs plus (k_t / V) sum_c R² sym(t (x) n) (x) sym(t (x) n) over the
@@ -433,7 +443,7 @@ class FrictionalRVE:
         g = R[on, None, None] * 0.5 * (tn + tn.transpose(0, 2, 1))  # R sym(t n) = ds/dF at I
         return C + kt * self._inv_area * np.einsum("mab,mcd->abcd", g, g)
 
-    def contacts(self, F, state: FrictionState) -> FrictionContactSet:
+    def contacts(self, F: ArrayLike, state: FrictionState) -> FrictionContactSet:
         """Active contacts (eps >= 0) after the step from the 1-point ``state`` to one F (2, 2)."""
         F = np.asarray(F, dtype=np.float64)
         if F.shape != (2, 2):

@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
@@ -53,6 +54,13 @@ from numba import njit
 from . import kernel
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
 from .packing import Packing
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from numpy.typing import ArrayLike
+
+    from .gsd import SieveCurve
 
 # FIRE parameters of Bitzek et al. (2006).
 _N_MIN = 5
@@ -246,7 +254,7 @@ class ProgressLine(str):
     stage: str
     fraction: float
 
-    def __new__(cls, text: str, stage: str, fraction: float):
+    def __new__(cls, text: str, stage: str, fraction: float) -> ProgressLine:
         line = super().__new__(cls, text)
         line.stage = stage
         line.fraction = fraction
@@ -347,8 +355,8 @@ def network_stats(packing: Packing) -> NetworkStats:
 
 def generate_packing(
     n_particles: int,
-    gsd=None,
-    seed: int = 0,
+    gsd: SieveCurve | tuple[ArrayLike, ArrayLike] | None = None,
+    seed: int | None = 0,
     *,
     d_min: float | None = DEFAULT_D_MIN,
     aspect: float = 1.0,
@@ -356,7 +364,7 @@ def generate_packing(
     contact_overlap: float = 1e-11,
     max_rattlers: float = 0.15,
     max_attempts: int = 5,
-    progress=None,
+    progress: Callable[[ProgressLine], object] | None = None,
 ) -> Packing:
     """A jammed, stress-free periodic packing of disks sized by a sieve curve.
 
@@ -450,7 +458,11 @@ def generate_packing(
     return packing
 
 
-def relax_overlaps(packing: Packing, contact_overlap: float = 1e-11, progress=None) -> Packing:
+def relax_overlaps(
+    packing: Packing,
+    contact_overlap: float = 1e-11,
+    progress: Callable[[ProgressLine], object] | None = None,
+) -> Packing:
     """A stress-free packing next to ``packing``: the generator's last stage applied to it.
 
     The disks that overlap at F = I form the contact network (disks with fewer than three of its

@@ -18,8 +18,14 @@ from __future__ import annotations
 import csv
 import io
 from importlib import resources
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from numpy.typing import ArrayLike
 
 #: Default cut size (mm) for the shipped CEN curve: keeps d_max / d_min = 4, so that 70 disks still
 #: form a jammed network with few rattlers.
@@ -41,7 +47,9 @@ class SieveCurve:
             decreases, leaves [0, 100] or does not reach 100 %).
     """
 
-    def __init__(self, aperture, passing, name: str = "sieve curve", source: str = ""):
+    def __init__(
+        self, aperture: ArrayLike, passing: ArrayLike, name: str = "sieve curve", source: str = ""
+    ) -> None:
         a = _float_1d(aperture, "aperture")
         p = _float_1d(passing, "passing")
         if a.shape != p.shape:
@@ -83,7 +91,7 @@ class SieveCurve:
 
     # -- evaluation -------------------------------------------------------------------------------
 
-    def passing_at(self, d):
+    def passing_at(self, d: ArrayLike) -> np.ndarray:
         """Percent passing at diameters ``d`` (mm), linear in log d; 0 below, 100 above."""
         d = np.asarray(d, dtype=float)
         out = np.interp(np.log(np.maximum(d, 1e-300)), np.log(self.aperture), self.passing)
@@ -104,7 +112,7 @@ class SieveCurve:
         t = (percent - p0) / (p1 - p0)
         return float(self.aperture[k - 1] * (self.aperture[k] / self.aperture[k - 1]) ** t)
 
-    def classes(self, d_min=None):
+    def classes(self, d_min: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Size classes above the cut ``d_min`` (mm).
 
         Returns:
@@ -134,14 +142,18 @@ class SieveCurve:
             raise ValueError(f"no grains above d_min = {d_min} mm on this sieve curve")
         return lo, hi, dp / dp.sum()
 
-    def number_fractions(self, d_min=None):
+    def number_fractions(
+        self, d_min: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(lo, hi, nfrac)``: class bounds (mm) and number fraction per class (sums to 1)."""
         lo, hi, share = self.classes(d_min)
         mean_d2 = 2.0 * np.log(hi / lo) / (lo**-2 - hi**-2)
         w = share / mean_d2
         return lo, hi, w / w.sum()
 
-    def sample_diameters(self, n: int, rng=None, d_min=None) -> np.ndarray:
+    def sample_diameters(
+        self, n: int, rng: np.random.Generator | int | None = None, d_min: float | None = None
+    ) -> np.ndarray:
         """Draw ``n`` grain diameters (mm) whose area distribution follows the curve above d_min.
 
         Stratified sampling of the number distribution: the i-th diameter is the inverse number
@@ -169,7 +181,7 @@ class SieveCurve:
         return (lo[k] ** -2 - t * (lo[k] ** -2 - hi[k] ** -2)) ** -0.5
 
     @staticmethod
-    def area_passing(diameters, d):
+    def area_passing(diameters: ArrayLike, d: ArrayLike) -> np.ndarray:
         """Percent of the total grain area (disks) in grains smaller than ``d`` — the sieve curve
         of a sample of ``diameters``. Both in mm; returns an array shaped like ``d``."""
         diam = np.sort(np.asarray(diameters, dtype=float))
@@ -180,7 +192,7 @@ class SieveCurve:
     # -- input / output -------------------------------------------------------------------------
 
     @classmethod
-    def from_csv(cls, path, name=None):
+    def from_csv(cls, path: str | PathLike[str], name: str | None = None) -> SieveCurve:
         """Read a curve from a CSV file: ``#`` comment lines (kept as the source), one header
         line, then rows ``aperture_mm, passing_percent``."""
         with open(path, encoding="utf-8") as f:
@@ -224,7 +236,7 @@ def cen_standard_sand() -> SieveCurve:
     return SieveCurve._parse(text, "CEN standard sand (EN 196-1)", "cen_standard_sand.csv")
 
 
-def as_sieve_curve(gsd) -> SieveCurve:
+def as_sieve_curve(gsd: SieveCurve | tuple[ArrayLike, ArrayLike] | None) -> SieveCurve:
     """Accept a :class:`SieveCurve`, None (the CEN sand) or an ``(aperture, passing)`` pair."""
     if gsd is None:
         return cen_standard_sand()

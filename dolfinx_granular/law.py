@@ -65,7 +65,7 @@ class HistoryLaw(Protocol):
         """Linear modulus C (2, 2, 2, 2) at F = I from the initial state."""
 
 
-def has_history(law) -> bool:
+def has_history(law: object) -> bool:
     """True for a :class:`HistoryLaw`; raises TypeError for an object that is no law at all."""
     if isinstance(law, HistoryLaw):
         return True

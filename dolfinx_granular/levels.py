@@ -43,17 +43,25 @@ stress scale ``K sum R |L| t`` is at most ``tol / (sqrt 3 (1 - tol)^2)``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from . import kernel
 from .rve import TaylorRVE, UnsupportedDeformationError, _as_batch
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from .packing import Packing
+    from .rve import ContactSet
 
 # relative safety margin of the singular-value contact test (see module docstring)
 _MARGIN = 1e-12
 _REMAINDER_CONSTANT = 1.0 / np.sqrt(3.0)
 
 
-def singular_values_2x2(F):
+def singular_values_2x2(F: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Singular values ``(s_max, s_min)`` of (n, 2, 2) matrices, accurate to a few ulp absolute.
 
     Uses ``s = |q| +- |r|`` with ``q = ((F00 + F11) / 2, (F10 - F01) / 2)`` and
@@ -87,7 +95,7 @@ def _symmetrise(C):
     return out
 
 
-def isotropic_lame(C):
+def isotropic_lame(C: ArrayLike) -> tuple[float, float]:
     """Lamé constants ``(lam, mu)`` of the isotropic part of a 2-D modulus C (2, 2, 2, 2).
 
     Orthogonal projection onto ``lam I (x) I + 2 mu I_sym``: it keeps the two isotropic invariants
@@ -151,11 +159,11 @@ class _Level:
     """Shared public interface of a level wrapping the TaylorRVE ``taylor``; subclasses implement
     ``_material(F, tangent, out)``."""
 
-    def __init__(self, rve: TaylorRVE):
+    def __init__(self, rve: TaylorRVE) -> None:
         self.taylor = _full_model(rve)
 
     @property
-    def packing(self):
+    def packing(self) -> Packing:
         """The wrapped RVE's packing."""
         return self.taylor.packing
 
@@ -167,37 +175,41 @@ class _Level:
     def min_stretch(self) -> float:
         return self.taylor.min_stretch
 
-    def small_strain_modulus(self):
+    def small_strain_modulus(self) -> np.ndarray:
         """The wrapped RVE's eq. 15 modulus C (2, 2, 2, 2), in Pa."""
         return self.taylor.small_strain_modulus()
 
     def _material(self, F, tangent, out):  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def evaluate(self, F, out=None):
+    def evaluate(
+        self, F: ArrayLike, out: tuple | None = None
+    ) -> tuple[np.ndarray | float, np.ndarray, np.ndarray]:
         """Energy W (n,), first Piola stress P (n, 2, 2), A = dP/dF (n, 2, 2, 2, 2), in Pa."""
         F, single = _as_batch(F)
         W, P, A = self._material(F, True, out)
         return (W[0], P[0], A[0]) if single else (W, P, A)
 
-    def stress(self, F, out=None):
+    def stress(
+        self, F: ArrayLike, out: tuple | None = None
+    ) -> tuple[np.ndarray | float, np.ndarray]:
         """Energy and first Piola stress without the tangent: ``(W (n,), P (n, 2, 2))``."""
         F, single = _as_batch(F)
         W, P, _ = self._material(F, False, out)
         return (W[0], P[0]) if single else (W, P)
 
-    def energy(self, F):
+    def energy(self, F: ArrayLike) -> np.ndarray | float:
         """Energy density W (n,) per reference area, in Pa."""
         return self.stress(F)[0]
 
-    def cauchy(self, F):
+    def cauchy(self, F: ArrayLike) -> np.ndarray:
         """Cauchy stress (n, 2, 2) in Pa."""
         F, single = _as_batch(F)
         _, P, _ = self._material(F, False, None)
         sigma = self._spatial(F, P, None)[0]
         return sigma[0] if single else sigma
 
-    def spatial_tangent(self, F):
+    def spatial_tangent(self, F: ArrayLike) -> np.ndarray:
         """Spatial tangent (n, 2, 2, 2, 2) in Pa."""
         F, single = _as_batch(F)
         _, P, A = self._material(F, True, None)
@@ -207,7 +219,7 @@ class _Level:
     def _spatial(self, F, P, A):
         return _push_forward(F, P, A)
 
-    def contacts(self, F):
+    def contacts(self, F: ArrayLike) -> ContactSet:
         """Active contacts of the full Taylor RVE at one F (2, 2) (force networks for figures)."""
         return self.taylor.contacts(F)
 
@@ -230,12 +242,12 @@ class SmallStrainRVE(_Level):
         taylor: the wrapped :class:`TaylorRVE`.
     """
 
-    def __init__(self, rve: TaylorRVE):
+    def __init__(self, rve: TaylorRVE) -> None:
         super().__init__(rve)
         self.C = _symmetrise(self.taylor.small_strain_modulus())
         self._C44 = np.ascontiguousarray(self.C.reshape(4, 4))
 
-    def strain(self, F):
+    def strain(self, F: ArrayLike) -> np.ndarray:
         """Small strain eps = sym(F - I), (n, 2, 2)."""
         H = F - np.eye(2)
         return 0.5 * (H + np.swapaxes(H, 1, 2))
@@ -284,7 +296,7 @@ class AdaptiveRVE(_Level):
             :meth:`error_bound`.
     """
 
-    def __init__(self, rve: TaylorRVE, tol: float, contact_test: bool = True):
+    def __init__(self, rve: TaylorRVE, tol: float, contact_test: bool = True) -> None:
         super().__init__(rve)
         tol = float(tol)
         if not (0.0 <= tol < 1.0):
@@ -306,15 +318,15 @@ class AdaptiveRVE(_Level):
         self.totals = {"linear": 0, "taylor": 0}
         self.linear_mask = np.zeros(0, dtype=bool)
 
-    def reset_counts(self):
+    def reset_counts(self) -> None:
         self.totals = {"linear": 0, "taylor": 0}
 
-    def strain_measure(self, F):
+    def strain_measure(self, F: ArrayLike) -> np.ndarray:
         """``||F - I||_2`` (n,), the largest singular value of F - I."""
         F, _ = _as_batch(F)
         return singular_values_2x2(F - np.eye(2))[0]
 
-    def linear_points(self, F):
+    def linear_points(self, F: ArrayLike) -> np.ndarray:
         """(n,) bool: points where the linear branch is taken (both criteria of the class doc)."""
         F, _ = _as_batch(F)
         with np.errstate(invalid="ignore"):
@@ -324,7 +336,7 @@ class AdaptiveRVE(_Level):
                 ok &= (smax <= self.stretch_bounds[0]) & (smin > self.stretch_bounds[1])
         return ok
 
-    def error_bound(self, F):
+    def error_bound(self, F: ArrayLike) -> np.ndarray:
         """Upper bound (n,) of ``|P_linear - P_Taylor|_F`` (Pa) valid wherever the contact set is
         the reference one: ``(1/sqrt 3) error_constant t^2 / (1 - t)^2``, t = ||F - I||_2 < 1."""
         t = self.strain_measure(F)
@@ -373,7 +385,7 @@ class AdaptiveRVE(_Level):
                 A[idx] = Al
         return W, P, A
 
-    def cauchy(self, F):
+    def cauchy(self, F: ArrayLike) -> np.ndarray:
         """Cauchy stress (n, 2, 2) in Pa: the kernel's (Taylor points) or the push-forward of the
         linear branch."""
         F, single = _as_batch(F)
@@ -385,7 +397,7 @@ class AdaptiveRVE(_Level):
             sigma[idx] = _push_forward(F[idx], self._linear(F[idx], False)[1], None)[0]
         return sigma[0] if single else sigma
 
-    def spatial_tangent(self, F):
+    def spatial_tangent(self, F: ArrayLike) -> np.ndarray:
         """Spatial tangent (n, 2, 2, 2, 2) in Pa (kernel, or push-forward of the linear branch)."""
         F, single = _as_batch(F)
         a = np.empty((F.shape[0], 2, 2, 2, 2))

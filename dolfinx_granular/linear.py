@@ -8,12 +8,21 @@ as a yardstick of cost (the same mesh and solver with the cheapest law).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 import ufl
 
 from . import _dolfinx as dfx
 from .levels import isotropic_lame
 from .quadrature import QuadratureMaterial
+
+if TYPE_CHECKING:
+    from dolfinx import fem
+    from numpy.typing import ArrayLike
+    from ufl.core.expr import Expr
+
+    from .law import HistoryLaw, MaterialLaw
 
 
 def lame_from_young(E: float, nu: float) -> tuple[float, float]:
@@ -38,7 +47,14 @@ class LinearElasticMaterial(QuadratureMaterial):
         :class:`~dolfinx_granular.quadrature.QuadratureMaterial`.
     """
 
-    def __init__(self, u, lam: float, mu: float, quadrature_degree: int = 2, cells=None):
+    def __init__(
+        self,
+        u: fem.Function,
+        lam: float,
+        mu: float,
+        quadrature_degree: int = 2,
+        cells: ArrayLike | None = None,
+    ) -> None:
         lam, mu = float(lam), float(mu)
         if not (np.isfinite(lam) and np.isfinite(mu) and mu > 0 and lam + mu > 0):
             raise ValueError(f"need mu > 0 and lam + mu > 0 (Pa), got lam = {lam!r}, mu = {mu!r}")
@@ -48,18 +64,20 @@ class LinearElasticMaterial(QuadratureMaterial):
         self._sigma_expr = dfx.expression(self.sigma(u), X)
 
     @classmethod
-    def isotropic_part(cls, rve, u, **kwargs):
+    def isotropic_part(
+        cls, rve: MaterialLaw | HistoryLaw, u: fem.Function, **kwargs: Any
+    ) -> LinearElasticMaterial:
         """The isotropic projection of a law's small-strain modulus (e.g. the RVE's eq. 15
         modulus, :func:`~dolfinx_granular.levels.isotropic_lame`) as a UFL material."""
         lam, mu = isotropic_lame(rve.small_strain_modulus())
         return cls(u, lam, mu, **kwargs)
 
-    def sigma(self, w):
+    def sigma(self, w: Expr) -> Expr:
         """Stress of a displacement w (UFL), in Pa, on the whole mesh (no indicator)."""
         eps = ufl.sym(ufl.grad(w))
         return self.lam * ufl.tr(eps) * ufl.Identity(2) + 2.0 * self.mu * eps
 
-    def stress(self):
+    def stress(self) -> Expr:
         sigma = self.sigma(self.u)
         return sigma if self.indicator is None else self.indicator * sigma
 

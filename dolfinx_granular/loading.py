@@ -20,8 +20,14 @@ stiffness has collapsed, reported as a limit load rather than a solver failure.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping, Sequence
+
+    from .solver import NewtonSolver, SolveResult
 
 
 @dataclass
@@ -48,7 +54,9 @@ class Cutback:
         return asdict(self)
 
 
-def limit_point(path, t_failed, stiffness_drop=0.2):
+def limit_point(
+    path: Sequence[Mapping[str, Any]], t_failed: float, stiffness_drop: float = 0.2
+) -> dict[str, float] | None:
     """Recognise a limit point (maximum load) of load control from the converged increments.
 
     The path stiffness of increment k is ``S_k = dt_k / |du_k|`` (load parameter per Euclidean
@@ -121,8 +129,15 @@ class LoadStepper:
     """
 
     def __init__(
-        self, solver, *, max_cutbacks=6, min_fraction=1e-3, grow=1.5, easy_iterations=8, log=None
-    ):
+        self,
+        solver: NewtonSolver,
+        *,
+        max_cutbacks: int = 6,
+        min_fraction: float = 1e-3,
+        grow: float = 1.5,
+        easy_iterations: int = 8,
+        log: Callable[[str], object] | None = None,
+    ) -> None:
         if max_cutbacks < 0 or grow < 1.0 or easy_iterations < 0 or not 0 < min_fraction <= 1:
             raise ValueError(
                 "need max_cutbacks >= 0, 0 < min_fraction <= 1, grow >= 1 and easy_iterations >= 0"
@@ -140,7 +155,15 @@ class LoadStepper:
         self.stopped = False
         self.path: list[dict] = []
 
-    def run(self, phase, set_load, increment, t=0.0, dt=None, on_converged=None) -> bool:
+    def run(
+        self,
+        phase: str,
+        set_load: Callable[[float], object],
+        increment: float,
+        t: float = 0.0,
+        dt: float | None = None,
+        on_converged: Callable[[int, float, SolveResult], bool | None] | None = None,
+    ) -> bool:
         """Take t from ``t`` to 1 in increments of at most ``increment``; True if t reached 1.
 
         Args:

@@ -16,6 +16,8 @@ of the last update the committed one. Flattening convention: see
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import ufl
 from dolfinx import fem
@@ -24,6 +26,11 @@ from . import _dolfinx as dfx
 from .law import has_history
 from .quadrature import QuadratureMaterial, flatten, unflatten
 from .rve import UnsupportedDeformationError
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from .law import HistoryLaw, MaterialLaw
 
 
 class GranularMaterial(QuadratureMaterial):
@@ -58,8 +65,13 @@ class GranularMaterial(QuadratureMaterial):
     """
 
     def __init__(
-        self, rve, u: fem.Function, quadrature_degree: int = 2, stabilise: float = 0.0, cells=None
-    ):
+        self,
+        rve: MaterialLaw | HistoryLaw,
+        u: fem.Function,
+        quadrature_degree: int = 2,
+        stabilise: float = 0.0,
+        cells: ArrayLike | None = None,
+    ) -> None:
         self.history = has_history(rve)
         super().__init__(u, quadrature_degree, cells)
         self.rve = rve
@@ -158,7 +170,7 @@ class GranularMaterial(QuadratureMaterial):
                 self._A_data.values[opened] += self._C_stab
         self._P_stab_data.write()
 
-    def integrate(self, values) -> float:
+    def integrate(self, values: ArrayLike) -> float:
         """∫ values dx over the material's cells (every rank gets the sum) of a per-point array
         (n_points,), e.g. an energy density in Pa -> J per unit thickness."""
         if self._scalar is None:
@@ -179,15 +191,15 @@ class GranularMaterial(QuadratureMaterial):
         if self.history:
             self.state = self.trial_state
 
-    def stress(self):
+    def stress(self) -> fem.Function:
         return self.P
 
-    def stress_derivative(self, residual, du):
+    def stress_derivative(self, residual: ufl.Form, du: ufl.Argument) -> ufl.Form:
         """``dR/dP [A : grad du]``: how the residual changes through P (held as data)."""
         dP = unflatten(ufl.dot(self.A, flatten(ufl.grad(du))))
         return ufl.derivative(residual, self.P, dP)
 
-    def jacobian_form(self, du, v):
+    def jacobian_form(self, du: ufl.Argument, v: ufl.Argument) -> ufl.Form:
         """Its linearisation ``∫ grad v : A : grad du dx`` (UFL bilinear form)."""
         return ufl.inner(ufl.dot(self.A, flatten(ufl.grad(du))), flatten(ufl.grad(v))) * self.dx
 

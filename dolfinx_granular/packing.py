@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import os
 import zipfile
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 FORMAT_NAME = "dolfinx_granular.packing"
 FORMAT_VERSION = 1
@@ -38,7 +42,7 @@ class Packing:
             or box length, or a disk wide enough to touch its own periodic image).
     """
 
-    def __init__(self, centers, radii, box):
+    def __init__(self, centers: ArrayLike, radii: ArrayLike, box: ArrayLike) -> None:
         centers = _as_float_array(centers, "centers")
         radii = _as_float_array(radii, "radii")
         box = _as_float_array(box, "box")
@@ -114,7 +118,7 @@ class Packing:
             and np.array_equal(self.box, other.box)
         )
 
-    def save(self, path) -> None:
+    def save(self, path: str | os.PathLike[str]) -> None:
         """Write the packing to ``path`` as a versioned ``.npz`` file (exact round trip)."""
         path = os.fspath(path)
         if not path.endswith(".npz"):
@@ -131,7 +135,7 @@ class Packing:
             )
 
     @classmethod
-    def load(cls, path) -> Packing:
+    def load(cls, path: str | os.PathLike[str]) -> Packing:
         """Read a packing written by :meth:`save`.
 
         Raises:

@@ -14,6 +14,8 @@ Data layouts:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
@@ -24,12 +26,20 @@ from .fabric import contact_angles, normal_density
 from .gsd import SieveCurve
 from .packing import Packing
 
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+
+    from matplotlib.axes import Axes
+    from numpy.typing import ArrayLike
+
 #: Colours of the angles of influence 10°, 20°, 30° as in the paper's figure 3.
 DELTA_COLORS = ("black", "tab:blue", "tab:red")
 _N_COLORS = ("tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:cyan")
 
 
-def plot_sieve_curve(curve: SieveCurve, packing: Packing | None = None, d_min=None) -> Figure:
+def plot_sieve_curve(
+    curve: SieveCurve, packing: Packing | None = None, d_min: float | None = None
+) -> Figure:
     """Figure 2: percent passing over the aperture (log scale) with a packing's grains overlaid.
 
     The packing's grading is its disk-area fraction passing, mapped onto the curve's scale above
@@ -66,7 +76,7 @@ def plot_sieve_curve(curve: SieveCurve, packing: Packing | None = None, d_min=No
     return fig
 
 
-def draw_packing(ax, packing: Packing, rattlers=None) -> None:
+def draw_packing(ax: Axes, packing: Packing, rattlers: ArrayLike | None = None) -> None:
     """Draw the disks of ``packing`` in its cell, periodic images clipped at the cell boundary.
 
     ``rattlers`` (indices) are drawn white, the load-bearing disks grey.
@@ -95,7 +105,9 @@ def draw_packing(ax, packing: Packing, rattlers=None) -> None:
     ax.set_yticks([])
 
 
-def draw_density(ax, angles, deltas_deg=(10.0, 20.0, 30.0)) -> None:
+def draw_density(
+    ax: Axes, angles: ArrayLike, deltas_deg: Sequence[float] = (10.0, 20.0, 30.0)
+) -> None:
     """Polar plot of 2 pi rho_delta(theta) for each angle of influence (unit circle = isotropic)."""
     theta = np.linspace(0.0, 2.0 * np.pi, 721)
     ax.plot(theta, np.ones_like(theta), ":", color="0.6", lw=0.8)
@@ -110,7 +122,11 @@ def draw_density(ax, angles, deltas_deg=(10.0, 20.0, 30.0)) -> None:
     ax.grid(True, alpha=0.3)
 
 
-def plot_packings_and_densities(sets, deltas_deg=(10.0, 20.0, 30.0), rattlers=None) -> Figure:
+def plot_packings_and_densities(
+    sets: Mapping[int, Sequence[Packing]],
+    deltas_deg: Sequence[float] = (10.0, 20.0, 30.0),
+    rattlers: Mapping[int, Sequence[ArrayLike]] | None = None,
+) -> Figure:
     """Figure 3: each packing as disks beside its polar contact-normal density.
 
     Args:
@@ -138,7 +154,10 @@ def plot_packings_and_densities(sets, deltas_deg=(10.0, 20.0, 30.0), rattlers=No
     return fig
 
 
-def plot_stress_curves(panels, title="") -> Figure:
+def plot_stress_curves(
+    panels: Sequence[tuple[str, str, Mapping[int, tuple[np.ndarray, np.ndarray, np.ndarray]]]],
+    title: str = "",
+) -> Figure:
     """Figures 4 and 5: mean ± standard deviation of Cauchy stress against an F component.
 
     Args:
@@ -172,7 +191,7 @@ def plot_stress_curves(panels, title="") -> Figure:
     return fig
 
 
-def plot_speed_error(rows) -> Figure:
+def plot_speed_error(rows: Sequence[Mapping[str, float]]) -> Figure:
     """Coefficient of variation over seeds against evaluation time per quadrature point."""
     fig = Figure(figsize=(5.6, 4.2))
     ax = fig.add_subplot()

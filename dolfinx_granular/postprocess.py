@@ -7,10 +7,24 @@ Functions that take a communicator gather to rank 0 what they need; pyvista is i
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
+    from os import PathLike
 
-def von_mises(sigma) -> np.ndarray:
+    from dolfinx.fem import Function, FunctionSpace
+    from mpi4py.MPI import Comm
+    from numpy.typing import ArrayLike
+
+    from .friction import FrictionalRVE, FrictionContactSet, FrictionState
+    from .levels import AdaptiveRVE, SmallStrainRVE
+    from .rve import ContactSet, TaylorRVE
+
+
+def von_mises(sigma: ArrayLike) -> np.ndarray:
     """Von Mises stress (n,) in Pa of in-plane Cauchy stresses sigma (n, 2, 2).
 
     ``sqrt(3/2 s:s)`` with the 2-D deviator ``s = sigma - tr(sigma)/2 I`` (the Taylor RVE's
@@ -24,7 +38,7 @@ def von_mises(sigma) -> np.ndarray:
     return np.sqrt(1.5 * np.einsum("qij,qij->q", s, s))
 
 
-def min_acoustic_eigenvalue(A, n_directions=180) -> np.ndarray:
+def min_acoustic_eigenvalue(A: ArrayLike, n_directions: int = 180) -> np.ndarray:
     """Smallest eigenvalue (n,) in Pa of the acoustic tensor ``Q_ik(N) = A_iJkL N_J N_L`` over
     ``n_directions`` unit vectors N equally spaced in [0, pi), at each point.
 
@@ -47,7 +61,9 @@ def min_acoustic_eigenvalue(A, n_directions=180) -> np.ndarray:
     return lowest
 
 
-def global_extremum(comm, values, points, kind="max"):
+def global_extremum(
+    comm: Comm, values: ArrayLike, points: np.ndarray, kind: str = "max"
+) -> tuple[float, list[float]]:
     """Global max or min of per-rank ``values`` (n,) with the ``points`` (n, d) where it occurs.
 
     Returns ``(value, point)``, the same on every rank (ties: lowest rank).
@@ -63,7 +79,9 @@ def global_extremum(comm, values, points, kind="max"):
     return pick((v for v in found if v[1] is not None), key=lambda vp: vp[0])
 
 
-def nearest_point(comm, points, target):
+def nearest_point(
+    comm: Comm, points: np.ndarray, target: ArrayLike
+) -> tuple[int, int, np.ndarray | None]:
     """The point nearest to ``target`` over all ranks: ``(rank, index on that rank, point)``,
     identical on every rank (ties: lowest rank). ``points``: (n, d) this rank's coordinates."""
     target = np.asarray(target, dtype=float)
@@ -77,7 +95,9 @@ def nearest_point(comm, points, target):
     return rank, i, point
 
 
-def nearest_point_value(comm, points, values, target):
+def nearest_point_value(
+    comm: Comm, points: np.ndarray, values: np.ndarray, target: ArrayLike
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Value at the point nearest to ``target`` over all ranks.
 
     Args:
@@ -90,7 +110,7 @@ def nearest_point_value(comm, points, values, target):
     return point, comm.bcast(np.asarray(values[i]) if comm.rank == rank else None, root=rank)
 
 
-def cell_function(V0, owned_values):
+def cell_function(V0: FunctionSpace, owned_values: np.ndarray) -> Function:
     """Fill a DG0 Function on space ``V0`` from (n_owned_cells,) values; ghosts are scattered."""
     from dolfinx import fem
 
@@ -104,7 +124,9 @@ def cell_function(V0, owned_values):
     return f
 
 
-def gather_mesh(V, u, cell_values):
+def gather_mesh(
+    V: FunctionSpace, u: Function, cell_values: ArrayLike
+) -> tuple[np.ndarray, ...] | None:
     """Collect the owned cells of a first-order vector space on rank 0.
 
     Returns on rank 0 ``(points (N, 3), cells (M, k), cell_types (M,), u (N, 2), values (M,))``
@@ -135,7 +157,11 @@ def gather_mesh(V, u, cell_values):
     return tuple(np.concatenate(o) for o in out)
 
 
-def contact_network(rve, F, state=None):
+def contact_network(
+    rve: TaylorRVE | SmallStrainRVE | AdaptiveRVE | FrictionalRVE,
+    F: ArrayLike,
+    state: FrictionState | None = None,
+) -> tuple[ContactSet | FrictionContactSet, np.ndarray, np.ndarray]:
     """The active contacts of one RVE at F (2, 2): ``(contacts, normal_force (m,), sliding (m,)
     bool)``; ``state`` is the committed state of a law with history (frictional contacts: their
     sliding ones are flagged), None for an elastic law."""
@@ -146,7 +172,12 @@ def contact_network(rve, F, state=None):
     return c, c.normal_force, np.asarray(c.sliding, dtype=bool)
 
 
-def force_network(rve, F, force_scale, state=None):
+def force_network(
+    rve: TaylorRVE | SmallStrainRVE | AdaptiveRVE | FrictionalRVE,
+    F: ArrayLike,
+    force_scale: float,
+    state: FrictionState | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Polygons of a deformed RVE's force network: one quad per contact, width ∝ normal force.
 
     Args:
@@ -172,7 +203,23 @@ def force_network(rve, F, force_scale, state=None):
     return quads, centers, pk.radii, sliding
 
 
-def plot_slope(path, mesh_data, markers, rves, title="", deformation_scale=1.0, value_range=None):
+def plot_slope(
+    path: str | PathLike[str],
+    mesh_data: tuple[np.ndarray, ...],
+    markers: Sequence[tuple[str, ArrayLike, str]],
+    rves: Sequence[
+        tuple[
+            str,
+            TaylorRVE | SmallStrainRVE | AdaptiveRVE | FrictionalRVE,
+            ArrayLike,
+            str,
+            FrictionState | None,
+        ]
+    ],
+    title: str = "",
+    deformation_scale: float = 1.0,
+    value_range: tuple[float, float] | None = None,
+) -> tuple[float, float]:
     """Figure 7: von Mises contour on the deformed slope with min/max and four RVE force networks.
 
     Args:
@@ -308,7 +355,11 @@ def _inset(plotter, inset, network, scale, extent):
     plotter.camera.parallel_scale = 1.1 * extent
 
 
-def plot_load_settlement(path, curves, title=""):
+def plot_load_settlement(
+    path: str | PathLike[str],
+    curves: Sequence[tuple[str, ArrayLike, ArrayLike, Mapping[str, Any] | None]],
+    title: str = "",
+) -> None:
     """Load-settlement curves (matplotlib PNG).
 
     Args:

@@ -18,6 +18,7 @@ add up in one residual with the one measure ``dx`` and no subdomain data.
 from __future__ import annotations
 
 import numbers
+from typing import TYPE_CHECKING
 
 import numpy as np
 import ufl
@@ -26,18 +27,24 @@ from dolfinx import fem
 from . import _dolfinx as dfx
 from .timing import Stopwatch
 
+if TYPE_CHECKING:
+    from collections.abc import Iterable
 
-def flatten(T):
+    from numpy.typing import ArrayLike
+    from ufl.core.expr import Expr
+
+
+def flatten(T: Expr) -> Expr:
     """Row-major flattening of a 2x2 UFL tensor to a 4-vector ``[T00, T01, T10, T11]``."""
     return ufl.as_vector([T[0, 0], T[0, 1], T[1, 0], T[1, 1]])
 
 
-def unflatten(t):
+def unflatten(t: Expr) -> Expr:
     """The 2x2 UFL tensor of a row-major 4-vector (inverse of :func:`flatten`)."""
     return ufl.as_matrix([[t[0], t[1]], [t[2], t[3]]])
 
 
-def check_quadrature_degree(value) -> int:
+def check_quadrature_degree(value: float) -> int:
     """``value`` as a quadrature degree: an integer >= 1 (2.0 is accepted, 2.7 is not)."""
     if (
         isinstance(value, bool)
@@ -48,7 +55,12 @@ def check_quadrature_degree(value) -> int:
     return int(value)
 
 
-def derivative(residual, u, du, materials=()):
+def derivative(
+    residual: ufl.Form,
+    u: fem.Function,
+    du: ufl.Argument,
+    materials: Iterable[QuadratureMaterial] = (),
+) -> ufl.Form:
     """The consistent Jacobian of ``residual`` (a UFL linear form in v) with respect to u.
 
     ``ufl.derivative`` sees the explicit u-dependence (UFL laws, follower loads, any term of the
@@ -92,7 +104,9 @@ class QuadratureMaterial:
             ``"rve"`` (the law); ``timings`` is its wall-time table.
     """
 
-    def __init__(self, u, quadrature_degree=2, cells=None):
+    def __init__(
+        self, u: fem.Function, quadrature_degree: int = 2, cells: ArrayLike | None = None
+    ) -> None:
         V = u.function_space
         msh = V.mesh
         if msh.geometry.dim != 2 or u.ufl_shape != (2,):
@@ -138,7 +152,7 @@ class QuadratureMaterial:
         with self.clock("F"):
             return dfx.evaluate(self._F_expr, self.mesh, self.cells).reshape(-1, 2, 2)
 
-    def cell_average(self, values) -> np.ndarray:
+    def cell_average(self, values: ArrayLike) -> np.ndarray:
         """Mean of a per-point array (n_points, ...) over each cell's quadrature points
         -> (n_cells, ...) (unweighted: a display value, not an integral)."""
         values = np.asarray(values)
@@ -159,25 +173,25 @@ class QuadratureMaterial:
 
     # -- forms ---------------------------------------------------------------------------------
 
-    def stress(self):
+    def stress(self) -> Expr:
         """P as UFL (2x2): the quadrature Function, or the UFL law."""
         raise NotImplementedError
 
-    def residual_form(self, v):
+    def residual_form(self, v: ufl.Argument) -> ufl.Form:
         """Internal virtual work ``∫ P : grad v dx`` over the material's cells (UFL, N·m per
         unit thickness)."""
         return ufl.inner(self.stress(), ufl.grad(v)) * self.dx
 
-    def stress_derivative(self, residual, du):
+    def stress_derivative(self, residual: ufl.Form, du: ufl.Argument) -> ufl.Form | None:
         """The part of d(residual)/du that ``ufl.derivative`` does not see (P held as data), or
         None (a law written in UFL: ``ufl.derivative`` sees it all)."""
         return None
 
-    def jacobian_form(self, du, v):
+    def jacobian_form(self, du: ufl.Argument, v: ufl.Argument) -> ufl.Form:
         """The linearisation of :meth:`residual_form` (UFL bilinear form)."""
         return derivative(self.residual_form(v), self.u, du, [self])
 
-    def derivative(self, residual, u, du):
+    def derivative(self, residual: ufl.Form, u: fem.Function, du: ufl.Argument) -> ufl.Form:
         """The consistent Jacobian of ``residual`` (which may contain this material's P) with
         respect to u: :func:`derivative` with this material."""
         return derivative(residual, u, du, [self])

@@ -14,16 +14,23 @@ import csv
 import io
 import json
 import os
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mpi4py import MPI
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping, Sequence
+
+    from dolfinx.fem import Function, FunctionSpace
+    from numpy.typing import ArrayLike
 
 
 class RestartError(ValueError):
     """A restart file that cannot be used (missing, damaged, another mesh)."""
 
 
-def atomic_write(path, data):
+def atomic_write(path: str | os.PathLike[str], data: bytes | str) -> None:
     """Replace ``path`` by ``data`` (bytes or str) atomically."""
     tmp = f"{path}.tmp{os.getpid()}"
     with open(tmp, "wb") as f:
@@ -41,15 +48,15 @@ class RunWriter:
         comm: the run's communicator; only its rank 0 writes.
     """
 
-    def __init__(self, out, comm=MPI.COMM_WORLD):
+    def __init__(self, out: str | os.PathLike[str], comm: MPI.Comm = MPI.COMM_WORLD) -> None:
         self.out, self.comm = str(out), comm
         if comm.rank == 0:
             os.makedirs(self.out, exist_ok=True)
 
-    def path(self, name) -> str:
+    def path(self, name: str) -> str:
         return os.path.join(self.out, name)
 
-    def csv(self, name, header, rows):
+    def csv(self, name: str, header: Sequence[str], rows: Iterable[Iterable[Any]]) -> None:
         """Write a CSV table; floats with 17 significant digits (round trip exact)."""
         if self.comm.rank != 0:
             return
@@ -59,11 +66,11 @@ class RunWriter:
         w.writerows([f"{v:.16e}" if isinstance(v, float) else v for v in row] for row in rows)
         atomic_write(self.path(name), buf.getvalue())
 
-    def json(self, name, obj):
+    def json(self, name: str, obj: Any) -> None:
         if self.comm.rank == 0:
             atomic_write(self.path(name), json.dumps(obj, indent=1))
 
-    def npz(self, name, **arrays):
+    def npz(self, name: str, **arrays: ArrayLike) -> None:
         """Write numpy arrays (and 0-d string arrays for JSON metadata) as ``name``."""
         if self.comm.rank != 0:
             return
@@ -72,7 +79,7 @@ class RunWriter:
         atomic_write(self.path(name), buf.getvalue())
 
 
-def read_npz(path, format_name):
+def read_npz(path: str | os.PathLike[str], format_name: str) -> dict[str, np.ndarray]:
     """The arrays of a restart file written with ``format=format_name``, as a dict; raises
     :class:`RestartError` naming the problem."""
     if not os.path.isfile(path):
@@ -94,7 +101,7 @@ def read_npz(path, format_name):
 class _CoordinateOrder:
     """Per-rank rows keyed by coordinates X (m, 2), gathered on rank 0 sorted by x then y."""
 
-    def __init__(self, comm, X, tolerance):
+    def __init__(self, comm: MPI.Comm, X: ArrayLike, tolerance: float) -> None:
         self.comm, self.tolerance = comm, tolerance
         self.X_local = np.asarray(X)
         parts = comm.gather(self.X_local, root=0)
@@ -104,12 +111,12 @@ class _CoordinateOrder:
             self.order = np.lexsort((X[:, 1], X[:, 0]))
             self.X = X[self.order]
 
-    def gather(self, values):
+    def gather(self, values: ArrayLike) -> np.ndarray | None:
         """Rank 0: the rows of every rank, in coordinate order; other ranks: None."""
         parts = self.comm.gather(np.asarray(values), root=0)
         return np.concatenate(parts)[self.order] if self.comm.rank == 0 else None
 
-    def match(self, X_stored, X_here):
+    def match(self, X_stored: ArrayLike, X_here: ArrayLike) -> np.ndarray:
         """Indices into ``X_stored`` of the rows at ``X_here``; RestartError if any row has no
         stored counterpart within the tolerance (decided on every rank alike)."""
         from scipy.spatial import cKDTree
@@ -126,7 +133,7 @@ class _CoordinateOrder:
 class NodeOrder(_CoordinateOrder):
     """The owned nodal values of a vector Function, partition-independent (nodes by x, then y)."""
 
-    def __init__(self, comm, V, tolerance):
+    def __init__(self, comm: MPI.Comm, V: FunctionSpace, tolerance: float) -> None:
         self.V = V
         self.bs = V.dofmap.index_map_bs
         self.n_owned = V.dofmap.index_map.size_local
@@ -134,11 +141,11 @@ class NodeOrder(_CoordinateOrder):
         super().__init__(comm, x[: self.n_owned], tolerance)
         self._x_all = x
 
-    def gather_function(self, u):
+    def gather_function(self, u: Function) -> np.ndarray | None:
         """Rank 0: (n_nodes, bs) values of ``u`` in node order."""
         return self.gather(u.x.array[: self.bs * self.n_owned].reshape(-1, self.bs).copy())
 
-    def scatter_function(self, values, X_stored, u):
+    def scatter_function(self, values: ArrayLike, X_stored: ArrayLike, u: Function) -> None:
         """Set ``u`` (owned and ghost dofs) from ``values`` (n, bs) stored at nodes ``X_stored``."""
         idx = self.match(X_stored, self._x_all)
         u.x.array[:] = np.asarray(values)[idx].ravel()
@@ -149,11 +156,11 @@ class PointOrder(_CoordinateOrder):
     partition-independent: arrays, or a history state with ``take``, ``concatenate``,
     ``to_arrays`` and ``from_arrays`` (e.g. a FrictionState)."""
 
-    def local_rows(self, X_stored):
+    def local_rows(self, X_stored: ArrayLike) -> np.ndarray:
         """Indices into the stored (ordered) points of this rank's points, in local order."""
         return self.match(X_stored, self.X_local)
 
-    def gather_state(self, state):
+    def gather_state(self, state: Any) -> Any:
         """Rank 0: the state of every rank's points in coordinate order (other ranks: None)."""
         parts = self.comm.gather(state.to_arrays(), root=0)
         if self.comm.rank != 0:
@@ -161,6 +168,6 @@ class PointOrder(_CoordinateOrder):
         cls = type(state)
         return cls.concatenate([cls.from_arrays(p) for p in parts]).take(self.order)
 
-    def scatter_state(self, cls, arrays, X_stored):
+    def scatter_state(self, cls: type, arrays: Mapping[str, ArrayLike], X_stored: ArrayLike) -> Any:
         """This rank's part of a state stored (``to_arrays`` of a gathered one) at ``X_stored``."""
         return cls.from_arrays(arrays).take(self.local_rows(X_stored))

@@ -15,11 +15,15 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import kernel
 from .packing import Packing
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 _REASONS = {
     kernel.NOT_FINITE: "has a NaN or inf entry (or entries so large that F^T F overflows)",
@@ -48,7 +52,7 @@ class UnsupportedDeformationError(ValueError):
         status: (n,) status code per point (see :mod:`dolfinx_granular.kernel`).
     """
 
-    def __init__(self, message, points, status):
+    def __init__(self, message: str, points: np.ndarray, status: np.ndarray) -> None:
         super().__init__(message)
         self.points = points
         self.status = status
@@ -100,7 +104,7 @@ class TaylorRVE:
         normal_stiffness: float,
         min_stretch: float = 0.5,
         allow_overlaps: bool = False,
-    ):
+    ) -> None:
         if not isinstance(packing, Packing):
             raise TypeError(
                 f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}"
@@ -212,7 +216,9 @@ class TaylorRVE:
             status,
         )
 
-    def evaluate(self, F, out=None):
+    def evaluate(
+        self, F: ArrayLike, out: tuple | None = None
+    ) -> tuple[np.ndarray | float, np.ndarray, np.ndarray]:
         """Energy, first Piola stress and its tangent.
 
         Args:
@@ -226,24 +232,26 @@ class TaylorRVE:
         """
         return self._run(F, spatial=False, tangent=True, out=out)
 
-    def stress(self, F, out=None):
+    def stress(
+        self, F: ArrayLike, out: tuple | None = None
+    ) -> tuple[np.ndarray | float, np.ndarray]:
         """Energy and first Piola stress, no tangent (cheaper): ``(W (n,), P (n, 2, 2))``."""
         W, P, _ = self._run(F, spatial=False, tangent=False, out=out)
         return W, P
 
-    def energy(self, F):
+    def energy(self, F: ArrayLike) -> np.ndarray | float:
         """Energy density W (n,) per reference area (eq. 7), in Pa."""
         return self.stress(F)[0]
 
-    def cauchy(self, F):
+    def cauchy(self, F: ArrayLike) -> np.ndarray:
         """Cauchy stress sigma (n, 2, 2) (eq. 11), in Pa; symmetric by construction."""
         return self._run(F, spatial=True, tangent=False)[1]
 
-    def spatial_tangent(self, F):
+    def spatial_tangent(self, F: ArrayLike) -> np.ndarray:
         """Spatial tangent a (n, 2, 2, 2, 2) of eq. 14, in Pa: (1/J) F_bB F_dD A_aBcD."""
         return self._run(F, spatial=True, tangent=True)[2]
 
-    def small_strain_modulus(self):
+    def small_strain_modulus(self) -> np.ndarray:
         """Linear modulus C (2, 2, 2, 2) of eq. 15 over the contacts active at F = I, in Pa.
 
         C_abcd = (k_n / V) sum_c |L|² n_a n_b n_c n_d. It equals A(I) when the reference contacts
@@ -254,7 +262,7 @@ class TaylorRVE:
         w = self._K / np.einsum("ci,ci->c", L, L)
         return np.einsum("m,ma,mb,mc,md->abcd", w, L, L, L, L)
 
-    def contacts(self, F) -> ContactSet:
+    def contacts(self, F: ArrayLike) -> ContactSet:
         """Active contacts at a single F (2, 2): pairs, current branch vectors, overlaps, forces."""
         F = np.asarray(F, dtype=np.float64)
         if F.shape != (2, 2):

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import gc
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import ufl
@@ -36,6 +37,11 @@ from petsc4py import PETSc
 from ._dolfinx import SNES_NAN_REASON, petsc_vec
 from .quadrature import derivative
 from .timing import Stopwatch
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping, Sequence
+
+    from .quadrature import QuadratureMaterial
 
 _CR = PETSc.SNES.ConvergedReason
 STAGNATION = "DIVERGED_STAGNATION"  # reason_name of a solve stopped by the stagnation test
@@ -131,23 +137,23 @@ class NewtonSolver:
 
     def __init__(
         self,
-        residual,
-        jacobian,
-        u,
-        bcs=(),
-        materials=(),
+        residual: ufl.Form,
+        jacobian: ufl.Form | None,
+        u: fem.Function,
+        bcs: Iterable[Any] = (),  # dolfinx.fem.DirichletBC (0.9+), DirichletBCMetaClass (0.5)
+        materials: QuadratureMaterial | Sequence[QuadratureMaterial] | None = (),
         *,
-        energy_rtol=1e-20,
-        residual_rtol=1e-12,
-        residual_atol=0.0,
-        roundoff_energy=1e-14,
-        max_it=20,
-        prefix="granular_",
-        petsc_options=None,
-        verbose=False,
-        skip_final_tangent=False,
-        stagnation_it=4,
-    ):
+        energy_rtol: float = 1e-20,
+        residual_rtol: float = 1e-12,
+        residual_atol: float = 0.0,
+        roundoff_energy: float = 1e-14,
+        max_it: int = 20,
+        prefix: str = "granular_",
+        petsc_options: Mapping[str, Any] | None = None,
+        verbose: bool = False,
+        skip_final_tangent: bool = False,
+        stagnation_it: int = 4,
+    ) -> None:
         self.u = u
         self.bcs = list(bcs)
         self.materials = _as_tuple(materials)
@@ -191,7 +197,7 @@ class NewtonSolver:
         return self.time_split(self.clock.cpu)
 
     @staticmethod
-    def time_split(t) -> dict:
+    def time_split(t: Mapping[str, float]) -> dict:
         """``rve``, ``assembly``, ``solve`` and ``rest`` seconds of a Stopwatch table ``t``."""
         assembly = t["residual"] + t["jacobian"] + t["scale"]
         return {
@@ -265,7 +271,7 @@ class NewtonSolver:
             if error:
                 self._error = error
 
-    def residual(self, x, b, tangent=True):
+    def residual(self, x: PETSc.Vec, b: PETSc.Vec, tangent: bool = True) -> str | None:
         """Evaluate the materials at the state x (a vector like u's) and assemble R(x) into b,
         Dirichlet rows ``x - g`` (collective). Returns None, or the message of a material that
         could not be evaluated (an RVE outside its range; b is NaN then, on every rank)."""
@@ -301,7 +307,7 @@ class NewtonSolver:
         with self.clock("callbacks"):
             self.jacobian(x, A)
 
-    def jacobian(self, x, A=None):
+    def jacobian(self, x: PETSc.Vec, A: PETSc.Mat | None = None) -> PETSc.Mat:
         """Assemble dR/du at x into A (default: the solver's matrix), with the materials' tangent
         at x (re-evaluated unless the last evaluation was at x with a tangent); returns A."""
         A = self.A if A is None else A
@@ -313,7 +319,7 @@ class NewtonSolver:
             A.assemble()
         return A
 
-    def force_scale(self, R):
+    def force_scale(self, R: PETSc.Vec) -> float:
         """The magnitude of the forces in balance (N): max(|f_int|, |f_ext|) at the current
         iterate, f_int the materials' internal forces (reactions included), f_ext = f_int - R on
         the free dofs. Round-off in R is a small multiple of eps times it."""
@@ -476,7 +482,7 @@ class NewtonSolver:
         except ValueError:
             pass  # the start state itself was outside a law's range: nothing to restore to
 
-    def destroy(self):
+    def destroy(self) -> None:
         """Free the PETSc objects (collective: call it on every rank at the same point)."""
         # petsc4py >= 3.18 defers the release of garbage-collected wrappers to a collective
         # clean-up. Flush that first on every rank, or a rank whose Python GC ran at another

@@ -11,8 +11,12 @@ from __future__ import annotations
 import time
 from collections import defaultdict
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
 
 
 class Stopwatch:
@@ -22,13 +26,13 @@ class Stopwatch:
     and ``clock.calls["assembly"]``; categories may nest (each counts its own span).
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.wall = defaultdict(float)
         self.cpu = defaultdict(float)
         self.calls = defaultdict(int)
 
     @contextmanager
-    def __call__(self, key):
+    def __call__(self, key: str) -> Iterator[None]:
         wall, cpu = time.perf_counter(), time.process_time()
         try:
             yield
@@ -37,13 +41,13 @@ class Stopwatch:
             self.cpu[key] += time.process_time() - cpu
             self.calls[key] += 1
 
-    def reset(self):
+    def reset(self) -> None:
         self.wall.clear()
         self.cpu.clear()
         self.calls.clear()
 
 
-def time_per_point(fn, F, repeats=5):
+def time_per_point(fn: Callable[[np.ndarray], object], F: np.ndarray, repeats: int = 5) -> float:
     """Best wall time per point (s) of ``fn(F)`` over ``repeats`` runs, F of shape (n, 2, 2)
     (the first run also compiles or loads a Numba kernel, so at least 2 runs are made)."""
     best = np.inf

@@ -12,6 +12,7 @@ import argparse
 import os
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 from mpi4py import MPI
@@ -20,6 +21,10 @@ from ..packing import Packing, PackingFileError
 from ..runwriter import RestartError
 from .geometry import SlopeGeometry
 from .run import SlopeOptions, is_complete, load_restart, run_slope
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from os import PathLike
 
 
 class UserError(ValueError):
@@ -61,7 +66,7 @@ def _finite(low=None):
     return parse
 
 
-def build_parser(prog="demos/slope.py"):
+def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
     p = _Parser(
         prog=prog,
         description="Slope stability benchmark (section 5 of Meier, "
@@ -158,7 +163,7 @@ def build_parser(prog="demos/slope.py"):
     return p
 
 
-def options_of(a) -> SlopeOptions:
+def options_of(a: argparse.Namespace) -> SlopeOptions:
     """The run's options from parsed command-line arguments."""
     if a.tangential_stiffness is not None and a.friction == 0.0:
         raise UserError(
@@ -184,7 +189,9 @@ def options_of(a) -> SlopeOptions:
         raise UserError(str(err)) from None
 
 
-def make_packing(particles, seed, packing_file=None) -> Packing:
+def make_packing(
+    particles: int, seed: int | None, packing_file: str | PathLike[str] | None = None
+) -> Packing:
     """The RVE's packing: from ``packing_file`` if given, else ``generate_packing``."""
     if packing_file:
         return Packing.load(packing_file)
@@ -261,7 +268,7 @@ def _resume(a, comm, started):
     )
 
 
-def main(argv=None, prog="demos/slope.py") -> int:
+def main(argv: Sequence[str] | None = None, prog: str = "demos/slope.py") -> int:
     """Command line entry: returns the exit status (0, 1 or 2, see the module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     comm = MPI.COMM_WORLD

@@ -10,8 +10,15 @@ mapping is exactly bilinear and no node drifts off the evenly spaced rows.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from dolfinx.mesh import Mesh
+    from mpi4py.MPI import Comm
+    from numpy.typing import ArrayLike
+    from ufl.core.expr import Expr
 
 #: physical group tags of the facets
 BOTTOM, LEFT, RIGHT, FOOTING, SURFACE = 1, 2, 3, 4, 5
@@ -80,7 +87,7 @@ class SlopeGeometry:
     def n_cells(self) -> int:
         return self.columns * self.rows
 
-    def surface_height(self, x):
+    def surface_height(self, x: ArrayLike) -> np.ndarray | float:
         """Ground height y_s(x) (m) for x (array) in [0, width]."""
         return np.interp(
             x,
@@ -88,7 +95,7 @@ class SlopeGeometry:
             [self.crest_height, self.crest_height, self.toe_height, self.toe_height],
         )
 
-    def footing_pressure_on_strip(self, x):
+    def footing_pressure_on_strip(self, x: float | np.ndarray | Expr) -> float | np.ndarray | Expr:
         """Footing pressure q(x) (Pa, signed like ``footing_load``, so negative = downward) for
         x on the footing; x may be a number, an array or a UFL expression.
 
@@ -99,7 +106,7 @@ class SlopeGeometry:
         xc = 0.5 * (self.footing_start + self.footing_end)
         return self.footing_load / B * (1.0 + 12.0 * self.eccentricity * (x - xc) / B**2)
 
-    def footing_pressure(self, x):
+    def footing_pressure(self, x: ArrayLike) -> np.ndarray:
         """Footing pressure q(x) (Pa) for x (array) anywhere on the surface (0 off the footing)."""
         x = np.asarray(x, dtype=float)
         q = self.footing_pressure_on_strip(x)
@@ -111,7 +118,7 @@ class SlopeGeometry:
         return self.footing_end if self.eccentricity >= 0 else self.footing_start
 
 
-def build_gmsh_model(geometry: SlopeGeometry = SlopeGeometry(), name: str = "slope"):
+def build_gmsh_model(geometry: SlopeGeometry = SlopeGeometry(), name: str = "slope") -> None:
     """Create the structured Q1 slope mesh in the current gmsh model (gmsh must be initialised).
 
     Physical groups: facets BOTTOM, LEFT, RIGHT, FOOTING, SURFACE (free surface, footing
@@ -167,7 +174,7 @@ class MeshError(ValueError):
 REQUIRED_FACETS = {BOTTOM: "bottom", LEFT: "left", RIGHT: "right", FOOTING: "footing"}
 
 
-def check_physical_groups(comm):
+def check_physical_groups(comm: Comm) -> None:
     """Check on rank 0 that the current gmsh model has a 2-D cell group and the facet groups of
     :data:`REQUIRED_FACETS`; raise :class:`MeshError` naming what is missing on every rank."""
     import gmsh
@@ -191,9 +198,10 @@ def check_physical_groups(comm):
         raise MeshError(problem)
 
 
-def model_to_mesh(comm):
+def model_to_mesh(comm: Comm) -> tuple[Mesh, Any, Any]:
     """Distribute the current gmsh model (built on rank 0) over ``comm`` after
     :func:`check_physical_groups`: ``(mesh, cell_tags, facet_tags)``."""
+    # the tags: dolfinx.mesh.MeshTagsMetaClass (0.5) / MeshTags (0.9+)
     import gmsh
 
     from .._dolfinx import gmsh_model_to_mesh
@@ -204,7 +212,7 @@ def model_to_mesh(comm):
     return msh, cell_tags, facet_tags
 
 
-def create_mesh(comm, geometry: SlopeGeometry = SlopeGeometry()):
+def create_mesh(comm: Comm, geometry: SlopeGeometry = SlopeGeometry()) -> tuple[Mesh, Any, Any]:
     """Build the slope mesh with gmsh on rank 0 and distribute it over ``comm``.
 
     Returns:

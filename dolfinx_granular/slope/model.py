@@ -7,6 +7,8 @@ friction, a UFL yardstick) or the solver settings without touching the model.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import dolfinx.fem.petsc  # noqa: F401  (fem.petsc)
 import numpy as np
 import ufl
@@ -20,13 +22,30 @@ from ..postprocess import global_extremum, min_acoustic_eigenvalue, nearest_poin
 from ..solver import NewtonSolver
 from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
 
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
 
-def granular_material(law, u, stabilise=0.0):
+    from numpy.typing import ArrayLike
+
+    from ..law import HistoryLaw, MaterialLaw
+    from ..quadrature import QuadratureMaterial
+
+
+def granular_material(
+    law: MaterialLaw | HistoryLaw, u: fem.Function, stabilise: float = 0.0
+) -> GranularMaterial:
     """The default material factory: the law at the 2x2 Gauss points of every cell."""
     return GranularMaterial(law, u, quadrature_degree=2, stabilise=stabilise)
 
 
-def newton_solver(residual, jacobian, u, bcs, material, **options):
+def newton_solver(
+    residual: ufl.Form,
+    jacobian: ufl.Form | None,
+    u: fem.Function,
+    bcs: Sequence[Any],
+    material: QuadratureMaterial,
+    **options: Any,
+) -> NewtonSolver:
     """The default solver factory: Newton with LU (MUMPS), at most 15 steps per load step;
     ``options`` (petsc_options, verbose, skip_final_tangent, ...) go to NewtonSolver."""
     options = {"max_it": 15, "prefix": "slope_", **options}
@@ -54,13 +73,13 @@ class SlopeModel:
 
     def __init__(
         self,
-        comm,
-        law,
-        geometry=None,
-        load_factor=1.0,
-        material_factory=granular_material,
-        solver_factory=newton_solver,
-    ):
+        comm: MPI.Comm,
+        law: MaterialLaw | HistoryLaw,
+        geometry: SlopeGeometry | None = None,
+        load_factor: float = 1.0,
+        material_factory: Callable[[Any, fem.Function], QuadratureMaterial] = granular_material,
+        solver_factory: Callable[..., NewtonSolver] = newton_solver,
+    ) -> None:
         self.comm, self.law = comm, law
         self.geometry = g = geometry or SlopeGeometry()
         self.load_factor = float(load_factor)
@@ -109,11 +128,11 @@ class SlopeModel:
 
     # -- loads ---------------------------------------------------------------------------------
 
-    def set_gravity(self, t):
+    def set_gravity(self, t: float) -> None:
         """Gravity phase: weight x t, no footing load."""
         self.gravity.value, self.footing.value = t, 0.0
 
-    def set_footing(self, t):
+    def set_footing(self, t: float) -> None:
         """Footing phase: full weight, footing load x ``load_factor * t``."""
         self.gravity.value, self.footing.value = 1.0, self.load_factor * t
 
@@ -157,7 +176,9 @@ class SlopeModel:
         """Von Mises stress (n_points,) in Pa at this rank's Gauss points."""
         return von_mises(self.material.cauchy())
 
-    def extremes(self):
+    def extremes(
+        self,
+    ) -> tuple[np.ndarray, tuple[float, list[float]], tuple[float, list[float]]]:
         """``(vm, (vmax, xmax), (vmin, xmin))``: von Mises at the points and its global extremes
         with their reference coordinates."""
         vm = self.von_mises()
@@ -168,7 +189,7 @@ class SlopeModel:
             global_extremum(self.comm, vm, X, "min"),
         )
 
-    def probes(self, xmax):
+    def probes(self, xmax: ArrayLike) -> list[tuple[str, np.ndarray | None, np.ndarray, str, Any]]:
         """The four probe points of figure 7: ``(label, point, F, text, state)`` at the Gauss
         point nearest to each spot (``state``: the committed state of that point for a law with
         history, else None); the same on every rank."""

@@ -12,12 +12,19 @@ of the last two stored displacement fields).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from dolfinx import fem
 
 from .. import _dolfinx as dfx
 from ..arclength import ArcLength, load_reaches, unloaded_to
 from ..solver import SolveResult
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from .run import SlopeRun
 
 
 def _stop(load_factor, fraction):
@@ -29,7 +36,13 @@ def _stop(load_factor, fraction):
     return stop
 
 
-def follow_footing_path(run, phase_index, converged, t0=0.0, restart_state=None):
+def follow_footing_path(
+    run: SlopeRun,
+    phase_index: int,
+    converged: Callable[[int, int, float, SolveResult], bool],
+    t0: float = 0.0,
+    restart_state: dict | None = None,
+) -> bool:
     """Drive the footing phase of ``run`` (a SlopeRun) by arc length from t0 (a converged state);
     True unless the path failed. ``converged(phase_index, step, t, result)`` records and writes
     an increment."""
@@ -100,7 +113,7 @@ def _last_increment(run):
     return dfx.petsc_vec(du).copy()
 
 
-def path_summary(run) -> dict | None:
+def path_summary(run: SlopeRun) -> dict | None:
     """The path's record for summary.json: the peak (footing load in N/m, settlement in m,
     step), the critical points crossed, how it stopped; None without path following."""
     al = getattr(run, "arclength", None)

@@ -19,6 +19,7 @@ import dataclasses
 import json
 import os
 import time
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mpi4py import MPI
@@ -33,6 +34,15 @@ from .geometry import SlopeGeometry
 from .model import SlopeModel, granular_material, newton_solver
 from .path import follow_footing_path
 from .summary import draw_figure, draw_load_settlement, figure_data, report_stop, summarise
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping
+
+    from dolfinx.fem import Function
+
+    from ..friction import FrictionalRVE
+    from ..quadrature import QuadratureMaterial
+    from ..solver import NewtonSolver, SolveResult
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 RESTART_FORMAT = "dolfinx_granular.slope_restart"
@@ -90,7 +100,7 @@ class SlopeOptions:
         """The load phases: gravity, footing and (``unload``) unloading."""
         return PHASES + (("unloading",) if self.unload else ())
 
-    def law(self, packing):
+    def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
         """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0."""
         if self.friction > 0.0:
             from ..friction import FrictionalRVE
@@ -109,13 +119,15 @@ class SlopeOptions:
         return TaylorRVE(packing, self.normal_stiffness)
 
     @classmethod
-    def from_dict(cls, d) -> SlopeOptions:
+    def from_dict(cls, d: Mapping[str, Any]) -> SlopeOptions:
         d = dict(d)
         d["geometry"] = SlopeGeometry(**d["geometry"])
         return cls(**d)
 
 
-def convergence_rows(step, result):
+def convergence_rows(
+    step: int, result: SolveResult
+) -> list[tuple[int, int, float, float | str, str]]:
     """The convergence.csv rows of one converged solve, one per Newton iterate."""
     h = result.history
     residuals = [r for _, r, _ in h] + [result.residual_norm]
@@ -133,7 +145,7 @@ def convergence_rows(step, result):
     ]
 
 
-def load_restart(folder) -> dict:
+def load_restart(folder: str | os.PathLike[str]) -> dict:
     """``folder/restart.npz`` as a dict: ``options`` (SlopeOptions), ``state`` (dict),
     ``packing``, ``nodes`` (n, 2), ``u_history`` (steps, n, 2), ``path``; raises
     :class:`~dolfinx_granular.runwriter.RestartError` if unusable."""
@@ -176,18 +188,18 @@ class SlopeRun:
 
     def __init__(
         self,
-        packing,
-        options=None,
-        out="results/slope",
-        comm=MPI.COMM_WORLD,
-        verbose=True,
-        restart=None,
-        stop_after=None,
-        started=None,
-        law_factory=None,
-        material_factory=None,
-        solver_factory=None,
-    ):
+        packing: Packing,
+        options: SlopeOptions | None = None,
+        out: str | os.PathLike[str] = "results/slope",
+        comm: MPI.Comm = MPI.COMM_WORLD,
+        verbose: bool = True,
+        restart: dict | None = None,
+        stop_after: int | None = None,
+        started: float | None = None,
+        law_factory: Callable[[Packing, float], Any] | None = None,
+        material_factory: Callable[[Any, Function], QuadratureMaterial] | None = None,
+        solver_factory: Callable[..., NewtonSolver] | None = None,
+    ) -> None:
         self.t_start = time.perf_counter() if started is None else started
         self.options = o = restart["options"] if restart else (options or SlopeOptions())
         self.packing, self.comm, self.stop_after = packing, comm, stop_after
@@ -426,7 +438,7 @@ class SlopeRun:
         return True
 
 
-def is_complete(restart) -> bool:
+def is_complete(restart: Mapping[str, Any]) -> bool:
     """True if the run of ``restart`` (:func:`load_restart`) had completed every load phase."""
     state = restart["state"]
     path = state.get("arclength") or {}
@@ -436,7 +448,12 @@ def is_complete(restart) -> bool:
 
 
 def run_slope(
-    packing, options=None, out="results/slope", comm=MPI.COMM_WORLD, figure=True, **kwargs
+    packing: Packing,
+    options: SlopeOptions | None = None,
+    out: str | os.PathLike[str] = "results/slope",
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    figure: bool = True,
+    **kwargs: Any,
 ) -> dict:
     """Run the slope benchmark (or continue it: ``restart=``) and write its results to ``out``;
     returns the summary dict (also in ``out/summary.json``). Keyword arguments as

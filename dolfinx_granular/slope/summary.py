@@ -8,6 +8,7 @@ failed at a limit load), the stress extremes at the last converged state and the
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mpi4py import MPI
@@ -15,8 +16,14 @@ from mpi4py import MPI
 from ..postprocess import gather_mesh, plot_load_settlement, plot_slope
 from .path import path_summary
 
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping, Sequence
+    from os import PathLike
 
-def limit_message(failed, run) -> str | None:
+    from .run import SlopeRun
+
+
+def limit_message(failed: dict, run: SlopeRun) -> str | None:
     """The log line of a failed footing phase that stopped at a limit load (adds the carried
     footing load in N/m to ``failed["limit_load"]``), or None."""
     limit = failed["limit_load"]
@@ -33,7 +40,7 @@ def limit_message(failed, run) -> str | None:
     )
 
 
-def report_stop(run):
+def report_stop(run: SlopeRun) -> None:
     """Log how the run ended (failure, limit load, the end of a path, a requested stop)."""
     failed, stepper = run.stepper.failed, run.stepper
     path = path_summary(run)
@@ -60,7 +67,13 @@ def report_stop(run):
         )
 
 
-def summarise(run, extremes, probes, figure_time=0.0, colour_range=None) -> dict:
+def summarise(
+    run: SlopeRun,
+    extremes: tuple[np.ndarray, tuple[float, list[float]], tuple[float, list[float]]],
+    probes: Sequence[tuple[str, np.ndarray | None, np.ndarray, str, Any]],
+    figure_time: float = 0.0,
+    colour_range: tuple[float, float] | None = None,
+) -> dict:
     """The summary dict of a run at its last converged state (collective); ``extremes`` and
     ``probes`` from :class:`~dolfinx_granular.slope.model.SlopeModel`, the figure's time and
     colour range from :func:`draw_figure`."""
@@ -131,13 +144,21 @@ def _permanent_settlement(run):
     return info[-1]["settlement"] - gravity["settlement"]
 
 
-def figure_data(run, extremes):
+def figure_data(
+    run: SlopeRun, extremes: tuple[np.ndarray, tuple[float, list[float]], tuple[float, list[float]]]
+) -> tuple[np.ndarray, ...] | None:
     """The mesh, displacement and cell-mean von Mises stress gathered on rank 0 (collective)."""
     m = run.model
     return gather_mesh(m.V, m.u, m.material.cell_average(extremes[0]))
 
 
-def draw_figure(run, path, data, extremes, probes):
+def draw_figure(
+    run: SlopeRun,
+    path: str | PathLike[str],
+    data: tuple[np.ndarray, ...],
+    extremes: tuple[np.ndarray, tuple[float, list[float]], tuple[float, list[float]]],
+    probes: Sequence[tuple[str, np.ndarray | None, np.ndarray, str, Any]],
+) -> tuple[float, tuple[float, float]]:
     """Figure 7 on rank 0: von Mises on the deformed slope, the extremes and four probe RVEs'
     force networks. Returns the seconds it took and the colour bar's range (MPa)."""
     t0 = time.perf_counter()
@@ -162,7 +183,9 @@ def draw_figure(run, path, data, extremes, probes):
     return time.perf_counter() - t0, colour_range
 
 
-def load_settlement_curve(step_info):
+def load_settlement_curve(
+    step_info: Iterable[Mapping[str, Any]],
+) -> tuple[np.ndarray, np.ndarray]:
     """(settlement (m, down positive), footing load (N/m, down positive)) of the converged steps
     from the gravity state on (loading, and unloading where there is one)."""
     steps = [s for s in step_info if s["phase"] != "gravity" or s["t"] >= 1.0]
@@ -172,7 +195,7 @@ def load_settlement_curve(step_info):
     )
 
 
-def draw_load_settlement(run, path):
+def draw_load_settlement(run: SlopeRun, path: str | PathLike[str]) -> None:
     """``load_settlement.png``: the footing's load-settlement path (with its hysteresis when the
     load came off again); rank 0."""
     settlement, load = load_settlement_curve(run.step_info)
