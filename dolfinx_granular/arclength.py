@@ -268,9 +268,6 @@ class ArcLength:
         local = float(vec.array_r[dof]) if dof >= 0 else 0.0
         return self.solver.comm.allreduce(local)
 
-    def _dot(self, a, b):
-        return a.dot(b)
-
     # -- one increment -------------------------------------------------------------------------
 
     def _predictor(self, x):

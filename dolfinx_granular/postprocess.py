@@ -95,21 +95,6 @@ def nearest_point(
     return rank, i, point
 
 
-def nearest_point_value(
-    comm: Comm, points: np.ndarray, values: np.ndarray, target: ArrayLike
-) -> tuple[np.ndarray | None, np.ndarray]:
-    """Value at the point nearest to ``target`` over all ranks.
-
-    Args:
-        points: (n, d) this rank's point coordinates; values: (n, ...) data at them.
-
-    Returns:
-        ``(point, value)`` identical on every rank.
-    """
-    rank, i, point = nearest_point(comm, points, target)
-    return point, comm.bcast(np.asarray(values[i]) if comm.rank == rank else None, root=rank)
-
-
 def cell_function(V0: FunctionSpace, owned_values: np.ndarray) -> Function:
     """Fill a DG0 Function on space ``V0`` from (n_owned_cells,) values; ghosts are scattered."""
     from dolfinx import fem
