@@ -16,9 +16,9 @@ The frictional stress is checked against the frictionless one at mu = 0 before t
 ``--breakdown`` adds where the time goes, per point (the first point's F and history, each phase
 repeated in a compiled loop, so without call overhead and with warm caches): copying the history
 in, the contact loop for the stress only and with the tangent sums (small-increment polynomial
-atan), the same with the general rational atan, the dissipation sum, the per-point rest (spin,
-angle set-up, W, P, A from the sums), and the frictionless kernel's moment sums without and with
-the tangent terms.
+atan), the same with the general rational atan, the second pass over the new forces
+(dissipation, energy and stick sums), the per-point rest (spin, angle set-up, W, P, A from the
+sums), and the frictionless kernel's moment sums without and with the tangent terms.
 """
 
 import argparse
@@ -81,11 +81,9 @@ def _drive_copy(reps, history, ft):
 
 
 @njit
-def _drive_total(reps, dis, n_visit):
-    s = 0.0
+def _drive_sums(reps, work, ft, R, n_visit, acc):
     for _ in range(reps):
-        s += fk._total(dis, n_visit)
-    return s
+        fk._history_sums(work, ft, R, n_visit, K_T, acc)
 
 
 @njit
@@ -120,7 +118,7 @@ def breakdown(rve, F, state, repeats, reps=300):
         "contact P": lambda: _drive_contact(reps, *c, None, None),
         "contact P+A": lambda: _drive_contact(reps, *c, None, True),
         "general P+A": lambda: _drive_contact(reps, *c, True, True),
-        "dissipation": lambda: _drive_total(reps, work, m),
+        "history sums": lambda: _drive_sums(reps, work, ft, R, m, acc),
         "per point": lambda: _drive_finish(reps, F, G, acc, rve._inv_area, *out),
         "frictionless P": lambda: _drive_frictionless(reps, F, X, Y, R, m, False, acc),
         "frictionless P+A": lambda: _drive_frictionless(reps, F, X, Y, R, m, True, acc),

@@ -254,20 +254,23 @@ def _contact_pass(
     """Contact law and every moment sum of one point into ``acc`` (layout: N_ACC), one pass.
 
     ``work`` (>= n_visit,) holds f_t,n on entry and each contact's dissipation |f_t| |f* - f_t|
-    (0 in stick and when open) on exit, which :func:`_total` sums in one fixed order, so that the
-    state does not depend on ``tangent``; ``ft_out`` (n_visit,) gets the new f_t. ``work`` is a
-    reused scratch array (it stays in cache) and the new state is written once, in the loop,
-    where its memory traffic overlaps the arithmetic. Only these two arrays are written (with
+    on exit (0 when open; -1, a marker, in stick, where it is 0), which :func:`_history_sums`
+    sums in one fixed order, so that the state does not depend on ``tangent``; ``ft_out``
+    (n_visit,) gets the new f_t. The sums of f_t², f_t R and the sticking R² are left to that pass
+    too: they need nothing that is not stored anyway, and with them (27 sums) the 2-fold
+    interleaved vector loop spilled most of its accumulators to the stack. ``work`` is a reused
+    scratch array (it stays in cache) and the new state is written once, in the loop, where its
+    memory traffic overlaps the arithmetic. Only these two arrays are written (with
     more, LLVM 14 needs more runtime alias checks than it allows and leaves the loop scalar); for
     the same reason the flags are compile-time: ``general`` None (small increment) or True (any
-    angle), ``tangent`` None (stress sums only) or True (also TA, TB, Z1, Z2, skr).
-    Per contact, with p = R/d: Z1 = k_t sum p² LL, Z2 = mu k_n sum +-p LL, skr = k_t sum R²,
+    angle), ``tangent`` None (stress sums only) or True (also TA, TB, Z1, Z2).
+    Per contact, with p = R/d: Z1 = k_t sum p² LL, Z2 = mu k_n sum +-p LL,
     TA weight (k_n p - k_t p²) / d², TB weight -(2 f_t R/d² + mu k_n (+-p)) / d².
     """
     mukn = mu * kn
-    e2 = s0 = s1 = s2 = ft2 = sr = u0 = u1 = u2 = 0.0
+    e2 = s0 = s1 = s2 = u0 = u1 = u2 = 0.0
     a0 = a1 = a2 = a3 = a4 = b0 = b1 = b2 = b3 = b4 = 0.0
-    z0 = z1 = z2 = w0 = w1 = w2 = skr = 0.0
+    z0 = z1 = z2 = w0 = w1 = w2 = 0.0
     for c in range(n_visit):
         r = R[c]
         # the forces and the active set: helpers without fast-math (module docstring)
@@ -279,17 +282,16 @@ def _contact_pass(
         ee = eps if eps >= 0.0 else 0.0  # noqa: FURB136 (a select, as in kernel.py)
         fstar, ft, stick = _contact_law(work[c], r, dphi, ee, kt, mukn)
         ft_out[c] = ft
-        work[c] = abs(ft) * abs(fstar - ft)
+        # -1 marks a sticking contact for _history_sums (its dissipation is 0); not -0.0,
+        # which fast-math ('nsz') may turn into +0.0
+        work[c] = -1.0 if stick else abs(ft) * abs(fstar - ft)
         b = ee * inv
         e2 += ee * ee
         s0 += b * xx
         s1 += b * xy
         s2 += b * yy
-        ft2 += ft * ft
-        ftr = ft * r
         inv2 = inv * inv
-        u = ftr * inv2
-        sr += ftr
+        u = ft * r * inv2
         u0 += u * xx
         u1 += u * xy
         u2 += u * yy
@@ -298,7 +300,6 @@ def _contact_pass(
             zeta = p * p if stick else 0.0  # k_t zeta: stick weight of Z1
             omega = p if ft > 0.0 else -p  # mu k_n omega: slip weight of Z2 (f_t = 0: none)
             omega = omega if (not stick) & (ft != 0.0) else 0.0
-            skr += r * r if stick else 0.0
             g = inv2 * (kn * p - kt * zeta)
             h = -inv2 * (u + u + mukn * omega)
             q = xx * xx
@@ -322,23 +323,32 @@ def _contact_pass(
             w0 += omega * xx
             w1 += omega * xy
             w2 += omega * yy
-    acc[_E2], acc[_S], acc[_S + 1], acc[_S + 2], acc[_FT2] = e2, s0, s1, s2, ft2
-    acc[_SR], acc[_U], acc[_U + 1], acc[_U + 2] = sr, u0, u1, u2
+    acc[_E2], acc[_S], acc[_S + 1], acc[_S + 2] = e2, s0, s1, s2
+    acc[_U], acc[_U + 1], acc[_U + 2] = u0, u1, u2
     if tangent is not None:
         acc[_TA], acc[_TA + 1], acc[_TA + 2], acc[_TA + 3], acc[_TA + 4] = a0, a1, a2, a3, a4
         acc[_TB], acc[_TB + 1], acc[_TB + 2], acc[_TB + 3], acc[_TB + 4] = b0, b1, b2, b3, b4
         acc[_Z1], acc[_Z1 + 1], acc[_Z1 + 2] = kt * z0, kt * z1, kt * z2
         acc[_Z2], acc[_Z2 + 1], acc[_Z2 + 2] = mukn * w0, mukn * w1, mukn * w2
-        acc[_SKR] = kt * skr
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def _total(a, n):
-    """sum(a[:n]), vectorised; one call site, so one summation order."""
-    s = 0.0
+@njit(cache=True, fastmath=_FASTMATH_SUMS, error_model="numpy")
+def _history_sums(work, ft, R, n, kt, acc):
+    """Dissipation sum |f_t| |f* - f_t|, sum f_t², sum f_t R and k_t sum R² over the sticking
+    contacts (``work`` < 0) into ``acc``: a second, cheap pass over the arrays that
+    :func:`_contact_pass` wrote (still in cache), which keeps three sums out of its
+    register-bound loop. One call site for stress and tangent, so one summation order: the same
+    state."""
+    dis = ft2 = sr = skr = 0.0
     for c in range(n):
-        s += a[c]
-    return s
+        w = work[c]
+        f = ft[c]
+        r = R[c]
+        dis += max(w, 0.0)
+        ft2 += f * f
+        sr += f * r
+        skr += r * r if w < 0.0 else 0.0
+    acc[_DIS], acc[_FT2], acc[_SR], acc[_SKR] = dis, ft2, sr, kt * skr
 
 
 @njit(cache=True)
@@ -504,7 +514,7 @@ def evaluate_batch(
             _contact_pass(
                 F00, F01, F10, F11, cq, X, Y, R, n_visit, kn, kt, mu, True, None, work, ft, acc
             )
-        acc[_DIS] = _total(work, n_visit)
+        _history_sums(work, ft, R, n_visit, kt, acc)
         D[q] = D_n[q] + (inv_area * acc[_DIS] / kt if kt > 0.0 else 0.0)
         th, alpha, beta = _rotation(F00, F01, F10, F11)
         _finish_point(q, F[q], acc, (th, alpha, beta), kn, inv_area, kt, tangent, W, P, A, M)
