@@ -82,7 +82,9 @@ def outcome(s: dict) -> str:
         return f"peak at {peak:.4f} x the load (det K changes sign), {path['increments']} arcs"
     if s.get("failed"):
         f = s["failed"]
-        return f"stops at {f['t']:.4f} of the {f['phase']} load ({f['reason'].split(':')[0]})"
+        load = f" = {f['t'] * s['load_factor']:.4f} x the load" if f["phase"] == "footing" else ""
+        reason = f["reason"].split(":")[0]
+        return f"stops at t = {f['t']:.4f} of the {f['phase']} phase{load} ({reason})"
     if s.get("permanent_settlement") is None:
         return f"settlement {s['footing_settlement']:.4f} m"
     loaded = min(step["settlement"] for step in s["step_info"])
