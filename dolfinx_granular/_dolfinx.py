@@ -24,6 +24,7 @@ from dolfinx import fem
 from petsc4py import PETSc
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from os import PathLike
 
     from dolfinx.mesh import Mesh
@@ -50,6 +51,15 @@ class _CompilerChatter(logging.Filter):
 
 
 logging.getLogger().addFilter(_CompilerChatter())
+
+
+def show_warnings() -> None:
+    """Make Python warnings visible in a program that has not configured logging (call it at a
+    command line's entry). FFCx 0.9 routes every warning to the logger ``py.warnings``
+    (``logging.captureWarnings``), which then drops it unless the root logger has a handler."""
+    if not logging.getLogger().handlers:
+        logging.basicConfig(level=logging.WARNING, format="%(message)s")
+
 
 #: SNES reason for a NaN residual: DIVERGED_FNORM_NAN up to PETSc 3.19, then renamed
 SNES_NAN_REASON = int(
@@ -162,7 +172,8 @@ def create_mesh(
     (n, gdim) and connectivity ``cells`` (m, nodes per cell), given on rank 0 (other ranks'
     arrays are ignored) and distributed over ``comm``. ``max_facet_to_cell_links`` > 2 allows
     branching (three bars meeting at a node of an interval mesh): DOLFINx >= 0.10 needs to be
-    told, or the ranks do not share such a node."""
+    told, or the ranks do not share such a node; on 0.9, which cannot be told, such a mesh stays
+    on rank 0."""
     from dolfinx import mesh
 
     if _quadrature_element is not None:  # basix.ufl elements (0.7+)
@@ -181,7 +192,25 @@ def create_mesh(
     kwargs = {"domain" if "domain" in params else "e": domain}  # 0.5 / later (x moved in 0.10)
     if "max_facet_to_cell_links" in params:
         kwargs["max_facet_to_cell_links"] = max_facet_to_cell_links
+    elif max_facet_to_cell_links > 2 and comm.size > 1 and "ghost_mode" not in params:
+        # DOLFINx 0.9 cannot be told about branching: distributed, it gives the ranks their own
+        # copies of a branching node (a disconnected mesh, a singular tangent). Keep such a mesh
+        # on rank 0. (0.5 shares such a node without being told, 0.10+ when told.)
+        kwargs["partitioner"] = _on_rank_zero(len(cells))
     return mesh.create_mesh(comm, cells=cells, x=x, **kwargs)
+
+
+def _on_rank_zero(n_local: int) -> Callable:
+    """A cell partitioner (DOLFINx 0.6-0.9 signature) that sends this rank's ``n_local`` cells
+    to rank 0."""
+    from dolfinx import graph
+
+    def partitioner(comm, n_parts, *args):
+        return graph.adjacencylist(
+            np.zeros(n_local, np.int32), np.arange(n_local + 1, dtype=np.int32)
+        )
+
+    return partitioner
 
 
 def mpi_command(ranks: int) -> list[str] | None:

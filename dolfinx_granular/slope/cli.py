@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from mpi4py import MPI
 
+from .._dolfinx import show_warnings
 from ..packing import Packing, PackingFileError
 from ..runwriter import RestartError
 from .geometry import SlopeGeometry
@@ -273,6 +274,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "demos/slope.py") -> int
     argv = sys.argv[1:] if argv is None else list(argv)
     comm = MPI.COMM_WORLD
     started = time.perf_counter()
+    show_warnings()  # e.g. a prestressed packing's PrestressWarning, on every DOLFINx release
     try:
         a = build_parser(prog).parse_args(argv)
         if a.resume:
