@@ -99,13 +99,6 @@ def make_solver(level, petsc_options=None):
     return factory
 
 
-def refined_geometry(refine=1) -> SlopeGeometry:
-    """The default slope with the column width divided and the rows multiplied by ``refine``
-    (``refine**2`` times the cells)."""
-    g = SlopeGeometry()
-    return SlopeGeometry(column_width=g.column_width / refine, rows=g.rows * refine)
-
-
 def petsc_events() -> dict:
     """``{event: {"time": s, "count": n}}`` of :data:`PETSC_EVENTS` so far (starts PETSc's log
     on the first call: events before it are not counted)."""
@@ -180,7 +173,7 @@ def slope_run(
 
     Args:
         packing: the RVE's packing. level, tol: see :func:`make_law`.
-        refine: mesh refinement (:func:`refined_geometry`).
+        refine: mesh refinement (:meth:`SlopeGeometry.refined`).
         keep: add the final F of this rank's points (``"_F"``) and the law (``"_rve"``).
         rve_bench: > 0: time the final state's RVE work alone that many times
             (:func:`rve_alone`, ``"rve_bench"``).
@@ -192,7 +185,7 @@ def slope_run(
         times and points.
     """
     comm = comm or MPI.COMM_WORLD
-    options = SlopeOptions(steps=steps, geometry=refined_geometry(refine))
+    options = SlopeOptions(steps=steps, geometry=SlopeGeometry().refined(refine))
     out = _scratch(comm)
     try:
         run = SlopeRun(

@@ -42,41 +42,27 @@ from mpi4py import MPI
 # cells); the first footing increment is the nominal step of ``steps``.
 
 
-# %%
-def geometry(refine):
-    g = SlopeGeometry()
-    return SlopeGeometry(column_width=g.column_width / refine, rows=g.rows * refine)
-
-
 def runs(meshes, steps):
     """(name, options) of every run of the study."""
     out = []
     for k in meshes:
-        cells = geometry(k).n_cells
+        g = SlopeGeometry().refined(k)
         out.append(
-            (
-                f"load_control_{cells}",
-                SlopeOptions(steps=steps, load_factor=2.0, geometry=geometry(k)),
-            )
+            (f"load_control_{g.n_cells}", SlopeOptions(steps=steps, load_factor=2.0, geometry=g))
         )
         out.append(
             (
-                f"path_{cells}",
-                SlopeOptions(
-                    steps=steps, load_factor=2.0, path_following=True, geometry=geometry(k)
-                ),
+                f"path_{g.n_cells}",
+                SlopeOptions(steps=steps, load_factor=2.0, path_following=True, geometry=g),
             )
         )
     # the uplift's load levels off over a long way before its peak: more increments
+    g = SlopeGeometry().refined(meshes[0])
     out.append(
         (
-            f"uplift_path_{geometry(meshes[0]).n_cells}",
+            f"uplift_path_{g.n_cells}",
             SlopeOptions(
-                steps=steps,
-                load_factor=-0.25,
-                path_following=True,
-                max_increments=300,
-                geometry=geometry(meshes[0]),
+                steps=steps, load_factor=-0.25, path_following=True, max_increments=300, geometry=g
             ),
         )
     )

@@ -216,8 +216,9 @@ def _on_rank_zero(n_local: int) -> Callable:
 def mpi_command(ranks: int) -> list[str] | None:
     """The command prefix that starts ``ranks`` processes with the MPI library of this Python's
     mpi4py: the venv's own ``mpiexec`` where the PyPI wheel installed one (MPICH), else
-    ``mpirun`` on PATH (Debian's OpenMPI, with ``--oversubscribe`` for more ranks than cores);
-    None if there is no launcher."""
+    ``mpirun`` on PATH (Debian's OpenMPI, with ``--oversubscribe`` for more ranks than cores
+    and ``--allow-run-as-root`` for containers and CI, which run as root); None if there is no
+    launcher."""
     own = os.path.join(sys.prefix, "bin", "mpiexec")
     if os.access(own, os.X_OK):
         return [own, "-n", str(ranks)]
@@ -226,7 +227,8 @@ def mpi_command(ranks: int) -> list[str] | None:
         return None
     from mpi4py import MPI
 
-    extra = ["--oversubscribe"] if "Open MPI" in MPI.Get_library_version() else []
+    open_mpi = "Open MPI" in MPI.Get_library_version()
+    extra = ["--oversubscribe", "--allow-run-as-root"] if open_mpi else []
     return [launcher, "-n", str(ranks), *extra]
 
 

@@ -171,8 +171,7 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
             "--tangential-stiffness needs --friction MU > 0 (frictionless contacts "
             "carry no tangential force)"
         )
-    g = SlopeGeometry()
-    geometry = SlopeGeometry(column_width=g.column_width / a.refine, rows=g.rows * a.refine)
+    geometry = SlopeGeometry().refined(a.refine)
     try:
         return SlopeOptions(
             steps=a.steps,

@@ -9,7 +9,7 @@ mapping is exactly bilinear and no node drifts off the evenly spaced rows.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -86,6 +86,11 @@ class SlopeGeometry:
     @property
     def n_cells(self) -> int:
         return self.columns * self.rows
+
+    def refined(self, k: int) -> SlopeGeometry:
+        """This slope on a mesh refined ``k`` times: column width / k, rows x k (k² x the
+        cells)."""
+        return replace(self, column_width=self.column_width / k, rows=self.rows * k)
 
     def surface_height(self, x: ArrayLike) -> np.ndarray | float:
         """Ground height y_s(x) (m) for x (array) in [0, width]."""
