@@ -14,6 +14,12 @@ matrix). Of the constraint's two roots the one that keeps going forward is taken
 angle between the new increment and the last one. The predictor follows the previous increment's
 direction (the sign of ``Du_prev . b``), so the path turns round limit points by itself.
 
+The corrector's convergence tests are the solver's (its ``energy_rtol``, round-off tests and
+``stagnation_it``). Its work is timed on the solver's clock as SNES solves are (``"snes"``, with
+the residuals, Jacobians and convergence tests under ``"callbacks"``), so that the solver's
+:attr:`~dolfinx_granular.solver.NewtonSolver.timings` split the path's time as a load-controlled
+run's.
+
 Increments adapt to the Newton iterations they take; a failed increment (no real root, Newton
 divergence, an RVE outside its range, a singular tangent) is restored and halved. The sign of
 det K (MUMPS computes the determinant with the factorisation) is watched along the path: where it
@@ -32,7 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from dolfinx import fem
-from dolfinx.fem.petsc import assemble_vector, set_bc
+from dolfinx.fem.petsc import set_bc
 from petsc4py import PETSc
 
 from ._dolfinx import petsc_vec
@@ -43,6 +49,10 @@ if TYPE_CHECKING:
     import ufl
 
     from .solver import NewtonSolver
+
+#: :attr:`ArcLength.stopped` where ``on_converged`` returned False before the path reached an end
+#: of its own (a stop the caller asked for)
+ASKED_TO_STOP = "asked to stop"
 
 
 @dataclass
@@ -127,7 +137,6 @@ class ArcLength:
         ds_max: float | None = None,
         ds_min: float | None = None,
         max_cutbacks: int = 8,
-        energy_rtol: float = 1e-20,
         peak_refinement: float = 1.0,
         log: Callable[[str], object] | None = None,
     ) -> None:
@@ -137,7 +146,6 @@ class ArcLength:
         self.direction = 1.0 if direction >= 0 else -1.0
         self.max_it, self.target_iterations = int(max_it), int(target_iterations)
         self.max_cutbacks = int(max_cutbacks)
-        self.energy_rtol = float(energy_rtol)
         self.peak_refinement = float(peak_refinement)
         self.log = log or (lambda line: None)
         self.lam = float(load.value)
@@ -147,12 +155,15 @@ class ArcLength:
         self._du_prev = None  # the last converged increment Du (a vector) and Dlam
         self._dlam_prev = 0.0
         self._det_sign = 0
+        if ds is None and dlam is None:
+            raise ValueError("give the first arc length ds or the first load increment dlam")
         self.f = self._load_vector(external)
-        self._check_form(external)
-        if ds is None:
-            if dlam is None:
-                raise ValueError("give the first arc length ds or the first load increment dlam")
-            ds = self._arc_of(float(dlam))
+        # the load's share psi^2 |f|^2 of the constraint: f and psi are fixed, one reduction
+        self._load_weight = self.psi**2 * self.f.dot(self.f)
+        with self.solver.clock("snes"):  # (timed as the increments are: see the module doc)
+            self._check_form()
+            if ds is None:
+                ds = self._arc_of(float(dlam))
         self.ds = float(ds)
         self.ds_max = float(ds_max) if ds_max else 10.0 * self.ds
         self.ds_min = float(ds_min) if ds_min else 1e-4 * self.ds
@@ -161,45 +172,50 @@ class ArcLength:
 
     def _load_vector(self, external):
         """f assembled once (dead load), zero in the Dirichlet rows."""
-        u_vec = petsc_vec(self.solver.u)
-        f = u_vec.duplicate()
-        with f.localForm() as fl:
-            fl.set(0.0)
-        assemble_vector(f, fem.form(external))
-        f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        f = petsc_vec(self.solver.u).duplicate()
+        self.solver.assemble_forces(f, fem.form(external))
         set_bc(f, self.solver.bcs, None, 0.0)
         return f
 
-    def _check_form(self, external):
+    def _check_form(self):
         """R(u, lam + 1) - R(u, lam) must be -f: the residual is R(u) - lam f."""
         x = petsc_vec(self.solver.u).copy()
         r0, r1 = x.duplicate(), x.duplicate()
         lam = float(self.load.value)
-        self.load.value = lam + 1.0
-        self.solver.residual(x, r1, tangent=False)
-        self.load.value = lam
-        self.solver.residual(x, r0, tangent=False)
-        r1.axpy(-1.0, r0)
-        r1.axpy(1.0, self.f)
-        scale = max(self.f.norm(), 1e-300)
-        if not r1.norm() <= 1e-8 * max(scale, r0.norm()):
-            raise ValueError(
-                "the residual is not R(u) - lam * external with lam = load: "
-                f"dR/dlam differs from -external by {r1.norm():.3g} (|f| = "
-                f"{scale:.3g}); pass the load pattern that the load Constant scales"
-            )
-        for v in (x, r0, r1):
-            v.destroy()
+        try:
+            with self.solver.clock("callbacks"):
+                self.load.value = lam + 1.0
+                # with the tangent: the first factorisation, at this u, evaluates nothing again
+                error = self.solver.residual(x, r1)
+                self.load.value = lam
+                if error:
+                    raise ValueError(f"the start state cannot be evaluated: {error}")
+                # the material data do not depend on lam: R at lam needs no evaluation
+                self.solver.assemble_residual(x, r0)
+            r1.axpy(-1.0, r0)
+            r1.axpy(1.0, self.f)
+            scale = max(self.f.norm(), 1e-300)
+            if not r1.norm() <= 1e-8 * max(scale, r0.norm()):
+                raise ValueError(
+                    "the residual is not R(u) - lam * external with lam = load: "
+                    f"dR/dlam differs from -external by {r1.norm():.3g} (|f| = "
+                    f"{scale:.3g}); pass the load pattern that the load Constant scales"
+                )
+        finally:
+            for v in (x, r0, r1):
+                v.destroy()
 
     def _arc_of(self, dlam):
         """The arc of a load increment dlam from the current state: |dlam| |K^-1 f| (+ psi)."""
         x = petsc_vec(self.solver.u).copy()
         b = x.duplicate()
-        self._factorise(x)
-        self._solve(self.f, b)
-        ds = abs(dlam) * np.sqrt(b.dot(b) + self.psi**2 * self.f.dot(self.f))
-        for v in (x, b):
-            v.destroy()
+        try:
+            self._factorise(x)
+            self._solve(self.f, b)
+            ds = abs(dlam) * np.sqrt(b.dot(b) + self._load_weight)
+        finally:
+            for v in (x, b):
+                v.destroy()
         return float(ds)
 
     # -- restarts ------------------------------------------------------------------------------
@@ -236,7 +252,8 @@ class ArcLength:
     def _factorise(self, x):
         """Assemble K at x and factorise it; the sign of det K (0 where the LU solver does not
         give it). Raises RuntimeError if the factorisation fails."""
-        A = self.solver.jacobian(x)
+        with self.solver.clock("callbacks"):  # (as SNES's Jacobian callback; the LU is not)
+            A = self.solver.jacobian(x)
         ksp = self.solver.snes.getKSP()
         ksp.setOperators(A)
         pc = ksp.getPC()
@@ -264,9 +281,14 @@ class ArcLength:
 
     def _control_value(self, vec):
         """The control dof's entry of ``vec`` (every rank gets it)."""
+        return self._control_values(vec)[0]
+
+    def _control_values(self, *vecs):
+        """The control dof's entries of ``vecs`` (every rank gets them), in one reduction."""
         dof = self.control[0]
-        local = float(vec.array_r[dof]) if dof >= 0 else 0.0
-        return self.solver.comm.allreduce(local)
+        local = np.array([float(v.array_r[dof]) if dof >= 0 else 0.0 for v in vecs])
+        # (one rank holds the dof, the others add zeros: the sum is exact)
+        return [float(c) for c in self.solver.comm.allreduce(local)]
 
     # -- one increment -------------------------------------------------------------------------
 
@@ -274,16 +296,20 @@ class ArcLength:
         """Du and Dlam of the predictor from the converged state x (K factorised there)."""
         sign = self._factorise(x)
         b = x.duplicate()
-        self._solve(self.f, b)
+        try:
+            self._solve(self.f, b)
+        except RuntimeError:
+            b.destroy()
+            raise
         if self.control is not None:
             bc = self._control_value(b)
             dlam = self.control[1] * self.ds / bc if bc != 0 else 0.0
         else:
-            dlam = self.ds / np.sqrt(b.dot(b) + self.psi**2 * self.f.dot(self.f))
+            dlam = self.ds / np.sqrt(b.dot(b) + self._load_weight)
         if self._du_prev is None:
             dlam = abs(dlam) * self.direction
         else:  # keep going forward: the previous increment's direction
-            forward = self._du_prev.dot(b) + self.psi**2 * self.f.dot(self.f) * self._dlam_prev
+            forward = self._du_prev.dot(b) + self._load_weight * self._dlam_prev
             dlam = abs(dlam) * (1.0 if forward >= 0 else -1.0)
         b.scale(dlam)
         return b, dlam, sign
@@ -292,10 +318,10 @@ class ArcLength:
         """dlam correction that keeps the constraint with ``du + a + dlam' b``; None if no real
         root (the arc does not meet the linearised equilibrium)."""
         if self.control is not None:
-            bc = self._control_value(b)
-            target = self.control[1] * self.ds - self._control_value(du) - self._control_value(a)
+            bc, c_du, c_a = self._control_values(b, du, a)
+            target = self.control[1] * self.ds - c_du - c_a
             return target / bc if bc != 0 else None
-        w = self.psi**2 * self.f.dot(self.f)
+        w = self._load_weight
         ua = du.copy()
         ua.axpy(1.0, a)
         c1 = b.dot(b) + w
@@ -314,19 +340,23 @@ class ArcLength:
     def _corrector(self, x0, du, dlam):
         """Newton on (u, lam) under the constraint from x0 + du, lam + dlam. Returns the state x,
         the increment (du, dlam) and the :class:`_Newton` record; raises _Failed with the
-        reason (no convergence, stagnation, no real root, an RVE outside its range)."""
+        reason (no convergence, stagnation, no real root, an RVE outside its range); x is
+        freed then."""
         solver = self.solver
         x = x0.copy()
         x.axpy(1.0, du)
         R, a, b = (x.duplicate() for _ in range(3))
-        newton = _Newton(solver, self.energy_rtol)
+        newton = _Newton(solver)
+        converged = False
         try:
             for it in range(self.max_it + 1):
                 self.load.value = self.lam + dlam
-                error = solver.residual(x, R)
-                if error:
-                    raise _Failed(error)
-                if newton.converged(it, R):
+                with solver.clock("callbacks"):  # (as SNES's residual and convergence test)
+                    error = solver.residual(x, R)
+                    if error:
+                        raise _Failed(error)
+                    converged = newton.converged(it, R)
+                if converged:
                     return x, du, dlam, newton
                 if it == self.max_it:
                     raise _Failed(
@@ -351,42 +381,59 @@ class ArcLength:
         finally:
             for v in (R, a, b):
                 v.destroy()
+            if not converged:
+                x.destroy()
 
     def advance(self) -> Increment | None:
         """One converged increment (cut back and retried as needed); the :class:`Increment`, or
         None once the path cannot go on (:attr:`failed` says why)."""
-        u_vec = petsc_vec(self.solver.u)
-        x0 = u_vec.copy()
-        cuts = 0
-        while True:
-            try:
-                du, dlam, sign = self._predictor(x0)
-                x, du, dlam, newton = self._corrector(x0, du, dlam)
-                return self._accept(x, du, dlam, newton, sign)
-            except (_Failed, RuntimeError) as err:
-                self._restore(x0)
-                cuts += 1
-                if cuts > self.max_cutbacks or self.ds / 2.0 < self.ds_min:
-                    self.failed = (
-                        f"increment {len(self.path) + 1} failed at ds = {self.ds:.3g} "
-                        f"after {cuts - 1} cut-backs: {err}"
+        x0 = petsc_vec(self.solver.u).copy()  # the converged state a failed attempt returns to
+        try:
+            cuts = 0
+            while True:
+                try:
+                    x, du, dlam, newton, sign = self._attempt(x0)
+                except (_Failed, RuntimeError) as err:
+                    with self.solver.clock("after"):
+                        self._restore(x0)
+                    cuts += 1
+                    if cuts > self.max_cutbacks or self.ds / 2.0 < self.ds_min:
+                        self.failed = (
+                            f"increment {len(self.path) + 1} failed at ds = {self.ds:.3g} "
+                            f"after {cuts - 1} cut-backs: {err}"
+                        )
+                        self.log(f"path: {self.failed}; stopping")
+                        return None
+                    self.log(
+                        f"path: increment {len(self.path) + 1} failed ({err}); ds "
+                        f"{self.ds:.3g} -> {self.ds / 2:.3g}"
                     )
-                    self.log(f"path: {self.failed}; stopping")
-                    return None
-                self.log(
-                    f"path: increment {len(self.path) + 1} failed ({err}); ds "
-                    f"{self.ds:.3g} -> {self.ds / 2:.3g}"
-                )
-                self.ds /= 2.0
+                    self.ds /= 2.0
+                    continue
+                with self.solver.clock("after"):  # (as NewtonSolver's commit)
+                    return self._accept(x, du, dlam, newton, sign)
+        finally:
+            x0.destroy()
+
+    def _attempt(self, x0):
+        """Predictor and corrector from the converged state x0 (timed as a SNES solve): the state
+        x, the increment (du, dlam), the :class:`_Newton` record and the sign of det K at x0.
+        Raises as :meth:`_corrector` does, with the attempt's vectors freed."""
+        with self.solver.clock("snes"):
+            du, dlam, sign = self._predictor(x0)
+            try:
+                x, du, dlam, newton = self._corrector(x0, du, dlam)
+            except BaseException:
+                du.destroy()
+                raise
+        return x, du, dlam, newton, sign
 
     def _restore(self, x0):
         u_vec = petsc_vec(self.solver.u)
         x0.copy(u_vec)
         u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self.load.value = self.lam
-        self.solver._have_eval = False
-        for m in self.solver.materials:
-            m.update(tangent=False)
+        self.solver.refresh_materials()
 
     def _accept(self, x, du, dlam, newton, sign):
         """Commit a converged increment: history, path record, critical points, next ds."""
@@ -480,7 +527,7 @@ class ArcLength:
                 return False
             self.stopped = stop(self) if stop is not None else None  # (known to on_converged)
             if on_converged is not None and on_converged(inc) is False:
-                self.stopped = self.stopped or "asked to stop"
+                self.stopped = self.stopped or ASKED_TO_STOP
                 return True
             if self.stopped:
                 self.log(f"path: {self.stopped}")
@@ -519,12 +566,14 @@ class _Failed(Exception):
 
 
 class _Newton:
-    """The corrector's convergence record and tests, as NewtonSolver's: the relative energy
-    norm of each step, the residual at round-off of the forces, and stagnation (Newton cycling
-    between contact sets: |R| not below its best value for ``stagnation_it`` steps)."""
+    """The corrector's convergence record and tests, as NewtonSolver's and with its thresholds
+    (``energy_rtol``, ``residual_rtol``, ``roundoff_energy``, ``stagnation_it``): the relative
+    energy norm of each step, the residual at round-off of the forces, and stagnation (Newton
+    cycling between contact sets: |R| not below its best value for ``stagnation_it`` steps)."""
 
-    def __init__(self, solver, energy_rtol, stagnation_it=4):
-        self.solver, self.energy_rtol, self.stagnation_it = solver, energy_rtol, stagnation_it
+    def __init__(self, solver):
+        self.solver = solver
+        self.energy_rtol, self.stagnation_it = solver.energy_rtol, solver.stagnation_it
         self.history, self.e0, self.energy = [], None, 1.0
         self.rnorm = self.best = float("inf")
         self.scale, self.no_progress, self.stopped_by = 0.0, 0, ""
@@ -546,9 +595,11 @@ class _Newton:
             self.stopped_by = "energy norm"
         if self.stopped_by:
             return True
+        # (unlike NewtonSolver's test, iterate 1 does not reset the best |R| to its own: the
+        # paths traced so far depend on this rule, so it stays)
         if it > 1 and rnorm >= self.best:
             self.no_progress += 1
-            if self.no_progress >= self.stagnation_it:
+            if 0 < self.stagnation_it <= self.no_progress:
                 raise _Failed(
                     f"stagnation: |R| = {rnorm:.3e} N has not gone below its best "
                     f"value {self.best:.3e} N for {self.no_progress} corrector steps"

@@ -128,9 +128,12 @@ class NewtonSolver:
 
     Attributes:
         materials: the materials, a tuple.
-        clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"snes"`` (whole SNES solves),
-            ``"callbacks"`` (this solver's callbacks inside them), ``"after"`` (its work after
-            them: the final evaluation, a restore), ``"rve"`` (material updates),
+        clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"snes"`` (whole SNES solves,
+            and the increments of an :class:`~dolfinx_granular.arclength.ArcLength` on this
+            solver, which factorises and solves by itself), ``"callbacks"`` (this solver's
+            callbacks inside them: residuals, Jacobians, convergence tests), ``"after"`` (its
+            work after them: the final evaluation, a commit or restore), ``"rve"`` (material
+            updates),
             ``"residual"``, ``"jacobian"`` and ``"scale"`` (assembly: residuals, Jacobians, the
             internal forces of the round-off test); ``clock.calls`` counts them.
     """
@@ -186,19 +189,16 @@ class NewtonSolver:
 
     @property
     def timings(self) -> dict:
-        """Wall seconds in ``"rve"`` (material updates), ``"assembly"`` (residual and Jacobian)
-        and ``"solve"`` (SNES outside the callbacks: the LU factorisation and solve)."""
+        """Wall seconds in ``"rve"`` (material updates), ``"assembly"`` (residuals, Jacobians and
+        the round-off test's internal forces), ``"solve"`` (SNES outside the callbacks: the LU
+        factorisation and solve, SNES's vector work) and ``"rest"`` (the callbacks' own work and
+        the work after the solves: vector copies, ghost updates, the convergence test)."""
         return self.time_split(self.clock.wall)
-
-    @property
-    def cpu_timings(self) -> dict:
-        """The same split in process CPU seconds, and ``"rest"`` (the callbacks' own work:
-        vector copies, ghost updates, the convergence test)."""
-        return self.time_split(self.clock.cpu)
 
     @staticmethod
     def time_split(t: Mapping[str, float]) -> dict:
-        """``rve``, ``assembly``, ``solve`` and ``rest`` seconds of a Stopwatch table ``t``."""
+        """``rve``, ``assembly``, ``solve`` and ``rest`` seconds of a Stopwatch table ``t`` (wall
+        or CPU; the categories of :attr:`clock`)."""
         assembly = t["residual"] + t["jacobian"] + t["scale"]
         return {
             "rve": t["rve"],
@@ -286,18 +286,32 @@ class NewtonSolver:
             with b.localForm() as b_local:
                 b_local.set(np.nan)
             return errors[0]
+        self.assemble_residual(x, b)
+        return None
+
+    def assemble_residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """Assemble R(x) into b with the material data as they are (those of the last
+        evaluation, which must have been at x), Dirichlet rows ``x - g`` (collective): R again
+        after a change of the loads alone, without evaluating the materials again."""
         with self.clock("residual"):
             self._assemble(b, self.L)
             apply_lifting(b, [self.a], [self.bcs], [x], -1.0)
             b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             set_bc(b, self.bcs, x, -1.0)
-        return None
 
     @staticmethod
     def _assemble(b, form):
         with b.localForm() as b_local:
             b_local.set(0.0)
         assemble_vector(b, form)
+
+    @classmethod
+    def assemble_forces(cls, b: PETSc.Vec, form: fem.Form) -> None:
+        """Assemble the compiled linear form ``form`` (no Dirichlet lifting: internal forces, a
+        load pattern) into b, ghost contributions added to their owners; Dirichlet rows as
+        assembled."""
+        cls._assemble(b, form)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
 
     def _same_as_evaluated(self, x):
         same = self._have_eval and np.array_equal(x.array_r, self._x_eval.array_r)
@@ -327,8 +341,7 @@ class NewtonSolver:
             return 0.0
         f = self._f
         with self.clock("scale"):
-            self._assemble(f, self._f_int)
-            f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            self.assemble_forces(f, self._f_int)
         internal = f.norm()
         f.axpy(-1.0, R)
         set_bc(f, self.bcs, None, 0.0)
@@ -475,12 +488,18 @@ class NewtonSolver:
     def _restore(self, start):
         """u and the material data back at the start of a failed solve."""
         self.u.x.array[:] = start
+        self.refresh_materials()
+
+    def refresh_materials(self) -> None:
+        """Evaluate the materials' stress (no tangent) at the current u, after u was set from
+        outside (a restore): their data belong to u again, and the next Jacobian evaluates them
+        afresh. A u outside a law's range leaves the data as far as they got."""
         self._have_eval = False
         try:
             for m in self.materials:
                 m.update(tangent=False)
         except ValueError:
-            pass  # the start state itself was outside a law's range: nothing to restore to
+            pass  # u itself (the start of a failed solve) is outside a law's range: nothing to do
 
     def destroy(self) -> None:
         """Free the PETSc objects (collective: call it on every rank at the same point)."""
