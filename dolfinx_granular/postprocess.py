@@ -162,6 +162,7 @@ def force_network(
     F: ArrayLike,
     force_scale: float,
     state: FrictionState | None = None,
+    network: tuple[ContactSet | FrictionContactSet, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Polygons of a deformed RVE's force network: one quad per contact, width ∝ normal force.
 
@@ -170,12 +171,14 @@ def force_network(
         F: (2, 2) deformation gradient.
         force_scale: branch half-width per unit contact force (packing length per force unit).
         state: the committed state of one point, for a law with history.
+        network: :func:`contact_network` of the same rve, F and state, if the caller has it
+            (the contacts are not searched again).
 
     Returns:
         ``(quads (m, 4, 2), disks (N, 2) centres, radii (N,), sliding (m,) bool)`` in the
         deformed RVE, centred on the origin.
     """
-    c, force, sliding = contact_network(rve, F, state)
+    c, force, sliding = contact_network(rve, F, state) if network is None else network
     pk = rve.packing
     centers = pk.centers @ np.asarray(F).T
     centers = centers - (np.asarray(F) @ (0.5 * pk.box))
@@ -316,7 +319,7 @@ def _inset(plotter, inset, network, scale, extent):
 
     label, rve, F, text, state = inset
     c, force, sliding = network
-    quads, centers, radii, _ = force_network(rve, F, scale, state)
+    quads, centers, radii, _ = force_network(rve, F, scale, state, network)
     plotter.add_mesh(_circles(centers, radii), color="#9a9a9a", line_width=1)
     plotter.add_mesh(_cell_outline(F, rve.packing.box), color="black", line_width=1)
     for mask, colour in ((~sliding, "#b2182b"), (sliding, "#2166ac")):

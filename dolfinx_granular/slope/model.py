@@ -102,16 +102,19 @@ class SlopeModel:
         self.solver = solver_factory(
             residual, self.material.jacobian_form(du, v), self.u, self.bcs, self.material
         )
-        self._f_ext_form = fem.form(self.f_ext)
-        self._stab_form = None
+        # the forms of stabiliser_share, compiled (FFCx JIT) only for a material with a
+        # stabilising stress: without one the share is 0 and they are never assembled
+        self._stab_form = self._f_ext_form = None
         if getattr(self.material, "P_stab", None) is not None:
             self._stab_form = fem.form(
                 ufl.inner(self.material.P_stab, ufl.grad(v)) * self.material.dx
             )
+            self._f_ext_form = fem.form(self.f_ext)
         self.edge = np.array([g.loaded_edge, float(g.surface_height(g.loaded_edge))])
         n_owned = self.V.dofmap.index_map.size_local
         dof_x = self.V.tabulate_dof_coordinates()[:n_owned, :2]
         self._edge_dofs = np.flatnonzero(np.linalg.norm(dof_x - self.edge, axis=1) < 1e-6 * g.width)
+        self._von_mises = None  # (material updates, committed state, von Mises) of von_mises()
 
     def _supports(self):
         """Fixed base, rollers on the left and right sides."""
@@ -173,8 +176,21 @@ class SlopeModel:
         return self.comm.allreduce(getattr(self.material, "n_open", 0))
 
     def von_mises(self) -> np.ndarray:
-        """Von Mises stress (n_points,) in Pa at this rank's Gauss points."""
-        return von_mises(self.material.cauchy())
+        """Von Mises stress (n_points,) in Pa at this rank's Gauss points (read-only).
+
+        Kept until the material changes: the stress depends on F of the last update and the
+        committed state alone, and a run asks for it twice at its last state (the XDMF file of
+        the step, then :meth:`extremes`), each time an RVE evaluation at every point. A material
+        without an update count (``n_updates``) is evaluated at every call."""
+        material = self.material
+        updates, state = getattr(material, "n_updates", None), getattr(material, "state", None)
+        kept = self._von_mises
+        if updates is not None and kept is not None and kept[0] == updates and kept[1] is state:
+            return kept[2]
+        vm = von_mises(material.cauchy())
+        vm.flags.writeable = False  # shared by the callers until the material changes
+        self._von_mises = (updates, state, vm)
+        return vm
 
     def extremes(
         self,

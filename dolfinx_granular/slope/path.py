@@ -18,7 +18,7 @@ import numpy as np
 from dolfinx import fem
 
 from .. import _dolfinx as dfx
-from ..arclength import ArcLength, load_reaches, unloaded_to
+from ..arclength import ASKED_TO_STOP, ArcLength, load_reaches, unloaded_to
 from ..solver import SolveResult
 
 if TYPE_CHECKING:
@@ -44,8 +44,8 @@ def follow_footing_path(
     restart_state: dict | None = None,
 ) -> bool:
     """Drive the footing phase of ``run`` (a SlopeRun) by arc length from t0 (a converged state);
-    True unless the path failed. ``converged(phase_index, step, t, result)`` records and writes
-    an increment."""
+    True unless the path failed (a stop that ``converged`` asked for sets ``run.stepper.stopped``).
+    ``converged(phase_index, step, t, result)`` records and writes an increment."""
     m, o = run.model, run.options
     m.set_footing(t0)  # the loads of the converged state: the weight and the footing at t0
     al = ArcLength(
@@ -81,6 +81,10 @@ def follow_footing_path(
         stop=_stop(o.load_factor, o.unload_fraction),
         on_converged=on_increment,
     )
+    if ok and al.stopped == ASKED_TO_STOP:
+        # stopped where asked, not at an end of the path: a stopped run, as the LoadStepper
+        # marks one under load control (status "stopped", the hint to continue with --resume)
+        run.stepper.stopped = True
     if not ok:
         run.stepper.failed = {
             "phase": "footing",
@@ -104,12 +108,14 @@ def _why(run, failed):
 
 
 def _last_increment(run):
-    """Du of the last stored increment (None before the second stored state), as a vector."""
-    if len(run.restart_u) < 2:
+    """Du of the last stored increment of the run's restart (None before the second stored
+    state), as a vector."""
+    u_history = run.restart["u_history"]
+    if len(u_history) < 2:
         return None
     du = fem.Function(run.model.V)
-    values = np.asarray(run.restart_u[-1]) - np.asarray(run.restart_u[-2])
-    run.nodes.scatter_function(values, run.restart_nodes, du)
+    values = np.asarray(u_history[-1]) - np.asarray(u_history[-2])
+    run.nodes.scatter_function(values, run.restart["nodes"], du)
     return dfx.petsc_vec(du).copy()
 
 

@@ -25,15 +25,16 @@ import numpy as np
 from mpi4py import MPI
 
 from .. import _dolfinx as dfx
+from ..arclength import ASKED_TO_STOP
 from ..loading import Cutback, LoadStepper
 from ..packing import Packing
-from ..postprocess import cell_function
-from ..runwriter import NodeOrder, PointOrder, RunWriter, read_npz
+from ..postprocess import cell_function, gather_mesh
+from ..runwriter import NodeOrder, PointOrder, RestartError, RunWriter, read_npz
 from ..rve import TaylorRVE
 from .geometry import SlopeGeometry
 from .model import SlopeModel, granular_material, newton_solver
-from .path import follow_footing_path
-from .summary import draw_figure, draw_load_settlement, figure_data, report_stop, summarise
+from .path import follow_footing_path, path_summary
+from .summary import draw_figure, draw_load_settlement, report_stop, summarise
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -138,7 +139,7 @@ def convergence_rows(
             step,
             i,
             float(residuals[i]),
-            energies[i] if i else "",
+            energies[i],  # "" on the first row: no Newton step led to the start
             result.stopped_by if i == last else "",
         )
         for i in range(len(residuals))
@@ -162,8 +163,6 @@ def load_restart(folder: str | os.PathLike[str]) -> dict:
             "history": {k[len("history_") :]: v for k, v in f.items() if k.startswith("history_")},
         }
     except Exception as err:  # JSON or packing errors
-        from ..runwriter import RestartError
-
         raise RestartError(
             f"{path!r} is not a usable restart file ({err}); start the run again without resuming"
         ) from err
@@ -231,7 +230,8 @@ class SlopeRun:
             self.model.solver, max_cutbacks=o.max_cutbacks, log=lambda line: self.say("  " + line)
         )
         self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
-        self.arclength, self.restart_state = None, None  # the path of path_following
+        self.arclength = None  # the path of path_following
+        self.restart = restart  # the stored run continued here (load_restart), or None
         self.resumed_from, self.time_output = None, 0.0
         self._V0 = dfx.function_space(self.model.mesh, "DG", 0)
         self._start = (0, 0.0, None)  # phase, t, dt
@@ -351,8 +351,6 @@ class SlopeRun:
             self.model.material.commit()
             self._append_xdmf(k)
         self.u_history = list(restart["u_history"]) if self.comm.rank == 0 else []
-        self.restart_u, self.restart_nodes = restart["u_history"], restart["nodes"]
-        self.restart_state = state.get("arclength")
         if self.points is not None:  # the stored history, not the replay's (any partition)
             material = self.model.material
             stored = dict(restart["history"])
@@ -371,7 +369,8 @@ class SlopeRun:
 
     def _record(self, phase_index, step, t, result, elapsed):
         m = self.model
-        lam_g, lam_f = (t, 0.0) if phase_index == 0 else (1.0, float(m.footing.value))
+        lam_g = t if phase_index == 0 else 1.0
+        footing = m.footing_load()  # 0 in the gravity phase: set_gravity zeroes the footing
         self.iterations.append(result.iterations)
         self.rows.extend(convergence_rows(step, result))
         self.step_info.append(
@@ -380,7 +379,7 @@ class SlopeRun:
                 "phase": self.options.phases[phase_index],
                 "t": t,
                 "gravity": lam_g,
-                "footing_load": lam_f * m.geometry.footing_load,
+                "footing_load": footing,
                 "iterations": result.iterations,
                 "converged": True,
                 "residual_norm": result.residual_norm,
@@ -396,7 +395,7 @@ class SlopeRun:
         )
         self.say(
             f"step {step:2d}/{self.n_nominal}: gravity x{lam_g:.2f}, footing "
-            f"{lam_f * m.geometry.footing_load:.3e} N/m, {result.iterations} iterations, "
+            f"{footing:.3e} N/m, {result.iterations} iterations, "
             f"{elapsed:.2f} s"
         )
 
@@ -421,8 +420,14 @@ class SlopeRun:
         for i in range(start_phase, len(phases)):
             t0 = start_t if i == start_phase else 0.0
             if i == 1 and self.options.path_following:
-                resumed = self.restart_state if i == start_phase else None
+                resumed = (
+                    self.restart["state"].get("arclength")
+                    if self.restart is not None and i == start_phase
+                    else None
+                )
                 if not follow_footing_path(self, i, converged, t0, resumed):
+                    return False
+                if self.stepper.stopped:  # (--stop-after) as under load control: not complete
                     return False
                 continue
             setters[i](t0)  # the loads of the converged state the phase starts from
@@ -442,7 +447,7 @@ def is_complete(restart: Mapping[str, Any]) -> bool:
     """True if the run of ``restart`` (:func:`load_restart`) had completed every load phase."""
     state = restart["state"]
     path = state.get("arclength") or {}
-    if path.get("stopped") and path["stopped"] != "asked to stop":
+    if path.get("stopped") and path["stopped"] != ASKED_TO_STOP:
         return True  # a path that reached its end (past the peak, or the full load)
     return state["phase"] == len(restart["options"].phases) - 1 and state["t"] >= 1.0
 
@@ -473,10 +478,12 @@ def run_slope(
             f"({run.law.prestress_ratio:.2g} of its modulus)"
         )
     run.run()
-    report_stop(run)
+    path = path_summary(run)
+    report_stop(run, path)
     extremes = m.extremes()
     probes = m.probes(extremes[1][1])
-    data = figure_data(run, extremes) if figure else None
+    # the mesh, displacement and cell-mean von Mises stress gathered on rank 0 (collective)
+    data = gather_mesh(m.V, m.u, m.material.cell_average(extremes[0])) if figure else None
     m.solver.destroy()  # collective PETSc clean-up while all ranks are here (rank 0 draws next)
     seconds, colour_range = 0.0, None
     if figure and comm.rank == 0:
@@ -484,7 +491,7 @@ def run_slope(
             run, run.writer.path("slope.png"), data, extremes, probes
         )
         draw_load_settlement(run, run.writer.path("load_settlement.png"))
-    summary = summarise(run, extremes, probes, seconds, colour_range)
+    summary = summarise(run, extremes, probes, seconds, colour_range, path)
     run.writer.csv("convergence.csv", CONVERGENCE_HEADER, run.rows)
     run.writer.json("summary.json", summary)
     t = summary

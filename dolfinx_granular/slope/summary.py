@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from mpi4py import MPI
 
-from ..postprocess import gather_mesh, plot_load_settlement, plot_slope
+from ..postprocess import plot_load_settlement, plot_slope
 from .path import path_summary
 
 if TYPE_CHECKING:
@@ -23,16 +23,23 @@ if TYPE_CHECKING:
     from .run import SlopeRun
 
 
-def limit_message(failed: dict, run: SlopeRun) -> str | None:
-    """The log line of a failed footing phase that stopped at a limit load (adds the carried
-    footing load in N/m to ``failed["limit_load"]``), or None."""
-    limit = failed["limit_load"]
-    if limit is None or failed["phase"] != "footing":
+def limit_footing_load(failed: dict | None, run: SlopeRun) -> float | None:
+    """The footing load (N/m) that a footing phase which failed at a limit load carried at its
+    last converged state, or None (no failure, no limit load, another phase)."""
+    if failed is None or failed["limit_load"] is None or failed["phase"] != "footing":
         return None
-    lf = run.options.load_factor
-    limit["footing_load"] = lf * limit["t_converged"] * run.options.geometry.footing_load
+    o = run.options
+    return o.load_factor * failed["limit_load"]["t_converged"] * o.geometry.footing_load
+
+
+def limit_message(failed: dict, run: SlopeRun) -> str | None:
+    """The log line of a failed footing phase that stopped at a limit load, or None."""
+    footing_load = limit_footing_load(failed, run)
+    if footing_load is None:
+        return None
+    limit, lf = failed["limit_load"], run.options.load_factor
     return (
-        f"slope: limit load: the slope carries at most {abs(limit['footing_load']):.4g} N/m "
+        f"slope: limit load: the slope carries at most {abs(footing_load):.4g} N/m "
         f"of footing {'uplift' if lf < 0 else 'load'} ({abs(lf) * limit['t_converged']:.4g} x "
         f"the nominal footing load); the displacement per load increment has grown "
         f"{1 / limit['stiffness_ratio']:.3g}-fold. Past a limit point load control finds no "
@@ -40,10 +47,11 @@ def limit_message(failed: dict, run: SlopeRun) -> str | None:
     )
 
 
-def report_stop(run: SlopeRun) -> None:
-    """Log how the run ended (failure, limit load, the end of a path, a requested stop)."""
+def report_stop(run: SlopeRun, path: dict | None = None) -> None:
+    """Log how the run ended (failure, limit load, the end of a path, a requested stop);
+    ``path``: :func:`~dolfinx_granular.slope.path.path_summary` of the run, if at hand."""
     failed, stepper = run.stepper.failed, run.stepper
-    path = path_summary(run)
+    path = path_summary(run) if path is None else path
     if path is not None and path["peak"] is not None:
         peak = path["peak"]
         run.say(
@@ -73,13 +81,18 @@ def summarise(
     probes: Sequence[tuple[str, np.ndarray | None, np.ndarray, str, Any]],
     figure_time: float = 0.0,
     colour_range: tuple[float, float] | None = None,
+    path: dict | None = None,
 ) -> dict:
     """The summary dict of a run at its last converged state (collective); ``extremes`` and
     ``probes`` from :class:`~dolfinx_granular.slope.model.SlopeModel`, the figure's time and
-    colour range from :func:`draw_figure`."""
+    colour range from :func:`draw_figure`, ``path`` from
+    :func:`~dolfinx_granular.slope.path.path_summary` (computed here if not given)."""
     m, comm, stepper = run.model, run.comm, run.stepper
     _, (vmax, xmax), (vmin, xmin) = extremes
     failed = stepper.failed
+    footing_load = limit_footing_load(failed, run)
+    if footing_load is not None:  # the limit load's record with the load carried, in N/m
+        failed = {**failed, "limit_load": {**failed["limit_load"], "footing_load": footing_load}}
     t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in m.solver.timings.items()}
     status = "failed" if failed else ("stopped" if stepper.stopped else "converged")
     info = run.step_info
@@ -132,7 +145,7 @@ def summarise(
         "figure_colour_range": colour_range,
         "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()} for label, xp, Fp, *_ in probes},
         # path following (SlopeOptions.path_following): the peak, the critical points, the path
-        "path_following": path_summary(run),
+        "path_following": path_summary(run) if path is None else path,
     }
 
 
@@ -142,14 +155,6 @@ def _permanent_settlement(run):
         return None
     gravity = next(s for s in info if s["phase"] == "gravity" and s["t"] >= 1.0)
     return info[-1]["settlement"] - gravity["settlement"]
-
-
-def figure_data(
-    run: SlopeRun, extremes: tuple[np.ndarray, tuple[float, list[float]], tuple[float, list[float]]]
-) -> tuple[np.ndarray, ...] | None:
-    """The mesh, displacement and cell-mean von Mises stress gathered on rank 0 (collective)."""
-    m = run.model
-    return gather_mesh(m.V, m.u, m.material.cell_average(extremes[0]))
 
 
 def draw_figure(
