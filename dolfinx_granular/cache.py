@@ -1,8 +1,9 @@
 """Generated packings kept on disk, so that studies pay for the jamming of each packing once.
 
-:class:`PackingCache` is shared by the RVE-size study (``demos/rve_study.py``) and the performance
-report (``benchmarks/report.py``): both ask for packings by particle count and seed, and both report
-how long generating each one took.
+:class:`PackingCache` is shared by the RVE-size study (``demos/rve_study.py``), the friction study
+(``demos/friction_study.py``) and the performance report (``benchmarks/report.py``): they ask for
+packings by particle count and seed, and the RVE-size study and the report also report how long
+generating each one took.
 """
 
 from __future__ import annotations
@@ -73,8 +74,12 @@ class PackingCache:
             packing = generate_packing(int(n), seed=int(seed))
             self.times[self._key(n, seed)] = time.perf_counter() - t0
             packing.save(path)
-            with open(self._times_path, "w") as f:
-                json.dump(self.times, f, indent=1)
+            # imported here: runwriter imports mpi4py (MPI_Init), which the MPI-free studies that
+            # use this cache (rve_study, friction_study) do not need
+            from .runwriter import atomic_write
+
+            # atomic: a study killed while writing leaves the previous times, not half a file
+            atomic_write(self._times_path, json.dumps(self.times, indent=1))
         self._loaded[key] = packing
         return packing
 

@@ -88,6 +88,15 @@ def _wrap(x, box):
                 x[i, a] -= box[a]
 
 
+@njit(cache=True)
+def _neighbour_list(x, r, box, skin):
+    """Wrap the centres x (N, 2) into the cell (in place) and list the pairs within ``skin``
+    of contact: ``(m, pi, pj, ps)`` of :func:`dolfinx_granular.kernel.find_pairs` (compiled, as
+    FIRE's inner loop rebuilds the list through it)."""
+    _wrap(x, box)
+    return kernel.find_pairs(x, r, box, 1.0, skin, False)
+
+
 def _candidates(centers, radii, box, max_ratio):
     """Pairs with |L| <= max_ratio (r_i + r_j) and their overlap at F = I, in linear time: those
     of :func:`dolfinx_granular.kernel.candidate_pairs`, so that eps = R - |L| decides "active"
@@ -201,8 +210,7 @@ def _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl):
             alpha = _ALPHA0
             v[:, :] = 0.0
         if _euler_step(x, v, f, x_ref, dt) > (0.5 * skin) ** 2:
-            _wrap(x, box)
-            m, pi, pj, ps = kernel.find_pairs(x, r, box, 1.0, skin, False)
+            m, pi, pj, ps = _neighbour_list(x, r, box, skin)
             x_ref[:, :] = x
         st[4] = _forces(x, r, box, m, pi, pj, ps, f)
         step += 1
@@ -220,8 +228,7 @@ def _minimise(x, r, box, skin, ftol, dt0, dt_max, max_steps, beat):
         ``(steps, virial)``: virial = sum of overlap * distance over the contacts (mm²).
     """
     n = r.shape[0]
-    _wrap(x, box)
-    nl = kernel.find_pairs(x, r, box, 1.0, skin, False)
+    nl = _neighbour_list(x, r, box, skin)
     v = np.zeros((n, 2))
     f = np.empty((n, 2))
     x_ref = x.copy()
@@ -478,8 +485,7 @@ def relax_overlaps(
     """
     if not isinstance(packing, Packing):
         raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
-    if not (0.0 < contact_overlap <= 1e-8):
-        raise ValueError(f"contact_overlap must lie in (0, 1e-8], got {contact_overlap!r}")
+    _check_contact_overlap(contact_overlap)
     delta = contact_overlap * 2.0 * float(packing.radii.mean())
     centers, radii, box = _stress_free(
         packing.centers.copy(), packing.radii.copy(), packing.box.copy(), delta, _Reporter(progress)
@@ -506,9 +512,14 @@ def _check_arguments(
         raise ValueError(f"max_rattlers must lie in [0, 1], got {max_rattlers}")
     if int(max_attempts) != max_attempts or max_attempts < 1:
         raise ValueError(f"max_attempts must be an integer >= 1, got {max_attempts}")
+    _check_contact_overlap(contact_overlap)
+    return n, curve
+
+
+def _check_contact_overlap(contact_overlap):
+    """The range check of ``contact_overlap`` (generate_packing, relax_overlaps)."""
     if not (0.0 < contact_overlap <= 1e-8):
         raise ValueError(f"contact_overlap must lie in (0, 1e-8], got {contact_overlap}")
-    return n, curve
 
 
 def _seed(seed):
@@ -615,8 +626,7 @@ def _next_phi(phi, jammed, lo, hi, p_target):
 
 def _pressure(x, r, box):
     """Virial pressure p / k of the centres x (N, 2) (wrapped in place) at radii r (N,)."""
-    _wrap(x, box)
-    m, pi, pj, ps = kernel.find_pairs(x, r, box, 1.0, 0.0, False)
+    m, pi, pj, ps = _neighbour_list(x, r, box, 0.0)
     return _forces(x, r, box, m, pi, pj, ps, np.empty_like(x)) / (2.0 * box.prod())
 
 
