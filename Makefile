@@ -1,5 +1,6 @@
-# The two commands of the README: `make demo` (main job) and `make test` (whole suite), on Debian
-# bookworm's DOLFINx 0.5.2. Both set everything up first; a second set-up run costs seconds.
+# The README's commands: `make demo` (main job) and `make test` (whole suite), on Debian
+# bookworm's DOLFINx 0.5.2; `make lint` (ruff) and `make bench` (docs/performance.md). All set
+# everything up first; a second set-up run costs seconds.
 # The `-current` targets do the same on the current DOLFINx (0.11, PyPI wheel, Python >= 3.12).
 PY := .venv/bin/python
 NP ?= 2

@@ -16,19 +16,17 @@ Writes section 7 of ``OUT/performance.md`` (between its markers; ``report.py`` k
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
 
 from dolfinx_granular import generate_packing
 
-import numpy as np
-
+import stacks
 from friction_kernel import run_size
-from sections import markers, write_section
+from kernel import deformations
+from sections import command_line, markers, write_section
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BEGIN, END = markers("friction_path.py")
@@ -55,25 +53,6 @@ def slope_cases(refine: bool) -> dict[str, list[str]]:
     return cases
 
 
-def run_slope(packing_file: str, options: list[str], steps: int, ranks: int, out: str) -> dict:
-    """One run of ``demos/slope.py``; its ``summary.json`` plus the command line."""
-    cmd = [sys.executable, os.path.join(ROOT, "demos", "slope.py"), "--packing", packing_file]
-    cmd += ["--steps", str(steps), "--no-figure", "--out", out, *options]
-    if ranks > 1:
-        from dolfinx_granular._dolfinx import mpi_command  # (imports DOLFINx)
-
-        launcher = mpi_command(ranks)
-        if launcher is None:
-            raise RuntimeError("no MPI launcher (mpiexec/mpirun) found: run with --ranks 1")
-        cmd = [*launcher, *cmd]
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    if proc.returncode not in (0, 1):  # 1: stopped before the full load, which is a result here
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
-    with open(os.path.join(out, "summary.json")) as f:
-        return json.load(f)
-
-
 def outcome(s: dict) -> str:
     """What a run found: settlement, or where it stopped, or its peak load."""
     path = s.get("path_following")
@@ -96,9 +75,12 @@ def outcome(s: dict) -> str:
 
 def measure(args) -> dict:
     """Kernel rows and slope summaries."""
-    rng = np.random.default_rng(0)
-    F0 = 0.98 * np.eye(2) + rng.normal(0.0, 2e-3, (args.points, 2, 2))
+    F0 = deformations(args.points)
     kernel_rows = [run_size(n, F0, args.repeats, False) for n in args.sizes]
+    # this Python as a stack of stacks.py: its Python and its MPI launcher (mpi_command)
+    here = stacks.probe(sys.executable, "this Python")
+    if here is None:
+        raise RuntimeError(f"{sys.executable} cannot import dolfinx_granular and DOLFINx")
     slope = {}
     with tempfile.TemporaryDirectory() as tmp:
         packing_file = os.path.join(tmp, "packing.npz")
@@ -106,7 +88,18 @@ def measure(args) -> dict:
         for k, (name, options) in enumerate(slope_cases(args.refine).items()):
             print(f"  slope: {name}", file=sys.stderr, flush=True)
             out = os.path.join(tmp, f"case{k}")
-            slope[name] = run_slope(packing_file, options, args.steps, args.ranks, out)
+            slope[name] = stacks.run_slope(
+                here,
+                out,
+                "--packing",
+                packing_file,
+                "--steps",
+                args.steps,
+                *options,
+                ranks=args.ranks,
+                timeout=None,
+                accept=(0, 1),  # 1: stopped before the full load, which is a result here
+            )
     return {"kernel": kernel_rows, "slope": slope}
 
 
@@ -172,8 +165,8 @@ def main(argv=None) -> dict:
     a = p.parse_args(argv)
     t0 = time.perf_counter()
     res = measure(a)
-    command = "python benchmarks/friction_path.py " + " ".join(argv or sys.argv[1:])
-    section = markdown(res, a, command.strip(), (time.perf_counter() - t0) / 60)
+    command = command_line("friction_path.py", argv)
+    section = markdown(res, a, command, (time.perf_counter() - t0) / 60)
     os.makedirs(a.out, exist_ok=True)
     write_section(os.path.join(a.out, "performance.md"), section)
     print(section)

@@ -5,8 +5,9 @@
 
 Writes ``OUT/performance.md`` and its figures ``OUT/perf_*.png`` (and the raw numbers to
 ``results/performance.json``, or ``OUT/performance.json`` for another ``--out``); every number in
-them is measured in that run. The section that ``benchmarks/stacks.py`` keeps in
-``performance.md`` (between its markers) is carried over. Sections:
+them is measured in that run. The sections that other scripts keep in ``performance.md``
+(between their markers: ``benchmarks/stacks.py``'s, ``benchmarks/friction_path.py``'s) are carried
+over. Sections:
 
 1. kernel: µs per quadrature point (P only, P and tangent) for 70 ... 2800 particles beside plain
    NumPy and a straightforward Numba loop (``benchmarks/kernel.py``), contacts per second, and the
@@ -22,10 +23,10 @@ them is measured in that run. The section that ``benchmarks/stacks.py`` keeps in
 
 This file is the command line and the order of the work; the pieces, one job each:
 ``report_slope`` (one slope run through the library's ``SlopeRun`` and its factories, timed by
-the solver's and the material's own clocks; the MPI worker), ``report_measure`` (kernel,
-post-processing, machine), ``report_studies`` (which slope runs, repeats), ``report_tables``
-(derived numbers), ``report_figures``, ``report_markdown``. ``--tiny`` is a reduced run for the
-tests.
+the solver's and the material's own clocks; the MPI worker), ``flops`` (the machine's FMA
+peak), ``report_measure`` (kernel, post-processing, machine), ``report_studies`` (which slope
+runs, repeats), ``report_tables`` (derived numbers), ``report_figures``, ``report_markdown``.
+``--tiny`` is a reduced run for the tests.
 """
 
 from __future__ import annotations
@@ -34,7 +35,6 @@ import argparse
 import datetime
 import json
 import os
-import shlex
 import sys
 import tempfile
 import time
@@ -44,11 +44,13 @@ from dolfinx_granular._dolfinx import mpi_command
 from dolfinx_granular.cache import PackingCache
 from dolfinx_granular.levels import isotropic_lame
 
+import flops  # benchmarks/flops.py: the machine's FMA peak
 import report_figures
 import report_markdown
 import report_measure
 import report_studies
 import report_tables
+from sections import command_line
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -87,7 +89,7 @@ def run_all(cfg, log=print) -> dict:
     with tempfile.TemporaryDirectory(prefix="perf_report_") as tmp:
         packings = PackingCache(tmp)  # fresh: generation times are this machine's
         log("peak ...")
-        res["peak"] = report_measure.peak()
+        res["peak"] = flops.measure()
         log(f"  {res['peak']['gflops_per_core']:.1f} GFLOP/s per core")
         log("kernel ...")
         res["kernel"] = report_measure.kernel_rows(
@@ -141,11 +143,6 @@ def render(res, out) -> str:
     return path
 
 
-def _command(argv) -> str:
-    args = sys.argv[1:] if argv is None else argv
-    return "python benchmarks/report.py" + "".join(" " + shlex.quote(a) for a in args)
-
-
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=os.path.join(ROOT, "docs"), help="output folder (docs/)")
@@ -189,7 +186,7 @@ def main(argv=None) -> int:
     log = (lambda *x: None) if a.quiet else (lambda *x: print(*x, flush=True))
     t0 = time.perf_counter()
     res = run_all(cfg, log)
-    describe(res, _command(argv), time.perf_counter() - t0)
+    describe(res, command_line("report.py", argv), time.perf_counter() - t0)
     path = render(res, a.out)
     os.makedirs(os.path.dirname(os.path.abspath(a.json)), exist_ok=True)
     with open(a.json, "w") as f:

@@ -71,7 +71,7 @@ def kernel_figure(res):
 def iteration_figure(res):
     """Stacked bars: CPU ms per Newton iteration by category, per model level."""
     it = res["iteration"]
-    order = [lv for lv in ("taylor", "taylor_skip", "small_strain", "ufl_linear") if lv in it]
+    order = list(it)  # report_studies.ITERATION_LEVELS: the order of the runs
     cats = [
         ("F", "F evaluation"),
         ("kernel", "RVE kernel"),

@@ -1,5 +1,6 @@
 """The report's text: ``performance.md`` from the raw results, and writing it without losing the
-section that ``benchmarks/stacks.py`` keeps in the same file."""
+marked sections that other scripts (``benchmarks/stacks.py``, ``benchmarks/friction_path.py``)
+keep in the same file."""
 
 from __future__ import annotations
 

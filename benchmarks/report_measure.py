@@ -1,5 +1,6 @@
-"""The report's measurements outside the slope runs: the machine's floating-point peak, the kernel
-against its baselines, post-processing and force-network costs, the machine and software versions.
+"""The report's measurements outside the slope runs: the kernel against its baselines (as a
+fraction of the machine's floating-point peak, which ``benchmarks/flops.py`` measures),
+post-processing and force-network costs, the machine and software versions.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from dolfinx_granular.timing import time_per_point
 
 import numpy as np
 
-import flops  # benchmarks/flops.py: the machine's FMA peak
 import kernel as kbench  # benchmarks/kernel.py: the one kernel comparison
 
 BENCHMARKS = os.path.dirname(os.path.abspath(__file__))
@@ -29,15 +29,10 @@ FLOPS_CANDIDATE = {"P": 24, "PA": 42}
 FLOPS_POINT = {"P": 38, "PA": 246}
 
 
-def peak() -> dict:
-    """The machine's FMA peak per core (:func:`flops.measure`)."""
-    return flops.measure()
-
-
 def kernel_rows(sizes, points, repeats, packings, peak) -> list[dict]:
     """One row per particle count: :func:`kernel.compare` on ``points`` deformation gradients
     (seed-0 packing of ``packings``, a PackingCache), plus contacts per second, GFLOP/s and the
-    fraction of the measured peak (``peak``: :func:`peak`)."""
+    fraction of the measured peak (``peak``: :func:`flops.measure`)."""
     F = kbench.deformations(points)
     rows = []
     for n in sizes:

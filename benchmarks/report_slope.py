@@ -274,8 +274,12 @@ def mpi_slope_run(packing_file, ranks, timeout=1200, **spec) -> dict:
             json.dumps({"packing": packing_file, **spec}),
             out,
         ]
-        env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-        proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
+        # env: Python's copy of the environment from start-up, without what MPI_Init (this
+        # process has imported mpi4py) put into the C environment since: Open MPI's singleton
+        # variables make the child launcher exit with 1 and no word
+        proc = subprocess.run(
+            cmd, env=dict(os.environ), capture_output=True, text=True, timeout=timeout
+        )
         if proc.returncode != 0 or not os.path.isfile(out):
             raise RuntimeError(
                 f"{' '.join(launcher)} ... failed ({proc.returncode}): "

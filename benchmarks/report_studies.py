@@ -12,14 +12,10 @@ from dolfinx_granular import AdaptiveRVE, TaylorRVE
 from dolfinx_granular.slope.run import K_N
 
 from report_slope import mpi_slope_run, slope_run
+from report_tables import public
 
 #: the levels of the Newton-iteration breakdown, in table order
 ITERATION_LEVELS = ("taylor", "taylor_skip", "small_strain", "ufl_linear")
-
-
-def public(run) -> dict:
-    """The run dict without its private entries (final F, law)."""
-    return {k: v for k, v in run.items() if not k.startswith("_")}
 
 
 def iteration_runs(cfg, packing, log) -> dict:

@@ -28,6 +28,11 @@ _TIMED = (
 )
 
 
+def public(run) -> dict:
+    """The run dict without its private entries (keys starting with ``_``: final F, law)."""
+    return {k: v for k, v in run.items() if not k.startswith("_")}
+
+
 def level_label(level, tol=None) -> str:
     return LEVEL_NAMES[level] + (f", tol {tol:g}" if tol is not None else "")
 
@@ -64,7 +69,7 @@ def iteration_summary(runs) -> dict:
     for level, group in runs.items():
         fastest = min(group, key=lambda r: r["cpu"]["newton"])
         out[level] = {
-            "run": {k: v for k, v in fastest.items() if not k.startswith("_")},
+            "run": public(fastest),
             "best": best_of(group),
             "best_wall": best_of(group, "wall"),
             "spread_newton": [per_iteration(r)["newton"] for r in group],

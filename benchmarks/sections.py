@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
+import sys
 
 _BLOCK = re.compile(r"<!-- begin: (\S+) -->.*?<!-- end: \1 -->", re.S)
 
@@ -14,6 +16,14 @@ _BLOCK = re.compile(r"<!-- begin: (\S+) -->.*?<!-- end: \1 -->", re.S)
 def markers(script: str) -> tuple[str, str]:
     """The begin and end markers of the section written by ``benchmarks/<script>``."""
     return f"<!-- begin: benchmarks/{script} -->", f"<!-- end: benchmarks/{script} -->"
+
+
+def command_line(script: str, argv=None) -> str:
+    """``python benchmarks/<script> ARGS``, the command that generated a section or report: ARGS
+    are ``argv`` (shell-quoted), or this process's arguments where ``argv`` is None (a script run
+    from the shell; ``main([])`` called from Python, e.g. by a test, has no arguments)."""
+    args = sys.argv[1:] if argv is None else argv
+    return f"python benchmarks/{script}" + "".join(" " + shlex.quote(str(a)) for a in args)
 
 
 def marked_sections(text: str) -> list[str]:

@@ -24,13 +24,12 @@
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import os
 import sys
 import time
 
 from dolfinx_granular import generate_packing
+from dolfinx_granular.runwriter import RunWriter
 from dolfinx_granular.slope import SlopeGeometry, SlopeOptions, run_slope
 
 from mpi4py import MPI
@@ -76,14 +75,9 @@ def run_all(packing, meshes, steps, out, comm, say):
         s = run_slope(
             packing, options, out=os.path.join(out, name), comm=comm, figure=False, verbose=False
         )
-        results[name] = {
-            "summary": s,
-            "wall": time.perf_counter() - t0,
-            "cells": options.geometry.n_cells,
-        }
-        say(
-            f"{name}: {s['status']}, {s['completed_steps']} steps, {time.perf_counter() - t0:.1f} s"
-        )
+        wall = time.perf_counter() - t0
+        results[name] = {"summary": s, "wall": wall, "cells": options.geometry.n_cells}
+        say(f"{name}: {s['status']}, {s['completed_steps']} steps, {wall:.1f} s")
     return results
 
 
@@ -106,9 +100,7 @@ def curve(summary):
 
 
 def figure(results, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
+    # a Figure of its own, no pyplot: savefig renders the PNG with Agg whatever the backend
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(12, 4.6))
@@ -179,21 +171,20 @@ def main(argv=None):
     results = run_all(packing, a.meshes, a.steps, a.out, comm, say)
     if comm.rank == 0:
         rows, summary = records(results)
-        with open(os.path.join(a.out, "collapse.csv"), "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(
-                [
-                    "run",
-                    "cells",
-                    "step",
-                    "settlement_m",
-                    "footing_load_MN_per_m",
-                    "non_elliptic_points",
-                ]
-            )
-            w.writerows(rows)
-        with open(os.path.join(a.out, "collapse.json"), "w") as f:
-            json.dump(summary, f, indent=1)
+        writer = RunWriter(a.out, comm)  # (atomic files, floats to 17 digits)
+        writer.csv(
+            "collapse.csv",
+            [
+                "run",
+                "cells",
+                "step",
+                "settlement_m",
+                "footing_load_MN_per_m",
+                "non_elliptic_points",
+            ],
+            rows,
+        )
+        writer.json("collapse.json", summary)
         figure(results, os.path.join(a.out, "collapse.png"))
         for name, s in summary.items():
             peak = s["peak"] or {}
