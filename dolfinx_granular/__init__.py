@@ -2,7 +2,8 @@
 
 The microscale lives in :mod:`~dolfinx_granular.packing` (disk packings) and
 :mod:`~dolfinx_granular.rve` (stress and tangents, Numba kernels in
-:mod:`~dolfinx_granular.kernel`). DOLFINx is imported only by the modules that need it.
+:mod:`~dolfinx_granular.kernel`). DOLFINx is imported only by the modules that need it; with
+the PyPI wheel of DOLFINx, importing the package loads the wheel's MPI library (below).
 """
 
 import importlib.util as _importlib_util

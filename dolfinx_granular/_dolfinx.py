@@ -23,6 +23,8 @@ import ufl
 from dolfinx import fem
 from petsc4py import PETSc
 
+from .runwriter import atomic_write
+
 if TYPE_CHECKING:
     from collections.abc import Callable
     from os import PathLike
@@ -247,7 +249,4 @@ def repair_xdmf(path: str | PathLike[str]) -> None:
     with open(path, encoding="utf-8") as f:
         text = f.read()
     if _XINCLUDE_WRONG in text:
-        tmp = f"{path}.tmp{os.getpid()}"
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text.replace(_XINCLUDE_WRONG, _XINCLUDE))
-        os.replace(tmp, path)
+        atomic_write(path, text.replace(_XINCLUDE_WRONG, _XINCLUDE))

@@ -60,8 +60,7 @@ class LinearElasticMaterial(QuadratureMaterial):
             raise ValueError(f"need mu > 0 and lam + mu > 0 (Pa), got lam = {lam!r}, mu = {mu!r}")
         super().__init__(u, quadrature_degree, cells)
         self.lam, self.mu = lam, mu
-        X = dfx.quadrature_points(self.mesh, self.quadrature_degree)
-        self._sigma_expr = dfx.expression(self.sigma(u), X)
+        self._sigma_expr = dfx.expression(self.sigma(u), self.reference_points)
 
     @classmethod
     def isotropic_part(

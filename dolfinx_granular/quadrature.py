@@ -98,6 +98,7 @@ class QuadratureMaterial:
             material's quadrature data.
         cells: (n_cells,) the owned cells the material evaluates.
         n_qp: quadrature points per cell.
+        reference_points: (n_qp, 2) the quadrature points on the reference cell.
         F: (n_points, 2, 2) deformation gradient at the last ``update`` (point ``cell*n_qp+q``
             of ``cells``), set by the subclasses.
         clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"F"`` (evaluating grad u) and
@@ -121,7 +122,8 @@ class QuadratureMaterial:
         self.dx = ufl.Measure(
             "dx", domain=msh, metadata={"quadrature_degree": k, "quadrature_scheme": "default"}
         )
-        X = dfx.quadrature_points(msh, k)
+        # the reference quadrature points (n_qp, 2): expressions of subclasses use them too
+        self.reference_points = X = dfx.quadrature_points(msh, k)
         self.n_qp = X.shape[0]
         self.cells, self.indicator = _material_cells(msh, cells)
         self._F_expr = dfx.expression(ufl.Identity(2) + ufl.grad(u), X)

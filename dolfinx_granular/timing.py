@@ -41,11 +41,6 @@ class Stopwatch:
             self.cpu[key] += time.process_time() - cpu
             self.calls[key] += 1
 
-    def reset(self) -> None:
-        self.wall.clear()
-        self.cpu.clear()
-        self.calls.clear()
-
 
 def time_per_point(fn: Callable[[np.ndarray], object], F: np.ndarray, repeats: int = 5) -> float:
     """Best wall time per point (s) of ``fn(F)`` over ``repeats`` runs, F of shape (n, 2, 2)
