@@ -10,6 +10,7 @@ import importlib
 import importlib.util
 import json
 import os
+import subprocess
 import sys
 from collections import namedtuple
 
@@ -26,7 +27,9 @@ MPI_ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CO
 
 
 def load_benchmark(name):
-    """The module ``benchmarks/<name>.py`` (a plain import: ``benchmarks/`` is on pytest's path)."""
+    """The module ``benchmarks/<name>.py`` (a plain import: ``benchmarks/`` is on pytest's path).
+
+    Kept for tests/test_friction.py only; elsewhere the tests ``import <name>`` directly."""
     return importlib.import_module(name)
 
 
@@ -50,6 +53,31 @@ def slope_command(*args, ranks=1):
         assert launcher is not None, "no MPI launcher (mpiexec/mpirun) found"
         cmd = [*launcher, *cmd]
     return cmd
+
+
+def run_slope_demo(out, *args, ranks=1, timeout=600, check=True):
+    """Run ``python demos/slope.py *args --out out`` (no ``--out`` if ``out`` is None) from the
+    checkout's root, under MPI with ``ranks`` processes if ranks > 1, with ``MPI_ENV``.
+
+    Returns ``(proc, summary)``: the ``subprocess.CompletedProcess`` (text ``stdout`` and
+    ``stderr``, ``returncode``) and the run's ``summary.json`` as a dict (None if ``out`` is None
+    or the run wrote none). ``check``: assert that the run exited with status 0."""
+    extra = () if out is None else ("--out", out)
+    proc = subprocess.run(
+        slope_command(*args, *extra, ranks=ranks),
+        cwd=ROOT,
+        env=MPI_ENV,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    if check:
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    summary = None
+    if out is not None and os.path.isfile(os.path.join(out, "summary.json")):
+        with open(os.path.join(out, "summary.json")) as f:
+            summary = json.load(f)
+    return proc, summary
 
 
 def read_outputs(out):
@@ -135,3 +163,51 @@ def granular_column(
         residual, material.jacobian_form(du, v), u, bcs, material, prefix=prefix, **solver_kwargs
     )
     return Column(solver, material, u, p)
+
+
+# -- the Taylor test -------------------------------------------------------------------------------
+
+
+def taylor_remainders(L, a, u, direction, update, h0, halvings=5):
+    """Taylor test of a residual against its Jacobian at ``u`` in the direction ``direction``
+    (a Function of u's space): with ``L`` and ``a`` the compiled residual and Jacobian forms and
+    ``update()`` bringing the materials' stress (and tangent) to the current u, the remainders
+
+        r1(h) = |R(u + h d) - R(u)|,   r2(h) = |R(u + h d) - R(u) - h J(u) d|
+
+    for h = h0, h0 / 2, ... (``halvings`` values) and their convergence rates
+    log2(r(h) / r(h / 2)): r1 falls as O(h), r2 as O(h^2) for the consistent Jacobian.
+    u is restored on return. Returns ``(rate1, rate2, r1, r2)`` (arrays)."""
+    from dolfinx_granular._dolfinx import petsc_vec
+
+    from dolfinx.fem.petsc import assemble_matrix, assemble_vector
+    from petsc4py import PETSc
+
+    def residual():
+        update()
+        b = assemble_vector(L)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return b
+
+    u0 = u.x.array.copy()
+    R0 = residual()  # (also leaves the materials' tangent at u for the Jacobian)
+    J = assemble_matrix(a)
+    J.assemble()
+    Jd = J.createVecLeft()
+    J.mult(petsc_vec(direction), Jd)
+    r1, r2 = [], []
+    try:
+        for h in [h0 / 2**k for k in range(halvings)]:
+            u.x.array[:] = u0 + h * direction.x.array
+            Rh = residual()
+            Rh.axpy(-1.0, R0)
+            r1.append(Rh.norm())
+            Rh.axpy(-h, Jd)
+            r2.append(Rh.norm())
+            Rh.destroy()
+    finally:
+        u.x.array[:] = u0
+    for vec in (R0, Jd, J):
+        vec.destroy()
+    r1, r2 = np.array(r1), np.array(r2)
+    return np.log2(r1[:-1] / r1[1:]), np.log2(r2[:-1] / r2[1:]), r1, r2

@@ -117,11 +117,18 @@ def test_residual_must_be_linear_in_the_load():
     model.solver.destroy()
 
 
+@pytest.mark.mpi
 def test_serial_path_is_reproduced_on_every_rank_count():
-    """The traced states do not depend on the partition (MPI: the same path)."""
+    """The traced states do not depend on the partition: under mpirun the distributed truss
+    traces, step for step, the path of a serial copy on each rank (to round-off)."""
     model = truss(MPI.COMM_WORLD, prefix="al_mpi_")
     _, s = trace(model, ds=0.05, steps=12)
     assert np.abs(s[:, 0] - load_of_apex(s[:, 1])).max() <= 1e-9 * P_MAX
+    serial = truss(MPI.COMM_SELF, prefix="al_self_")
+    _, s1 = trace(serial, ds=0.05, steps=12)
+    assert s.shape == s1.shape == (12, 3)
+    assert np.abs(s - s1).max() <= 1e-10 * np.abs(s1).max(), np.abs(s - s1).max()
+    serial.solver.destroy()
     model.solver.destroy()
 
 

@@ -2,26 +2,19 @@
 status 2, no traceback (unless ``--debug``), also under ``mpirun -n 2``; a gmsh model without the
 required physical groups."""
 
-import subprocess
-
 from dolfinx_granular import Packing
 from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
 
 import numpy as np
 import pytest
 
-from helpers import MPI_ENV, ROOT, slope_command
+from helpers import run_slope_demo
 
 
-def demo(*args, ranks=1, cwd=ROOT):
-    return subprocess.run(
-        slope_command(*args, ranks=ranks),
-        cwd=cwd,
-        env=MPI_ENV,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+def demo(*args, ranks=1):
+    """The slope demo's process for ``args``, not checked (it is to fail); a failing run ends at
+    once, the timeout catches a rank that hangs."""
+    return run_slope_demo(None, *args, ranks=ranks, timeout=300, check=False)[0]
 
 
 def assert_user_error(proc, *words, mpirun=False):

@@ -10,7 +10,7 @@ from dolfinx_granular.__main__ import main
 import numpy as np
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from helpers import ROOT
 
 
 def run_module(*args, cwd):

@@ -3,9 +3,7 @@ footing load and an uplift. Failed steps are cut back and logged; both loads exc
 can carry (a limit point of the load-settlement path), so the run stops at its last converged state
 with every number finite and reports the limit load."""
 
-import json
 import math
-import subprocess
 
 import numpy as np
 import pytest
@@ -16,13 +14,16 @@ from dolfinx_granular.slope import SlopeOptions, load_restart, run_slope  # noqa
 
 from mpi4py import MPI  # noqa: E402
 
-from helpers import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
+from helpers import read_outputs, run_slope_demo  # noqa: E402
+
+PARTICLES, SEED, STEPS = 70, 1, 4
+UPLIFT = -0.25  # the load factor of the uplift
 
 
 def run(tmp_path, load_factor, **kwargs):
-    options = SlopeOptions(steps=4, load_factor=load_factor, **kwargs)
+    options = SlopeOptions(steps=STEPS, load_factor=load_factor, **kwargs)
     summary = run_slope(
-        generate_packing(70, seed=1),
+        generate_packing(PARTICLES, seed=SEED),
         options,
         out=str(tmp_path),
         comm=MPI.COMM_SELF,
@@ -97,11 +98,18 @@ def test_doubled_footing_load_reaches_the_limit_load_past_the_nominal_one(tmp_pa
     check_displacement_rate_grows(tmp_path)
 
 
+@pytest.fixture(scope="module")
+def uplift(tmp_path_factory):
+    """The serial uplift run (no stabiliser), shared: its folder and run()'s results."""
+    out = tmp_path_factory.mktemp("uplift")
+    return out, run(out, UPLIFT)
+
+
 @pytest.mark.slow
-def test_uplift_is_cut_back_and_stops_at_its_limit_load(tmp_path):
+def test_uplift_is_cut_back_and_stops_at_its_limit_load(uplift):
     """Pulling the footing up: the soil under it loses its contacts (singular matrix, then no
     equilibrium once the uplift exceeds what the overburden holds)."""
-    summary, on_disk, rows = run(tmp_path, -0.25)
+    out, (summary, on_disk, rows) = uplift
     footing_t = check_consistent(summary, on_disk, rows)
     reasons = " ".join(c["reason"] for c in summary["cutbacks"])
     assert "singular" in reasons
@@ -110,16 +118,16 @@ def test_uplift_is_cut_back_and_stops_at_its_limit_load(tmp_path):
     # one: the cohesionless soil holds the footing only through the weight of the cells below
     assert summary["step_info"][-1]["footing_load"] > 0
     assert 0 < limit["t_converged"] < 0.25
-    check_displacement_rate_grows(tmp_path)
+    check_displacement_rate_grows(out)
 
 
 @pytest.mark.slow
-def test_stabiliser_effect_is_measured_and_absent_while_contacts_hold(tmp_path):
+def test_stabiliser_effect_is_measured_and_absent_while_contacts_hold(tmp_path, uplift):
     """Uplift with the stabiliser (1e-3 of the eq. 15 modulus): identical steps to the plain run
     as long as no RVE has lost its contacts; once some have, the stabiliser's share of the nodal
     forces is reported per step (and its maximum)."""
-    plain, _, _ = run(tmp_path / "plain", -0.25)
-    stab, on_disk, rows = run(tmp_path / "stab", -0.25, stabilise=1e-3)
+    plain = uplift[1][0]
+    stab, on_disk, rows = run(tmp_path / "stab", UPLIFT, stabilise=1e-3)
     check_consistent(stab, on_disk, rows)
     assert stab["stabilise"] == 1e-3 and plain["stabiliser_force_max"] == 0.0
     same = 0
@@ -135,30 +143,20 @@ def test_stabiliser_effect_is_measured_and_absent_while_contacts_hold(tmp_path):
 
 
 @pytest.mark.slow
-def test_uplift_on_two_ranks_matches_serial(tmp_path):
+def test_uplift_on_two_ranks_matches_serial(tmp_path, uplift):
     """The same cut-backs and the same stopping point under mpirun -n 2: RVE errors and singular
     factorisations on one rank are failures on all ranks, nobody hangs."""
-    out = tmp_path / "np2"
-    cmd = slope_command(
-        "--particles",
-        "70",
-        "--seed",
-        "1",
-        "--steps",
-        "4",
-        "--no-figure",
-        "--load-factor",
-        "-0.25",
-        "--out",
-        out,
+    serial = uplift[1][0]
+    proc, parallel = run_slope_demo(
+        tmp_path / "np2",
+        *("--particles", PARTICLES, "--seed", SEED, "--steps", STEPS, "--no-figure"),
+        *("--load-factor", UPLIFT),
         ranks=2,
+        timeout=300,
+        check=False,
     )
-    serial, _, _ = run(tmp_path / "np1", -0.25)
-    proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1, proc.stdout[-3000:] + proc.stderr[-3000:]  # stopped, not crashed
     assert "Traceback" not in proc.stderr
-    with open(out / "summary.json") as f:
-        parallel = json.load(f)
     assert parallel["ranks"] == 2 and parallel["status"] == serial["status"] == "failed"
     assert parallel["completed_steps"] == serial["completed_steps"]
     assert [c["t_to"] for c in parallel["cutbacks"]] == [c["t_to"] for c in serial["cutbacks"]]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from helpers import random_packing
-from reference import central_differences
+from reference import all_branch_vectors, central_differences
 
 # these tests use prestressed (overlapping) packings on purpose
 pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
@@ -117,17 +117,9 @@ def independent_bounds(rve):
     closed_ratio = (ref.overlap + np.linalg.norm(ref.branch, axis=1)) / np.linalg.norm(
         ref.branch, axis=1
     )
-    gap_ratio = 0.0
-    for i in range(pk.n_particles):
-        for j in range(i, pk.n_particles):
-            for sx in (-1, 0, 1):
-                for sy in (-1, 0, 1):
-                    if i == j and sx == 0 and sy == 0:
-                        continue
-                    L = pk.centers[j] + np.array([sx, sy]) * pk.box - pk.centers[i]
-                    r = (pk.radii[i] + pk.radii[j]) / np.linalg.norm(L)
-                    if r < 1.0 and r > gap_ratio:  # a reference gap
-                        gap_ratio = r
+    L, R = all_branch_vectors(pk, images=1)
+    ratio = R / np.linalg.norm(L, axis=1)
+    gap_ratio = ratio[ratio < 1.0].max(initial=0.0)  # the closest reference gap
     return closed_ratio.min(), gap_ratio, ref
 
 
@@ -233,7 +225,7 @@ def test_adaptive_out_arrays_counts_and_errors(jammed, rng):
     assert info.value.points.tolist() == [4]
     with pytest.raises(ValueError, match="tol"):
         AdaptiveRVE(jammed, 1.5)
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="rve must be a dolfinx_granular.TaylorRVE, got object"):
         AdaptiveRVE(object(), 0.1)
 
 
@@ -318,8 +310,6 @@ def test_final_residual_skips_the_tangent(jammed):
 
 @pytest.mark.mpi
 def test_levels_drop_into_granular_material(jammed):
-    from dolfinx_granular.material import GranularMaterial  # noqa: F401 (skips without dolfinx)
-
     results = {}
     adaptive = AdaptiveRVE(jammed, 1e-3)
     for name, rve in (

@@ -19,7 +19,7 @@ from helpers import granular_column  # noqa: E402
 
 
 def column(prefix, n=4, stabilise=0.0, material_class=GranularMaterial, **solver_kwargs):
-    """The shared column (tests/columns.py) of a 70-particle RVE, top pressure p = 0 to start."""
+    """The shared column (tests/helpers.py) of a 70-particle RVE, top pressure p = 0 to start."""
     solver_kwargs.setdefault("max_it", 10)
     return granular_column(
         TaylorRVE(generate_packing(70, seed=4), 2.8e7),

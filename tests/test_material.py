@@ -8,15 +8,17 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import function_space, petsc_vec, vector_space  # noqa: E402
+from dolfinx_granular._dolfinx import function_space, vector_space  # noqa: E402
 from dolfinx_granular.material import GranularMaterial  # noqa: E402
 from dolfinx_granular.solver import NewtonSolver  # noqa: E402
 
 import ufl  # noqa: E402
 from dolfinx import fem, mesh  # noqa: E402
-from dolfinx.fem.petsc import assemble_matrix, assemble_vector  # noqa: E402
+from dolfinx.fem.petsc import assemble_vector  # noqa: E402
 from mpi4py import MPI  # noqa: E402
 from petsc4py import PETSc  # noqa: E402
+
+from helpers import taylor_remainders  # noqa: E402
 
 K_N = 2.8e7
 F0 = np.array([[0.975, 0.012], [-0.008, 0.962]])  # compressive, slightly sheared
@@ -144,30 +146,7 @@ def test_taylor_jacobian_against_residual():
     material = GranularMaterial(rve, u)
     v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
     L, a = fem.form(material.residual_form(v)), fem.form(material.jacobian_form(du, v))
-
-    def residual():
-        material.update()
-        b = assemble_vector(L)
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        return b
-
-    u0 = u.x.array.copy()
-    R0 = residual()
-    J = assemble_matrix(a)
-    J.assemble()
-    Jd = J.createVecLeft()
-    J.mult(petsc_vec(d), Jd)
-    hs = [1e-1 / 2**k for k in range(5)]
-    r1, r2 = [], []
-    for h in hs:
-        u.x.array[:] = u0 + h * d.x.array
-        Rh = residual()
-        Rh.axpy(-1.0, R0)
-        r1.append(Rh.norm())
-        Rh.axpy(-h, Jd)
-        r2.append(Rh.norm())
-    rate1 = np.log2(np.array(r1[:-1]) / np.array(r1[1:]))
-    rate2 = np.log2(np.array(r2[:-1]) / np.array(r2[1:]))
+    rate1, rate2, r1, r2 = taylor_remainders(L, a, u, d, material.update, h0=1e-1)
     assert np.all(np.abs(rate1 - 1.0) < 0.1), rate1
     assert np.all(rate2 > 1.9), rate2
     assert r2[-1] < 1e-3 * r1[-1]

@@ -3,6 +3,7 @@
 import zipfile
 
 from dolfinx_granular import Packing, PackingFileError
+from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
 
 import numpy as np
 import pytest
@@ -86,21 +87,21 @@ def test_load_foreign_npz(tmp_path):
 def test_load_future_version(tmp_path):
     np.savez(
         tmp_path / "v.npz",
-        format=np.array("dolfinx_granular.packing"),
-        version=np.array(99),
+        format=np.array(FORMAT_NAME),
+        version=np.array(FORMAT_VERSION + 1),
         centers=np.zeros((2, 2)),
         radii=np.ones(2),
         box=np.ones(2) * 5,
     )
-    with pytest.raises(PackingFileError, match="version 99"):
+    with pytest.raises(PackingFileError, match=f"version {FORMAT_VERSION + 1}; .* reads version"):
         Packing.load(tmp_path / "v.npz")
 
 
 def test_load_invalid_contents(tmp_path):
     np.savez(
         tmp_path / "v.npz",
-        format=np.array("dolfinx_granular.packing"),
-        version=np.array(1),
+        format=np.array(FORMAT_NAME),
+        version=np.array(FORMAT_VERSION),
         centers=np.zeros((2, 2)),
         radii=np.array([1.0, -1.0]),
         box=np.ones(2) * 5,
@@ -112,18 +113,18 @@ def test_load_invalid_contents(tmp_path):
 def test_load_pickled_object_array_is_refused(tmp_path):
     np.savez(
         tmp_path / "o.npz",
-        format=np.array("dolfinx_granular.packing"),
-        version=np.array(1),
+        format=np.array(FORMAT_NAME),
+        version=np.array(FORMAT_VERSION),
         centers=np.array([None, None], dtype=object),
         radii=np.ones(2),
         box=np.ones(2),
     )
-    with pytest.raises(PackingFileError):
+    with pytest.raises(PackingFileError, match="o.npz' is not a readable packing file"):
         Packing.load(tmp_path / "o.npz")
 
 
 def test_zip_without_arrays(tmp_path):
     with zipfile.ZipFile(tmp_path / "z.npz", "w") as z:
         z.writestr("hello.txt", "hi")
-    with pytest.raises(PackingFileError):
+    with pytest.raises(PackingFileError, match="z.npz' is an .npz file but not a dolfinx_granular"):
         Packing.load(tmp_path / "z.npz")

@@ -2,7 +2,7 @@
 it, materials on subdomains add up, and a granular layer on a linear elastic base solves."""
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular._dolfinx import petsc_vec, vector_space
+from dolfinx_granular._dolfinx import vector_space
 from dolfinx_granular.linear import LinearElasticMaterial, lame_from_young
 from dolfinx_granular.loading import LoadStepper
 from dolfinx_granular.material import GranularMaterial
@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 import ufl
 from dolfinx import fem, mesh
-from dolfinx.fem.petsc import assemble_matrix, assemble_vector
+from dolfinx.fem.petsc import assemble_matrix
 from mpi4py import MPI
-from petsc4py import PETSc
+
+from helpers import taylor_remainders
 
 K_N = 2.8e7
 
@@ -38,34 +39,17 @@ def lower_cells(msh, y=1.0):
 
 def taylor_rates(materials, residual, u, direction, in_jacobian=None):
     """Convergence rates and remainders |R(u + h d) - R(u)| and |R(u + h d) - R(u) - h J d| for
-    halving h, J the Jacobian of derivative(residual, u, du, in_jacobian or materials)."""
+    halving h (tests/helpers.py), J the Jacobian of derivative(residual, u, du, in_jacobian or
+    materials)."""
     du = ufl.TrialFunction(u.function_space)
     in_jacobian = materials if in_jacobian is None else in_jacobian
     L, a = fem.form(residual), fem.form(derivative(residual, u, du, in_jacobian))
 
-    def R():
+    def update():
         for m in materials:
             m.update()
-        b = assemble_vector(L)
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        return b
 
-    u0 = u.x.array.copy()
-    R0 = R()
-    J = assemble_matrix(a)
-    J.assemble()
-    Jd = J.createVecLeft()
-    J.mult(petsc_vec(direction), Jd)
-    r1, r2 = [], []
-    for h in [4e-2 / 2**k for k in range(5)]:
-        u.x.array[:] = u0 + h * direction.x.array
-        Rh = R()
-        Rh.axpy(-1.0, R0)
-        r1.append(Rh.norm())
-        Rh.axpy(-h, Jd)
-        r2.append(Rh.norm())
-    u.x.array[:] = u0
-    return np.log2(np.array(r1[:-1]) / r1[1:]), np.log2(np.array(r2[:-1]) / r2[1:]), r1, r2
+    return taylor_remainders(L, a, u, direction, update, h0=4e-2)
 
 
 def deformed(V):

@@ -3,6 +3,7 @@
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -12,23 +13,14 @@ import pytest
 
 pytest.importorskip("dolfinx")
 
-from helpers import MPI_ENV, ROOT, read_outputs  # noqa: E402
-from helpers import slope_command as command  # noqa: E402
+from helpers import MPI_ENV, ROOT, read_outputs, run_slope_demo, slope_command  # noqa: E402
 
 SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure"]
 
 
 def demo(*args, ranks=1):
-    proc = subprocess.run(
-        command(*args, ranks=ranks),
-        cwd=ROOT,
-        env=MPI_ENV,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return proc.stdout
+    """The slope demo's stdout for ``args`` (their own --out or --resume); it must succeed."""
+    return run_slope_demo(None, *args, ranks=ranks)[0].stdout
 
 
 def read(out):
@@ -56,10 +48,16 @@ def assert_same_run(a, b, rtol):
 
 
 @pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory):
+def uninterrupted_out(tmp_path_factory):
+    """The folder of the SMALL run, straight through (tests copy it before they change it)."""
     out = tmp_path_factory.mktemp("full")
     demo(*SMALL, "--out", str(out))
-    return read(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(uninterrupted_out):
+    return read(uninterrupted_out)
 
 
 @pytest.mark.slow
@@ -83,7 +81,7 @@ def test_killed_run_keeps_its_converged_steps_and_resumes(tmp_path, uninterrupte
     (summary.json and restart.npz are replaced atomically), and the run resumes from them."""
     out = tmp_path / "run"
     proc = subprocess.Popen(
-        command(*SMALL, "--out", str(out), "--steps", "12"),
+        slope_command(*SMALL, "--out", str(out), "--steps", "12"),
         cwd=ROOT,
         env=MPI_ENV,
         stdout=subprocess.DEVNULL,
@@ -150,23 +148,18 @@ def test_resume_errors(tmp_path):
         folder.mkdir()
         if folder.name == "bad":
             (folder / "restart.npz").write_bytes(b"PK\x03\x04 truncated")
-        proc = subprocess.run(
-            command("--resume", str(folder)),
-            cwd=ROOT,
-            env=MPI_ENV,
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
+        proc, _ = run_slope_demo(None, "--resume", str(folder), timeout=300, check=False)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr
         assert proc.stderr.startswith("error: --resume") and words in proc.stderr
 
 
-def test_resume_of_a_finished_run_changes_nothing(tmp_path, uninterrupted):
+def test_resume_of_a_finished_run_changes_nothing(tmp_path, uninterrupted_out):
     """--resume on a run that completed every step says so and leaves its files as they are."""
     out = tmp_path / "done"
-    demo(*SMALL, "--out", str(out))
+    shutil.copytree(uninterrupted_out, out)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     stdout = demo("--resume", str(out), "--no-figure")
-    assert "completed all 5 load steps; nothing to resume" in stdout and "t = 0" not in stdout
+    steps = int(SMALL[SMALL.index("--steps") + 1]) + 1  # gravity, then the footing's steps
+    assert f"completed all {steps} load steps; nothing to resume" in stdout
+    assert "t = 0" not in stdout
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before

@@ -221,7 +221,7 @@ def test_unsupported_F_raises(rve, F, words):
     with pytest.raises(UnsupportedDeformationError, match=words) as info:
         rve.evaluate(batch)
     assert info.value.points.tolist() == [1]
-    with pytest.raises(UnsupportedDeformationError):
+    with pytest.raises(UnsupportedDeformationError, match=words):
         rve.stress(F)
 
 

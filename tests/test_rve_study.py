@@ -2,8 +2,8 @@
 
 import csv
 import json
+import os
 import shutil
-import time
 
 from dolfinx_granular import Packing, TaylorRVE
 from dolfinx_granular.cache import PackingCache
@@ -18,9 +18,8 @@ from helpers import load_demo
 def study(tmp_path_factory):
     mod = load_demo("rve_study")
     out = tmp_path_factory.mktemp("rve_study")
-    t0 = time.perf_counter()
     assert mod.main(["--out", str(out), "--small"]) == 0
-    return mod, out, time.perf_counter() - t0
+    return mod, out
 
 
 def read(path):
@@ -28,9 +27,26 @@ def read(path):
         return list(csv.DictReader(f))
 
 
+def expected_packings(cfg):
+    """{n: seeds} of the packings a study configuration needs: ``seeds`` of each figure size,
+    ``speed_seeds`` of each speed size, the more of the two where a size is both."""
+    fig, speed = set(cfg["fig_sizes"]), set(cfg["speed_sizes"])
+    return {
+        n: max(cfg["seeds"] if n in fig else 0, cfg["speed_seeds"] if n in speed else 0)
+        for n in sorted(fig | speed)
+    }
+
+
 def test_outputs_exist(study):
-    mod, out, runtime = study
-    assert runtime > 0
+    mod, out = study
+    # the cache holds exactly the packings of the configuration, each with its generation time
+    cache = PackingCache(str(out / "packings"))
+    wanted = [(n, s) for n, seeds in expected_packings(mod.SMALL).items() for s in range(seeds)]
+    assert sorted(p.name for p in (out / "packings").glob("*.npz")) == sorted(
+        os.path.basename(cache.path(n, s)) for n, s in wanted
+    )
+    assert len(cache.times) == len(wanted)
+    assert all(np.isfinite(cache.generation_time(n, s)) for n, s in wanted)  # (KeyError: none)
     for name in (
         "fig2_sieve_curve.png",
         "fig3_packings_densities.png",
@@ -42,10 +58,12 @@ def test_outputs_exist(study):
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"
     summary = json.loads((out / "summary.json").read_text())
     assert [row["n"] for row in summary["speed_error"]] == list(mod.SMALL["speed_sizes"])
+    assert summary["seeds"] == list(range(mod.SMALL["seeds"]))
+    assert summary["fig_sizes"] == list(mod.SMALL["fig_sizes"])
 
 
 def test_stress_curves_are_mean_and_std_over_the_seeds(study):
-    mod, out, _ = study
+    mod, out = study
     rows = read(out / "stress_curves.csv")
     steps = mod.SMALL["steps"]
     assert {r["path"] for r in rows} == set(mod.PATHS)
@@ -79,7 +97,7 @@ def test_stress_curves_are_mean_and_std_over_the_seeds(study):
 
 
 def test_speed_error_table(study):
-    mod, out, _ = study
+    mod, out = study
     rows = read(out / "speed_error.csv")
     assert [int(r["n"]) for r in rows] == list(mod.SMALL["speed_sizes"])
     for r in rows:
@@ -97,10 +115,9 @@ def test_speed_error_table(study):
 
 
 def test_packing_table(study):
-    mod, out, _ = study
+    mod, out = study
     rows = read(out / "packings.csv")
-    sizes = set(mod.SMALL["fig_sizes"]) | set(mod.SMALL["speed_sizes"])
-    assert len(rows) == len(sizes) * mod.SMALL["speed_seeds"]
+    assert len(rows) == sum(expected_packings(mod.SMALL).values())
     for r in rows:
         assert float(r["volume_fraction"]) >= 0.82
         assert float(r["prestress_ratio"]) < 1e-6
@@ -108,15 +125,16 @@ def test_packing_table(study):
 
 
 def test_cache_is_reused(study, tmp_path):
-    mod, out, _ = study
+    mod, out = study
     shutil.copytree(out / "packings", tmp_path / "packings")
-    p = Packing.load(tmp_path / "packings" / "n70_s0.npz")
+    cache = PackingCache(str(tmp_path / "packings"))
+    n = mod.SMALL["fig_sizes"][0]
+    p = Packing.load(cache.path(n, 0))
     # a marked file in place of the study's: get() returns it, so it read and did not generate
     marked = Packing(p.centers, p.radii * (1 - 1e-6), p.box)
-    marked.save(tmp_path / "packings" / "n70_s0.npz")
-    cache = PackingCache(str(tmp_path / "packings"))
-    assert cache.get(70, 0) == marked
-    assert cache.generation_time(70, 0) > 0  # recorded by the study's run, read back here
+    marked.save(cache.path(n, 0))
+    assert cache.get(n, 0) == marked
+    assert cache.generation_time(n, 0) > 0  # recorded by the study's run, read back here
 
 
 def test_cache_records_generation_times(tmp_path):

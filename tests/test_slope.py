@@ -1,12 +1,10 @@
 """The slope demo at reduced size: its files, and serial and ``mpirun -n 2`` runs agreeing."""
 
-import subprocess
-
 import numpy as np
 import pytest
 
 pytest.importorskip("dolfinx")
-from helpers import MPI_ENV, ROOT, read_outputs, slope_command  # noqa: E402
+from helpers import read_outputs, run_slope_demo  # noqa: E402
 
 
 @pytest.mark.mpi
@@ -71,21 +69,22 @@ def test_geometry_rejects_off_grid_dimensions():
         SlopeGeometry(eccentricity=5.0)
 
 
-def run_demo(out, *args, ranks=1):
-    cmd = slope_command(
-        "--particles", "70", "--seed", "1", "--steps", "2", "--out", out, *args, ranks=ranks
-    )
-    proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return proc.stdout
-
+SMALL = ("--particles", "70", "--seed", "1", "--steps", "2")
 
 read = read_outputs
 
 
+@pytest.fixture(scope="module")
+def serial_run(tmp_path_factory):
+    """The reduced slope on one rank, figure included: its folder and stdout (shared by the
+    tests of its files and of the serial/parallel agreement)."""
+    out = tmp_path_factory.mktemp("np1")
+    return out, run_slope_demo(out, *SMALL)[0].stdout
+
+
 @pytest.mark.slow
-def test_demo_reduced_size_writes_everything(tmp_path):
-    stdout = run_demo(tmp_path)
+def test_demo_reduced_size_writes_everything(serial_run):
+    tmp_path, stdout = serial_run
     summary, rows = read(tmp_path)
     assert "step  3/3" in stdout
     assert summary["ranks"] == 1 and summary["steps"] == 3 and summary["converged"]
@@ -126,10 +125,9 @@ def test_demo_reduced_size_writes_everything(tmp_path):
 
 
 @pytest.mark.slow
-def test_serial_and_two_ranks_agree(tmp_path):
-    run_demo(tmp_path / "np1", "--no-figure")
-    run_demo(tmp_path / "np2", "--no-figure", ranks=2)
-    s1, r1 = read(tmp_path / "np1")
+def test_serial_and_two_ranks_agree(tmp_path, serial_run):
+    run_slope_demo(tmp_path / "np2", *SMALL, "--no-figure", ranks=2)
+    s1, r1 = read(serial_run[0])
     s2, r2 = read(tmp_path / "np2")
     assert s1["ranks"] == 1 and s2["ranks"] == 2
     assert s1["converged"] and s2["converged"]
@@ -156,26 +154,20 @@ def test_serial_and_two_ranks_agree(tmp_path):
 
 def test_prestressed_packing_is_reported(tmp_path):
     """Radii x 1.02: the run warns, logs P(I) and records it in summary.json."""
-    import json
-
-    from dolfinx_granular import Packing, generate_packing
+    from dolfinx_granular import Packing, TaylorRVE, generate_packing
+    from dolfinx_granular.rve import PrestressWarning
+    from dolfinx_granular.slope import SlopeOptions
 
     p = generate_packing(70, seed=1)
     Packing(p.centers, 1.02 * p.radii, p.box).save(tmp_path / "swollen.npz")
-    cmd = slope_command(
-        "--packing",
-        tmp_path / "swollen.npz",
-        "--steps",
-        "1",
-        "--no-figure",
-        "--out",
-        tmp_path / "out",
+    proc, summary = run_slope_demo(
+        tmp_path / "out", "--packing", tmp_path / "swollen.npz", "--steps", "1", "--no-figure"
     )
-    proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert (
-        "PrestressWarning" in proc.stderr
-        and "reference state of the RVE: P(I) = [[-6" in proc.stdout
-    )
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    # the reference state of the demo's RVE, computed here from the same file and stiffness
+    with pytest.warns(PrestressWarning):
+        rve = TaylorRVE(Packing.load(tmp_path / "swollen.npz"), SlopeOptions().normal_stiffness)
+    logged = f"reference state of the RVE: P(I) = {np.array2string(rve.prestress, precision=3)}"
+    assert "PrestressWarning" in proc.stderr and logged in proc.stdout, proc.stdout[-3000:]
+    assert np.allclose(summary["prestress"], rve.prestress, rtol=1e-12, atol=0)
+    assert summary["prestress_ratio"] == pytest.approx(rve.prestress_ratio, rel=1e-12)
     assert 1e-3 < summary["prestress_ratio"] < 0.1 and summary["prestress"][0][0] < -1e5

@@ -13,9 +13,8 @@ from dolfinx_granular import generate_packing
 
 import pytest
 
-from helpers import load_benchmark
+import stacks as stacks_module  # benchmarks/stacks.py (the fixture below is called stacks)
 
-stacks_module = load_benchmark("stacks")
 TOLERANCE = 1e-9
 
 

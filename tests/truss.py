@@ -20,7 +20,7 @@ limit point the truss softens faster than the spring (EA h^2 / L0^3 > EA_s / Ls)
 
 from collections import namedtuple
 
-from dolfinx_granular._dolfinx import create_mesh, vector_space
+from dolfinx_granular._dolfinx import create_mesh, function_space, vector_space
 from dolfinx_granular.solver import NewtonSolver
 
 import numpy as np
@@ -65,11 +65,7 @@ def truss(comm=MPI.COMM_WORLD, prefix="truss_"):
     V = vector_space(msh)
     u, v = fem.Function(V), ufl.TestFunction(V)
     cells = mesh.locate_entities(msh, 1, lambda p: np.isclose(p[0], 0.0))  # the spring
-    stiffness = fem.Function(
-        fem.functionspace(msh, ("DG", 0))
-        if hasattr(fem, "functionspace")
-        else fem.FunctionSpace(msh, ("DG", 0))
-    )
+    stiffness = fem.Function(function_space(msh, "DG", 0))
     stiffness.x.array[:] = EA
     stiffness.x.array[cells] = EA_SPRING
     J = ufl.Jacobian(msh)
