@@ -13,8 +13,8 @@
 # in plane strain, F = [[1, γ], [0, 1 + e22]], while e22 is solved at every step so that the
 # vertical Cauchy stress stays at the confining pressure, σ22 = −p (a shear box with rigid side
 # walls: F11 = 1). Three results, as figures and CSV: hysteresis loops of cyclic shear for
-# μ = 0, 0.3, 0.5; the mobilised stress ratio q/p in monotonic shear for μ = 0 ... 1; the
-# dissipated energy per cycle against the area of the loop.
+# μ = 0, 0.3, 0.5; the mobilised stress ratio q/p in monotonic shear for μ = 0 ... 10 (does it
+# saturate?); the dissipated energy per cycle against the area of the loop.
 
 # %%
 """Frictional Taylor RVE under confined simple shear: hysteresis, mobilised q/p, dissipation.
@@ -26,8 +26,9 @@
 * contacts: k_n = 2.8e7 N/m² (table 1 of the paper), k_t = k_n (a common DEM choice), Coulomb μ;
 * every test starts from F = I, is compressed to σ22 = −p (p = 100 kPa, in 10 pressure steps at
   γ = 0, F11 = 1) and is then sheared under σ22 = −p with F11 = 1 (:func:`confined_shear_step`);
-* cyclic shear γ: 0 → +2 % → −2 % → +2 % ... (3 cycles; cycle c runs from +2 % to +2 %) for
-  μ = 0, 0.3, 0.5; monotonic shear to γ = 10 % for μ = 0, 0.1, 0.3, 0.5, 1.0.
+* cyclic shear γ: 0 → +2 % → −2 % → +2 % ... (3 cycles, ``--small`` 2; cycle c runs from +2 %
+  to +2 %) for μ = 0, 0.3, 0.5 on seed 0; monotonic shear to γ = 10 % for
+  μ = 0, 0.1, 0.3, 0.5, 1, 2, 5, 10 on every seed.
 
 Stress ratios (2-D, compression positive): p_m = −(σ11 + σ22)/2 and
 q = √(((σ11 − σ22)/2)² + σ12²), so q/p_m = sin φ_mobilised (the radius of Mohr's circle over its
@@ -35,9 +36,10 @@ centre; q/p_m = 1: a principal stress is zero, q/p_m > 1: one is tensile), and
 τ/p = σ12/(−σ22) = σ12/p on the horizontal plane of the box.
 
 Writes to ``--out``: ``friction_cycles.csv`` (every step of the cycles), ``friction_monotonic.csv``
-(every step of monotonic shear), ``friction_summary.csv`` (one row per μ: q/p at the start, its
-peak and final value, dissipation and loop area per cycle) and the figures
-``friction_hysteresis.png``, ``friction_qp_gamma.png``, ``friction_qp_mu.png``,
+(every step of monotonic shear), ``friction_summary.csv`` (one row per μ: mean and std over the
+seeds of q/p at γ = 0, its peak (and γ there) and final value, peak and final τ/p, K0, final e22
+and dissipation; dissipation, loop area and their relative difference per cycle) and the figures
+``friction_hysteresis.png``, ``friction_qp_gamma.png`` (every μ), ``friction_qp_mu.png``,
 ``friction_dissipation.png``. Packings are cached in ``OUT/packings``.
 """
 
@@ -54,6 +56,7 @@ from dolfinx_granular.cache import PackingCache
 from dolfinx_granular.friction import FrictionalRVE, FrictionState
 
 import numpy as np
+from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -454,8 +457,12 @@ def summary_table(mono, energy, cycles):
 # %% [markdown]
 # ## Figures
 
+
 # %%
-_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+def _colors(n):
+    """n distinct colours, in order along a colormap: a fixed palette would run out (and zip
+    would drop the curves past its end)."""
+    return colormaps["viridis"](np.linspace(0.0, 0.9, n))
 
 
 def _save(fig, path):
@@ -472,10 +479,11 @@ def hysteresis_figure(cyc, pressure=PRESSURE):
         path, cycle, energy = cyc[mu]
         top = fig.add_subplot(2, len(mus), j + 1)
         bot = fig.add_subplot(2, len(mus), len(mus) + j + 1, sharex=top)
+        colors = _colors(int(cycle.max()))
         for c in range(int(cycle.max()) + 1):
             idx = np.flatnonzero(cycle == c)
             idx = np.r_[idx[0] - 1, idx] if c > 0 else idx  # join to the previous cycle's end
-            style = dict(color="0.55", ls="--") if c == 0 else dict(color=_COLORS[(c - 1) % 6])
+            style = dict(color="0.55", ls="--") if c == 0 else dict(color=colors[c - 1])
             label = "first loading" if c == 0 else f"cycle {c}"
             top.plot(
                 100 * path.gamma[idx], path.sigma[idx, 0, 1] / 1e3, lw=1.1, label=label, **style
@@ -501,10 +509,11 @@ def hysteresis_figure(cyc, pressure=PRESSURE):
 
 
 def qp_gamma_figure(mono, seeds):
-    """q/p_m and tau/p against gamma, one colour per mu; seed 0 thick, other seeds thin."""
+    """q/p_m and tau/p against gamma, one colour per mu (every mu of ``mono``: ``{mu: [LoadPath
+    per seed]}``); the first seed thick, the others thin."""
     fig = Figure(figsize=(10.4, 4.3))
     axes = [fig.add_subplot(1, 2, k + 1) for k in range(2)]
-    for color, (mu, paths) in zip(_COLORS, mono.items()):
+    for color, (mu, paths) in zip(_colors(len(mono)), mono.items()):
         for s, path in zip(seeds, paths):
             for ax, ratio in zip(axes, stress_ratios(path.sigma)):
                 ax.plot(
@@ -524,7 +533,7 @@ def qp_gamma_figure(mono, seeds):
         ax.legend(fontsize=7)
     fig.suptitle(
         f"Monotonic confined simple shear: mobilised stress ratio ({len(seeds)} "
-        "packings; thick: seed 0)",
+        f"packings; thick: seed {seeds[0]})",
         fontsize=10,
     )
     fig.tight_layout()
@@ -578,11 +587,12 @@ def dissipation_figure(energy, quarter_steps):
     mus = list(energy)
     cycles = len(energy[mus[0]])
     width = 0.8 / cycles
+    colors = _colors(cycles)
     for c in range(cycles):
         x = np.arange(len(mus)) + (c - (cycles - 1) / 2) * width
         d = [energy[mu][c]["dissipation_Pa"] for mu in mus]
         a = [energy[mu][c]["loop_area_Pa"] for mu in mus]
-        ax.bar(x, d, width * 0.9, color=_COLORS[c % 6], label=f"cycle {c + 1}: Δ dissipation")
+        ax.bar(x, d, width * 0.9, color=colors[c], label=f"cycle {c + 1}: Δ dissipation")
         ax.plot(x, a, "kx", ms=7, label="loop area ∮P:dF − ΔW" if c == 0 else None)
     ax.set_xticks(np.arange(len(mus)))
     ax.set_xticklabels([f"μ = {mu:g}" for mu in mus])
@@ -612,8 +622,9 @@ def dissipation_figure(energy, quarter_steps):
 
 
 # %%
-def write_tables(out, cyc, mono, seeds, cycles):
-    """The three CSV files; returns the summary's header and rows."""
+def write_tables(out, cyc, mono, energy, seeds, cycles):
+    """The three CSV files (``energy``: ``{mu: energy rows}`` of the cycles); returns the
+    summary's header and rows."""
     write_csv(
         os.path.join(out, "friction_cycles.csv"),
         ["mu", "cycle"] + STEP_COLUMNS,
@@ -633,12 +644,13 @@ def write_tables(out, cyc, mono, seeds, cycles):
             for row in step_rows(path)
         ],
     )
-    header, rows = summary_table(mono, {mu: e for mu, (_, _, e) in cyc.items()}, cycles)
+    header, rows = summary_table(mono, energy, cycles)
     write_csv(os.path.join(out, "friction_summary.csv"), header, rows)
     return header, rows
 
 
-def print_tables(say, header, rows, cyc, rtol):
+def print_tables(say, header, rows, energy, rtol):
+    """The summary and the energy of every cycle (``energy``: ``{mu: energy rows}``)."""
     col = {h: i for i, h in enumerate(header)}
     say(
         "\n  mu     K0   q/p(γ=0)  peak q/p (at γ)      final q/p     peak τ/p  final τ/p"
@@ -659,8 +671,8 @@ def print_tables(say, header, rows, cyc, rtol):
         f"\n  mu  cycle  dissipation [Pa]  loop area [Pa]  (area - D)/D   e22 drift"
         f"   (tolerance {100 * rtol:.2f} %)"
     )
-    for mu, (_, _, energy) in cyc.items():
-        for e in energy:
+    for mu, cycle_rows in energy.items():
+        for e in cycle_rows:
             say(
                 f"{mu:4g}  {e['cycle']:5d}  {e['dissipation_Pa']:16.4f}  {e['loop_area_Pa']:14.4f}"
                 f"  {e['rel_difference']:12.2e}  {e['e22_drift']:10.2e}"
@@ -684,13 +696,13 @@ def run(out="results/friction_study", small=False, use_cache=True, verbose=True)
         mu: [monotonic_test(p, mu, cfg["monotonic_steps"]) for p in packings] for mu in MU_MONOTONIC
     }
     say(f"monotonic shear, μ = {MU_MONOTONIC} ({time.perf_counter() - t_start:.1f} s)")
-    header, rows = write_tables(out, cyc, mono, seeds, cycles)
     energy = {mu: e for mu, (_, _, e) in cyc.items()}
+    header, rows = write_tables(out, cyc, mono, energy, seeds, cycles)
     _save(hysteresis_figure(cyc), os.path.join(out, "friction_hysteresis.png"))
     _save(qp_gamma_figure(mono, seeds), os.path.join(out, "friction_qp_gamma.png"))
     _save(qp_mu_figure(header, rows), os.path.join(out, "friction_qp_mu.png"))
     _save(dissipation_figure(energy, m), os.path.join(out, "friction_dissipation.png"))
-    print_tables(say, header, rows, cyc, loop_rtol(m))
+    print_tables(say, header, rows, energy, loop_rtol(m))
     runtime = time.perf_counter() - t_start
     say(f"\nwrote {out}/ in {runtime:.1f} s")
     return dict(

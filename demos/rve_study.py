@@ -55,11 +55,10 @@ PATHS = {
 }
 
 
-def stress_paths(packings, steps):
-    """``{path: (s (steps+1,), mean (steps+1, 2, 2), std (steps+1, 2, 2))}`` over the packings."""
+def stress_paths(rves, steps):
+    """``{path: (s (steps+1,), mean (steps+1, 2, 2), std (steps+1, 2, 2))}`` over the RVEs."""
     s = np.linspace(0.0, MAX_STRAIN, steps + 1)
     out = {}
-    rves = [TaylorRVE(p, K_N, min_stretch=0.85) for p in packings]
     for name, (F_of, _) in PATHS.items():
         F = np.array([F_of(si) for si in s])
         sig = np.array([rve.cauchy(F) for rve in rves])  # (seeds, steps+1, 2, 2)
@@ -82,15 +81,15 @@ def write_csv(path, header, rows):
         w.writerows(rows)
 
 
-def packing_table(cache, packings, out):
+def packing_table(cache, rves, out):
     """``OUT/packings.csv``: per packing its generation time, volume fraction, coordination,
     rattlers, the residual prestress, fabric anisotropy and the deviation of the contact-normal
-    density from uniform (``packings``: ``{n: [Packing per seed]}``)."""
+    density from uniform (``rves``: ``{n: [TaylorRVE per seed]}``)."""
     rows = []
-    for n, group in packings.items():
-        for s, p in enumerate(group):
+    for n, group in rves.items():
+        for s, rve in enumerate(group):
+            p = rve.packing
             st = network_stats(p)
-            rve = TaylorRVE(p, K_N, min_stretch=0.85)
             ratio = np.abs(rve.cauchy(np.eye(2))).max() / np.abs(rve.cauchy(0.99 * np.eye(2))).max()
             ang = contact_angles(p)
             a, _ = anisotropy(fabric_tensor(ang))
@@ -141,7 +140,8 @@ def packing_figures(figure_sets, out):
 
 def stress_figures(figure_sets, steps, out):
     """Figures 4 and 5 and ``OUT/stress_curves.csv``: Cauchy stress along the four paths, mean
-    and standard deviation over the packings of each size."""
+    and standard deviation over the packings of each size (``figure_sets``: ``{n: [TaylorRVE
+    per seed]}``)."""
     curves = {n: stress_paths(group, steps) for n, group in figure_sets.items()}
     rows = []
     for name in PATHS:
@@ -193,14 +193,14 @@ def stress_figures(figure_sets, steps, out):
     fig.savefig(os.path.join(out, "fig5_shear.png"), dpi=DPI)
 
 
-def speed_error(cache, packings, out):
-    """Scatter of the stress over the seeds against the cost of a point, per particle count:
-    ``OUT/speed_error.csv`` and ``.png``; returns the rows (dicts)."""
+def speed_error(cache, rve_sets, out):
+    """Scatter of the stress over the seeds against the cost of a point, per particle count
+    (``rve_sets``: ``{n: [TaylorRVE per seed]}``): ``OUT/speed_error.csv`` and ``.png``; returns
+    the rows (dicts)."""
     F_c = np.array([[0.95, 0.0], [0.0, 1.0]])
     F_s = np.array([[1.0, 0.05], [0.0, 1.0]])
     table = []
-    for n, group in packings.items():
-        rves = [TaylorRVE(p, K_N, min_stretch=0.85) for p in group]
+    for n, rves in rve_sets.items():
         sc = np.array([r.cauchy(F_c)[0, 0] for r in rves])
         ss = np.array([r.cauchy(F_s)[0, 1] for r in rves])
         ddof = 1 if len(rves) > 1 else 0
@@ -247,13 +247,16 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
             f"{n:5d} particles: generated / loaded {seeds} packings "
             f"({time.perf_counter() - t_start:.1f} s)"
         )
-    packing_table(cache, packings, out)
-    figure_sets = {n: packings[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}
-    packing_figures(figure_sets, out)
+    # one RVE per packing, shared by the table, the stress curves and the speed measurement
+    rves = {
+        n: [TaylorRVE(p, K_N, min_stretch=0.85) for p in group] for n, group in packings.items()
+    }
+    packing_table(cache, rves, out)
+    packing_figures({n: packings[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}, out)
     say(f"figures 2 and 3 ({time.perf_counter() - t_start:.1f} s)")
-    stress_figures(figure_sets, cfg["steps"], out)
+    stress_figures({n: rves[n][: cfg["seeds"]] for n in cfg["fig_sizes"]}, cfg["steps"], out)
     say(f"figures 4 and 5 ({time.perf_counter() - t_start:.1f} s)")
-    table = speed_error(cache, {n: packings[n] for n in cfg["speed_sizes"]}, out)
+    table = speed_error(cache, {n: rves[n] for n in cfg["speed_sizes"]}, out)
 
     say("\n    n   CV(σ11, 5 % compr.)  CV(σ12, 5 % shear)  time/point [µs]  generation [s]")
     for row in table:

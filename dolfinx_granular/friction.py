@@ -59,8 +59,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import friction_kernel as fk
+from .levels import _outputs, _push_forward
 from .packing import Packing
-from .rve import TaylorRVE, _as_batch
+from .rve import TaylorRVE, _as_batch, _number
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping
@@ -74,6 +75,13 @@ def _readonly(a):
     a = a.view()
     a.flags.writeable = False
     return a
+
+
+def _offsets(lengths):
+    """Offsets (n + 1,) int64 of blocks of ``lengths`` (n,) stored one after the other."""
+    off = np.zeros(len(lengths) + 1, np.int64)
+    np.cumsum(lengths, out=off[1:])
+    return off
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,8 +180,7 @@ class FrictionState:
         if idx.size and (idx.min() < 0 or idx.max() >= self.n_points):
             raise IndexError(f"point index out of range for a state of {self.n_points} points")
         start, lengths = self.offsets[idx], np.diff(self.offsets)[idx]
-        off = np.zeros(idx.size + 1, np.int64)
-        np.cumsum(lengths, out=off[1:])
+        off = _offsets(lengths)
         gather = np.repeat(start - off[:-1], lengths) + np.arange(off[-1])
         return FrictionState._trusted(self.F[idx], self.dissipation[idx], off, self.force[gather])
 
@@ -183,13 +190,10 @@ class FrictionState:
         states = list(states)
         if not states or not all(isinstance(s, FrictionState) for s in states):
             raise ValueError("concatenate() needs a non-empty sequence of FrictionState")
-        lengths = np.concatenate([np.diff(s.offsets) for s in states])
-        off = np.zeros(lengths.size + 1, np.int64)
-        np.cumsum(lengths, out=off[1:])
         return cls._trusted(
             np.concatenate([s.F for s in states]),
             np.concatenate([s.dissipation for s in states]),
-            off,
+            _offsets(np.concatenate([np.diff(s.offsets) for s in states])),
             np.concatenate([s.force for s in states]),
         )
 
@@ -245,12 +249,25 @@ class FrictionContactSet:
     sliding: np.ndarray
 
 
-def _parameter(name, value, low, strict, unit):
-    v = float(value)
-    if not (np.isfinite(v) and (v > low if strict else v >= low)):
-        rel = ">" if strict else ">="
-        raise ValueError(f"{name} must be a finite number {rel} {low}{unit}, got {value!r}")
+def _parameter(name, value, unit):
+    """``value`` as a finite float >= 0, else a ValueError naming the parameter."""
+    v = _number(value, name)
+    if not (np.isfinite(v) and v >= 0.0):
+        raise ValueError(f"{name} must be a finite number >= 0{unit}, got {value!r}")
     return v
+
+
+def _check_outputs(n, tangent, W, P, A):
+    """Refuse ``out`` arrays the kernel cannot write into (it assumes their layout)."""
+    for name, a, shape in (
+        ("W", W, (n,)),
+        ("P", P, (n, 2, 2)),
+        ("A", A, (n, 2, 2, 2, 2) if tangent else None),
+    ):
+        if shape is not None and (
+            a is None or a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous
+        ):
+            raise ValueError(f"out {name} must be a C-contiguous float64 array of shape {shape}")
 
 
 class FrictionalRVE:
@@ -276,8 +293,8 @@ class FrictionalRVE:
         friction: float,
         min_stretch: float = 0.5,
     ) -> None:
-        kt = _parameter("tangential_stiffness", tangential_stiffness, 0.0, False, " (N/m²)")
-        mu = _parameter("friction", friction, 0.0, False, "")
+        kt = _parameter("tangential_stiffness", tangential_stiffness, " (N/m²)")
+        mu = _parameter("friction", friction, "")
         self._taylor = TaylorRVE(packing, normal_stiffness, min_stretch)
         self.packing = packing
         self.normal_stiffness = self._taylor.normal_stiffness
@@ -321,8 +338,9 @@ class FrictionalRVE:
                 f"has {self.n_candidates} candidates: it belongs to another RVE"
             )
 
-    def _run(self, F, state, tangent, out):
-        F, single = _as_batch(F)
+    def _visited(self, F, state):
+        """Candidates the kernel visits per point (n,) of the batch F (n, 2, 2) from ``state``;
+        raises for a state of other points or an unsupported F."""
         n = F.shape[0]
         self._check_state(state, n)
         status = np.empty(n, np.int8)
@@ -330,24 +348,15 @@ class FrictionalRVE:
         fk.prefix_lengths(F, self._rho, self.min_stretch, status, lengths)
         if status.any():
             self._taylor._raise(F, status)
-        off = np.zeros(n + 1, np.int64)
-        np.cumsum(lengths, out=off[1:])
-        if out is None:
-            W, P = np.empty(n), np.empty((n, 2, 2))
-            A = np.empty((n, 2, 2, 2, 2)) if tangent else None
-        else:
-            W, P, A = out
-        for name, a, shape in (
-            ("W", W, (n,)),
-            ("P", P, (n, 2, 2)),
-            ("A", A, (n, 2, 2, 2, 2) if tangent else None),
-        ):
-            if shape is not None and (
-                a is None or a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous
-            ):
-                raise ValueError(
-                    f"out {name} must be a C-contiguous float64 array of shape {shape}"
-                )
+        return lengths
+
+    def _run(self, F, state, tangent, out):
+        F, single = _as_batch(F)
+        n = F.shape[0]
+        off = _offsets(self._visited(F, state))
+        W, P, A = _outputs(n, tangent, out)
+        _check_outputs(n, tangent, W, P, A)
+        status = np.empty(n, np.int8)  # the kernel's own output; _visited has checked every F
         f = np.empty(off[-1])
         D = np.empty(n)
         fk.evaluate_batch(
@@ -410,20 +419,16 @@ class FrictionalRVE:
 
     def cauchy(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
         """Cauchy stress sigma = P F^T / J (n, 2, 2), in Pa; symmetric (Hill-Mandel)."""
-        Fb = _as_batch(F)[0]
-        P = self._run(Fb, state, False, None)[1]
-        sigma = np.einsum("qab,qcb->qac", P, Fb) / np.linalg.det(Fb)[:, None, None]
-        return sigma[0] if np.ndim(F) == 2 else sigma
+        Fb, single = _as_batch(F)
+        sigma = _push_forward(Fb, self._run(Fb, state, False, None)[1], None)[0]
+        return sigma[0] if single else sigma
 
     def spatial_tangent(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
         """Spatial tangent a_abcd = F_bB F_dD A_aBcD / J (n, 2, 2, 2, 2), in Pa."""
-        Fb = _as_batch(F)[0]
-        A = self._run(Fb, state, True, None)[2]
-        a = (
-            np.einsum("qbB,qdD,qaBcD->qabcd", Fb, Fb, A)
-            / np.linalg.det(Fb)[:, None, None, None, None]
-        )
-        return a[0] if np.ndim(F) == 2 else a
+        Fb, single = _as_batch(F)
+        _, P, A, _ = self._run(Fb, state, True, None)
+        a = _push_forward(Fb, P, A)[1]
+        return a[0] if single else a
 
     def small_strain_modulus(self) -> np.ndarray:
         """Stick tangent (2, 2, 2, 2) at F = I from the initial state, in Pa (fully symmetric).
@@ -448,14 +453,8 @@ class FrictionalRVE:
         F = np.asarray(F, dtype=np.float64)
         if F.shape != (2, 2):
             raise ValueError(f"contacts() takes one F of shape (2, 2), got {F.shape}")
-        self._check_state(state, 1)
         F = np.ascontiguousarray(F)
-        status = np.empty(1, np.int8)
-        lengths = np.empty(1, np.int64)
-        fk.prefix_lengths(F[None], self._rho, self.min_stretch, status, lengths)
-        if status.any():
-            self._taylor._raise(F[None], status)
-        m = int(lengths[0])
+        m = int(self._visited(F[None], state)[0])
         buf = np.zeros(m)
         stored = state.forces(0)[:m]
         buf[: stored.size] = stored

@@ -76,7 +76,8 @@ N_ACC = 27
 # Coefficients (-1)^k / (2k + 1) of atan(z) = z + z sum_k c_k z^2k; six terms are exact to
 # < 0.1 ulp for |z| <= 0.05 (next term z^13 / 13).
 _C1, _C2, _C3, _C4, _C5 = -1.0 / 3.0, 1.0 / 5.0, -1.0 / 7.0, 1.0 / 9.0, -1.0 / 11.0
-# Largest |F F_n^-1 - I| (Frobenius) for the polynomial: |tan dphi| <= e / (1 - e) <= 0.0472.
+# Largest |F G^-1 - I| (Frobenius; G = Q F_n, the spun history) for the polynomial: every branch
+# then turns by |tan dphi| <= e / (1 - e) <= 0.0472 relative to G L, inside its |z| <= 0.05.
 _SMALL_INCREMENT = 0.045
 
 
@@ -233,7 +234,7 @@ def _kinematics(F00, F01, F10, F11, cq, x, y, r):
 def _inverse_and_turn(eps, d, cr, dt):
     """1/d (0 if open, eps < 0) and the turn dphi = atan(cr / dt) for a small increment
     (dt > 0, |cr / dt| <= 0.05: polynomial). (One shared division, 1/(d dt), was no faster.)"""
-    return (1.0 / d if eps >= 0.0 else 0.0), _atan_poly(cr / dt)
+    return (1.0 / d if eps >= 0.0 else 0.0), _atan_small(cr, dt)
 
 
 @njit(cache=True)
@@ -532,7 +533,7 @@ def contact_step(F, Fn, X, Y, R, n_visit, lmax2, buf, kn, kt, mu, eps_out, stick
     small = _small_increment(F00, F01, F10, F11, G[0], G[1], G[2], G[3])
     for c in range(n_visit):
         eps, d, _, _, _, cr, dt = _kinematics(F00, F01, F10, F11, cq, X[c], Y[c], R[c])
-        dphi = _inverse_and_turn(eps, d, cr, dt)[1] if small else _atan2_unit(cr, dt)
+        dphi = _atan_small(cr, dt) if small else _atan2_unit(cr, dt)
         ee = eps if eps >= 0.0 else 0.0  # noqa: FURB136 (a select, as in kernel.py)
         _, ft, stick = _contact_law(buf[c], R[c], dphi, ee, kt, mu * kn)
         buf[c] = ft

@@ -13,6 +13,8 @@ depend on the packing's absolute size.
 
 from __future__ import annotations
 
+import os
+import sys
 import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -75,6 +77,17 @@ class ContactSet:
     branch: np.ndarray
     overlap: np.ndarray
     force: np.ndarray
+
+
+def _user_stacklevel() -> int:
+    """``stacklevel`` for a ``warnings.warn`` in the caller of this function that names the first
+    line outside this package: the user's, however many of the package's own calls lie between
+    (a FrictionalRVE builds its TaylorRVE; as pandas' find_stack_level)."""
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    frame, level = sys._getframe(1), 1  # the caller of this function is stacklevel 1
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 class TaylorRVE:
@@ -149,7 +162,7 @@ class TaylorRVE:
                 f"{100 * self.max_reference_overlap:.3g} % at F = I; dolfinx_granular."
                 "relax_overlaps(packing) makes it stress-free",
                 PrestressWarning,
-                stacklevel=3,
+                stacklevel=_user_stacklevel(),
             )
 
     @property

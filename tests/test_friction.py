@@ -4,9 +4,10 @@ frictionless limit, history handling (no mutation, batch splitting, restart arra
 
 import types
 
-from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, generate_packing
+from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError, generate_packing
 from dolfinx_granular import friction_kernel as fk
 from dolfinx_granular.friction import FrictionalRVE, FrictionContactSet, FrictionState
+from dolfinx_granular.rve import PrestressWarning
 
 import numpy as np
 import pytest
@@ -699,15 +700,29 @@ def test_bad_state(rve, packing):
         rve.evaluate(F, rve.initial_state(3))
     with pytest.raises(TypeError, match="FrictionState"):
         rve.evaluate(F, None)
-    big = FrictionalRVE(generate_packing(70, seed=0), K_N, K_T, MU)
+    big = FrictionalRVE(generate_packing(140, seed=0), K_N, K_T, MU)
     foreign = committed(big, [FC], n=2)
-    if foreign.lengths.max() > rve.n_candidates:
-        with pytest.raises(ValueError, match="another RVE"):
-            rve.evaluate(F, foreign)
+    # the case under test: the other RVE's state stores more forces than this RVE has candidates
+    # (measured: 309 > 245; a 70-disk packing's 150 would not be)
+    assert foreign.lengths.max() > rve.n_candidates
+    with pytest.raises(ValueError, match="another RVE"):
+        rve.evaluate(F, foreign)
     with pytest.raises(ValueError, match="one F"):
         rve.contacts(F, rve.initial_state(2))
     with pytest.raises(ValueError, match="n >= 0"):
         rve.initial_state(-1)
+
+
+def test_prestress_warning_names_the_callers_line(packing):
+    """A prestressed packing warns at the line that builds the FrictionalRVE, not inside the
+    package (the TaylorRVE it wraps raises the warning)."""
+    swollen = Packing(packing.centers, 1.02 * packing.radii, packing.box)
+    with pytest.warns(PrestressWarning, match="prestressed") as record:
+        FrictionalRVE(swollen, K_N, K_T, MU)
+    with pytest.warns(PrestressWarning, match="prestressed") as direct:
+        TaylorRVE(swollen, K_N)  # the same line for the TaylorRVE itself
+    caught = [w for w in (*record, *direct) if w.category is PrestressWarning]
+    assert [w.filename for w in caught] == [__file__, __file__]
 
 
 def test_state_memory_is_proportional_to_contacts():
