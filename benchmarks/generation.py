@@ -4,13 +4,16 @@ Run: ``.venv/bin/python benchmarks/generation.py [--sizes 700 2800 11200 45000] 
 [--progress]``.
 
 Per size it prints the wall time (the Numba compilation is done beforehand by a 70-disk run and
-not counted), the volume fraction and the slope d log(t) / d log(n) from the previous size; at
-the end the least-squares slope over all sizes. A slope of 1 is linear time. One process, one
-thread; ``--progress`` prints the generator's progress lines to stderr.
+not counted), the volume fraction, the FIRE steps of the jamming search in all, the wall time per
+disk and step (ns; the whole run over steps x n, so it includes the stages after the jamming) and
+the slope d log(t) / d log(n) from the previous size; at the end the least-squares slope over all
+sizes. A slope of 1 is linear time. One process, one thread; ``--progress`` prints the
+generator's progress lines to stderr.
 """
 
 import argparse
 import platform
+import re
 import sys
 import time
 
@@ -18,6 +21,14 @@ from dolfinx_granular import generate_packing
 
 import numba
 import numpy as np
+
+_STEPS = re.compile(r"after (\d+) FIRE steps")
+
+
+def fire_steps(lines):
+    """FIRE steps in all of the jamming search, from its progress lines ("... after N FIRE
+    steps")."""
+    return sum(int(m.group(1)) for m in map(_STEPS.search, lines) if m)
 
 
 def time_sizes(sizes, seed=0, progress=None):
@@ -46,20 +57,32 @@ def main(argv=None):
     args = parser.parse_args(argv)
     sizes = sorted(args.sizes)
 
+    lines = []
+
     def show(line):
-        print(f"    {line}", file=sys.stderr, flush=True)
+        lines.append(line)
+        if args.progress:
+            print(f"    {line}", file=sys.stderr, flush=True)
 
     print(
         f"generate_packing, seed {args.seed}: Python {platform.python_version()}, numba "
         f"{numba.__version__}, numpy {np.__version__}"
     )
-    print(f"{'n':>8} {'seconds':>10} {'phi':>8} {'slope':>7}")
+    print(
+        f"{'n':>8} {'seconds':>10} {'phi':>8} {'FIRE steps':>11} {'ns/disk/step':>13} {'slope':>7}"
+    )
     seconds = []
     for k, n in enumerate(sizes):
-        t, (p,) = time_sizes([n], args.seed, show if args.progress else None)
+        lines.clear()
+        t, (p,) = time_sizes([n], args.seed, show)
         seconds.append(t[0])
+        steps = fire_steps(lines)
         slope = f"{loglog_slope(sizes[k - 1 : k + 1], seconds[-2:]):7.2f}" if k else ""
-        print(f"{n:8d} {t[0]:10.2f} {p.volume_fraction:8.4f} {slope}", flush=True)
+        print(
+            f"{n:8d} {t[0]:10.2f} {p.volume_fraction:8.4f} {steps:11d} "
+            f"{1e9 * t[0] / (steps * n):13.1f} {slope}",
+            flush=True,
+        )
     print(f"log-log slope over all sizes: {loglog_slope(sizes, seconds):.2f}")
     return 0
 

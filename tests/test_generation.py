@@ -6,8 +6,6 @@ from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
 import numpy as np
 import pytest
 
-from helpers import load_benchmark
-
 # (70, 68): the first jammed state has 17 % rattlers and is rejected
 CASES = [(70, 0), (70, 1), (70, 2), (70, 68), (350, 1), (700, 3)]
 
@@ -48,9 +46,21 @@ def test_jammed_rigid_network(packings, case):
     assert s.rattler_fraction <= 0.15
     assert s.min_coordination >= 3
     assert s.coordination >= 3.8
-    # the contacts exist at F = I under the kernel's rule: a jammed network, not a loose one
-    n_backbone = packings[case].n_particles * (1 - s.rattler_fraction)
-    assert s.n_contacts >= 0.5 * s.coordination * n_backbone
+    # the statistics are those of the kernel's contacts at F = I, recounted here: the same
+    # contacts, rattlers (fewer than 3 contacts with the other non-rattlers; every non-rattler
+    # has 3 or more) and the mean coordination of the non-rattlers
+    p = packings[case]
+    pairs = TaylorRVE(p, 1.0, min_stretch=0.99).contacts(np.eye(2)).pairs
+    assert len(pairs) == s.n_contacts
+    rattler = np.isin(np.arange(p.n_particles), s.rattlers)
+    assert s.rattler_fraction == rattler.mean()
+    backbone = pairs[~(rattler[pairs[:, 0]] | rattler[pairs[:, 1]])]
+    counts = np.bincount(backbone.ravel(), minlength=p.n_particles)[~rattler]
+    mixed = pairs[rattler[pairs[:, 0]] != rattler[pairs[:, 1]]]  # rattler - non-rattler
+    rattler_end = np.where(rattler[mixed[:, 0]], mixed[:, 0], mixed[:, 1])
+    to_backbone = np.bincount(rattler_end, minlength=p.n_particles)[rattler]
+    assert counts.min() == s.min_coordination and np.all(to_backbone < 3)
+    assert counts.mean() == pytest.approx(s.coordination, rel=1e-15)
     assert 0.0 < s.max_overlap <= 1e-9
 
 
@@ -130,6 +140,25 @@ def test_700_particles_jammed_and_stress_free():
     s = network_stats(p)
     assert p.n_particles == 700 and s.volume_fraction >= 0.82 and s.rattler_fraction <= 0.15
     assert s.min_coordination >= 3 and TaylorRVE(p, 1.0).prestress_ratio < 1e-6
+
+
+def _median_hop(p):
+    """Median distance (mm) between the centres of disks k and k + 1, over the diameter."""
+    return np.median(np.linalg.norm(np.diff(p.centers, axis=0), axis=1)) / (2 * p.radii.mean())
+
+
+@pytest.mark.slow
+def test_large_packings_are_numbered_along_the_cells():
+    # above CELL_ORDER_ABOVE disks, neighbours in the array are neighbours in space (FIRE's
+    # memory access); a smaller packing keeps the random order of its drawn centres
+    large = generate_packing(generation.CELL_ORDER_ABOVE + 1, seed=5)
+    small = generate_packing(700, seed=5)
+    width = large.box[0] / (2 * large.radii.mean())  # the cell in diameters (~100)
+    assert _median_hop(large) < 4.0 < 0.1 * width
+    assert _median_hop(small) > 0.2 * small.box[0] / (2 * small.radii.mean())
+    s = network_stats(large)  # as jammed and stress-free as a small one
+    assert s.rattler_fraction <= 0.15 and s.coordination >= 3.8 and s.min_coordination >= 3
+    assert TaylorRVE(large, 1.0).prestress_ratio < 1e-6
 
 
 def test_rejected_networks_are_jammed_again_and_the_best_attempt_is_returned():
@@ -291,10 +320,15 @@ def test_progress_heartbeats_respect_the_interval(monkeypatch):
 
 
 def test_generation_benchmark_runs(capsys):
-    load_benchmark("generation").main(["--sizes", "70", "140"])
+    import generation as benchmark  # benchmarks/generation.py (not dolfinx_granular.generation)
+
+    sizes = ["70", "140"]
+    benchmark.main(["--sizes", *sizes])
     out = capsys.readouterr().out
-    rows = [line.split() for line in out.splitlines() if line.strip().startswith(("70 ", "140 "))]
-    assert [row[0] for row in rows] == ["70", "140"] and len(rows[1]) == 4
+    rows = [row for row in map(str.split, out.splitlines()) if row[:1] and row[0] in sizes]
+    assert [row[0] for row in rows] == sizes and len(rows[1]) == 6
+    # the FIRE steps are read from the progress lines: a search takes hundreds at least
+    assert all(int(row[3]) >= 100 and float(row[4]) > 0 for row in rows)
     assert "log-log slope over all sizes" in out
 
 
