@@ -26,13 +26,6 @@ SLOPE = os.path.join(ROOT, "demos", "slope.py")
 MPI_ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
 
 
-def load_benchmark(name):
-    """The module ``benchmarks/<name>.py`` (a plain import: ``benchmarks/`` is on pytest's path).
-
-    Kept for tests/test_friction.py only; elsewhere the tests ``import <name>`` directly."""
-    return importlib.import_module(name)
-
-
 def load_demo(name):
     """The module ``demos/<name>.py``."""
     spec = importlib.util.spec_from_file_location(name, os.path.join(ROOT, "demos", f"{name}.py"))

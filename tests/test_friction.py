@@ -12,7 +12,6 @@ from dolfinx_granular.rve import PrestressWarning
 import numpy as np
 import pytest
 
-from helpers import load_benchmark
 from reference import central_differences
 
 K_N = 1e7
@@ -736,10 +735,11 @@ def test_state_memory_is_proportional_to_contacts():
 
 
 def test_benchmark_runs(capsys):
-    rows = load_benchmark("friction_kernel").main(
-        ["--points", "20", "--sizes", "70", "--repeats", "1"]
-    )
+    import friction_kernel as benchmark  # benchmarks/friction_kernel.py (not the package's)
+
+    rows = benchmark.main(["--points", "20", "--sizes", "70", "--repeats", "1"])
     out = capsys.readouterr().out
     lines = [line for line in out.splitlines() if line.strip().startswith("70 ")]
     assert len(lines) == 1 and "x |" in lines[0]
-    assert rows[0]["bytes"] > 0 and rows[0]["t1"] > 0
+    # the state holds one force per visited candidate, at least one per active contact
+    assert rows[0]["bytes"] >= 8 * rows[0]["contacts"] > 0

@@ -3,7 +3,6 @@ the slope with friction and unloading (permanent settlement, dissipation), resta
 the history, and serial = MPI."""
 
 import json
-import subprocess
 
 from dolfinx_granular import generate_packing
 from dolfinx_granular.friction import FrictionalRVE
@@ -13,7 +12,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from helpers import MPI_ENV, ROOT, granular_column, read_outputs, slope_command
+from helpers import granular_column, run_slope_demo
 
 K_N = 2.8e7
 
@@ -66,25 +65,9 @@ def test_newton_converges_superlinearly_with_sliding_contacts():
 
 
 def run_demo(out, *args, ranks=1):
-    cmd = slope_command(
-        "--particles",
-        "70",
-        "--seed",
-        "1",
-        "--steps",
-        "2",
-        "--no-figure",
-        "--friction",
-        "0.5",
-        "--unload",
-        "--out",
-        out,
-        *args,
-        ranks=ranks,
-    )
-    proc = subprocess.run(cmd, cwd=ROOT, env=MPI_ENV, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return read_outputs(out)[0]
+    """The 70-particle frictional slope (mu = 0.5, unloaded) in ``out``; its summary."""
+    options = ("--particles", "70", "--seed", "1", "--steps", "2", "--friction", "0.5", "--unload")
+    return run_slope_demo(out, *options, "--no-figure", *args, ranks=ranks)[1]
 
 
 @pytest.fixture(scope="module")
@@ -122,16 +105,9 @@ def test_resume_carries_the_history(tmp_path, friction_run):
         run_demo(out, "--stop-after", "2")
         with np.load(out / "restart.npz") as f:
             assert {"history_force", "history_points", "history_F"} <= set(f.files)
-            assert f["history_points"].shape == (1520, 2)
-        proc = subprocess.run(
-            slope_command("--resume", out, "--no-figure", ranks=ranks),
-            cwd=ROOT,
-            env=MPI_ENV,
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
-        assert proc.returncode == 0, proc.stderr[-3000:]
+            # one reference point (x, y) per RVE of the run
+            assert f["history_points"].shape == (friction_run["rves"], 2)
+        run_slope_demo(None, "--resume", out, "--no-figure", ranks=ranks)
         resumed = json.loads((out / "summary.json").read_text())
         for key in ("footing_settlement", "permanent_settlement", "dissipated_energy"):
             tol = 1e-12 if ranks == 1 else 1e-10
