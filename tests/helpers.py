@@ -48,6 +48,12 @@ def slope_command(*args, ranks=1):
     return cmd
 
 
+def is_png(path):
+    """True if the file ``path`` starts with the PNG signature."""
+    with open(path, "rb") as f:
+        return f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
 def run_slope_demo(out, *args, ranks=1, timeout=600, check=True):
     """Run ``python demos/slope.py *args --out out`` (no ``--out`` if ``out`` is None) from the
     checkout's root, under MPI with ``ranks`` processes if ranks > 1, with ``MPI_ENV``.

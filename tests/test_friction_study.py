@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_hex
 
-from helpers import load_demo
+from helpers import is_png, load_demo
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +57,7 @@ def test_outputs_exist_with_their_columns_and_rows(study):
         "friction_qp_mu.png",
         "friction_dissipation.png",
     ):
-        with open(out / name, "rb") as f:
-            assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+        assert is_png(out / name), name
     cfg = mod.SMALL
     m, cycles = cfg["quarter_steps"], cfg["cycles"]
     with open(out / "friction_cycles.csv") as f:

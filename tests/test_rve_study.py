@@ -11,7 +11,7 @@ from dolfinx_granular.cache import PackingCache
 import numpy as np
 import pytest
 
-from helpers import load_demo
+from helpers import is_png, load_demo
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +54,7 @@ def test_outputs_exist(study):
         "fig5_shear.png",
         "speed_error.png",
     ):
-        with open(out / name, "rb") as f:
-            assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+        assert is_png(out / name), name
     summary = json.loads((out / "summary.json").read_text())
     assert [row["n"] for row in summary["speed_error"]] == list(mod.SMALL["speed_sizes"])
     assert summary["seeds"] == list(range(mod.SMALL["seeds"]))

@@ -2,25 +2,18 @@
 softening branch, every increment on disk, the same path on two ranks and after a restart, and the
 uplift case stopping with its reason."""
 
-import subprocess
-
 import numpy as np
 import pytest
 
-from helpers import MPI_ENV, ROOT, read_outputs, slope_command
+from helpers import read_outputs, run_slope_demo
 
 SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure", "--path-following"]
 
 
 def demo(out, *args, ranks=1, status=0):
-    proc = subprocess.run(
-        slope_command(*SMALL, "--out", out, *args, ranks=ranks),
-        cwd=ROOT,
-        env=MPI_ENV,
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
+    """The small path-following run in ``out``, which must exit with ``status``: its stdout,
+    summary and convergence rows."""
+    proc, _ = run_slope_demo(out, *SMALL, *args, ranks=ranks, timeout=900, check=False)
     assert proc.returncode == status, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout, *read_outputs(out)
 
@@ -82,15 +75,7 @@ def test_resume_continues_the_path(tmp_path, doubled):
     assert stopped["status"] == "stopped" and not stopped["converged"]
     assert stopped["path_following"]["stopped"] == "asked to stop"
     assert f"continue with --resume {out}" in stdout
-    proc = subprocess.run(
-        slope_command("--resume", out, "--no-figure"),
-        cwd=ROOT,
-        env=MPI_ENV,
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    run_slope_demo(None, "--resume", out, "--no-figure", timeout=900)
     summary, _ = read_outputs(out)
     assert summary["resumed_from"] == 5
     a, b = footing_path(doubled[1]), footing_path(summary)
