@@ -2,6 +2,7 @@
 independent NumPy reference, central differences, objectivity, symmetry, energy balance, the
 frictionless limit, history handling (no mutation, batch splitting, restart arrays), bad input."""
 
+import platform
 import types
 
 from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError, generate_packing
@@ -737,9 +738,40 @@ def test_state_memory_is_proportional_to_contacts():
 def test_benchmark_runs(capsys):
     import friction_kernel as benchmark  # benchmarks/friction_kernel.py (not the package's)
 
-    rows = benchmark.main(["--points", "20", "--sizes", "70", "--repeats", "1"])
+    rows = benchmark.main(["--points", "20", "--sizes", "70", "--repeats", "1", "--breakdown"])
     out = capsys.readouterr().out
     lines = [line for line in out.splitlines() if line.strip().startswith("70 ")]
-    assert len(lines) == 1 and "x |" in lines[0]
+    assert len(lines) == 2 and "x |" in lines[0]  # the table and the breakdown
     # the state holds one force per visited candidate, at least one per active contact
     assert rows[0]["bytes"] >= 8 * rows[0]["contacts"] > 0
+    counts = rows[0]["instructions"]
+    if platform.machine() in ("x86_64", "AMD64"):
+        # the tangent adds work to each pass, and friction to the frictionless one
+        assert counts["frictionless P"] < counts["frictionless P+A"] < counts["contact P+A"]
+        assert counts["frictionless P"] < counts["contact P"] < counts["contact P+A"]
+
+
+def test_instruction_count_takes_the_innermost_loop_with_most_contacts():
+    import friction_kernel as benchmark
+
+    asm = "\n".join(
+        [
+            ".LBB0_1:",  # outer loop: holds both inner loops, 24 square roots' lanes
+            ".LBB0_2:",  # main loop: 2 x 8 contacts in 6 instructions
+            "\tvsqrtpd\t%zmm1, %zmm2",
+            "\tvsqrtpd\t%zmm3, %zmm4",
+            "\tvaddpd\t%zmm1, %zmm2, %zmm2",
+            "\tvmulpd\t%zmm1, %zmm2, %zmm2",
+            "\taddq\t$16, %rax",
+            "\tjne\t.LBB0_2",
+            "\t.p2align\t4",  # a directive, not an instruction
+            ".LBB0_3:",  # remainder: 1 contact in 3 instructions
+            "\tvsqrtsd\t%xmm1, %xmm1, %xmm1",
+            "\tincq\t%rax",
+            "\tjne\t.LBB0_3",
+            "\tdecq\t%rcx",
+            "\tjne\t.LBB0_1",
+        ]
+    )
+    assert benchmark.instructions_per_contact(asm) == 6 / 16
+    assert benchmark.instructions_per_contact("\tvaddpd\t%ymm0, %ymm0, %ymm0") is None
