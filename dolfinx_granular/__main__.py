@@ -36,7 +36,8 @@ class _UsageError(ValueError):
     pass
 
 
-PROGRESS_EVERY = 10.0  # seconds between progress lines of `generate` within one stage
+PROGRESS_AFTER = 1.0  # seconds before `generate` prints progress: a fast run stays silent
+PROGRESS_EVERY = 10.0  # seconds between heartbeat lines of `generate` (stage events: always)
 _AUTO = object()  # --d-min not given: 0.5 mm for the shipped sand, none for a user curve
 
 
@@ -125,16 +126,18 @@ def _cmd_generate(args) -> int:
         d_min = None if gsd is not None else DEFAULT_D_MIN
     t0 = time.perf_counter()
 
-    last = {"t": -PROGRESS_EVERY, "stage": None}
+    last = [-PROGRESS_EVERY]  # time of the last printed line
 
     def progress(line):
-        # slow runs (large N, first-call compilation) report: every stage change, and a progress
-        # line (stage, % done) at most every PROGRESS_EVERY seconds within a stage
+        # slow runs (large N, first-call compilation) print every stage event (each
+        # minimisation's pressure and steps, the jammed state, the end) and, in between, a
+        # heartbeat at most every PROGRESS_EVERY seconds
         now = time.perf_counter() - t0
-        stage = getattr(line, "stage", None)
-        if args.quiet or now < 1.0 or (stage == last["stage"] and now - last["t"] < PROGRESS_EVERY):
+        if args.quiet or now < PROGRESS_AFTER:
             return
-        last.update(t=now, stage=stage)
+        if line.heartbeat and now - last[0] < PROGRESS_EVERY:
+            return
+        last[0] = now
         print(f"[{now:6.1f} s] {line.strip()}", file=sys.stderr, flush=True)
 
     packing = generate_packing(

@@ -266,15 +266,22 @@ class ProgressLine(str):
         stage: ``"jamming"``, ``"stress-free"``, ``"checking"`` or ``"done"``.
         fraction: rough estimate of the finished share of the work, in [0, 1]; never decreases
             within a call and is exactly 1.0 on the final ``"done"`` line only.
+        heartbeat: True for a line that only says that a long minimisation or correction is
+            still running; False for a stage event (a minimisation's result, the jammed state,
+            a rejected attempt, the end), which a reader should not miss.
     """
 
     stage: str
     fraction: float
+    heartbeat: bool
 
-    def __new__(cls, text: str, stage: str, fraction: float) -> ProgressLine:
+    def __new__(
+        cls, text: str, stage: str, fraction: float, heartbeat: bool = False
+    ) -> ProgressLine:
         line = super().__new__(cls, text)
         line.stage = stage
         line.fraction = fraction
+        line.heartbeat = heartbeat
         return line
 
 
@@ -316,7 +323,7 @@ class _Reporter:
             self.fraction = max(self.fraction, self.base + (1.0 - self.base) * share)
         self.last = now
         percent = int(100 * self.fraction)  # 100 on the last line only
-        self.callback(ProgressLine(f"{text} [{percent} %]", stage, self.fraction))
+        self.callback(ProgressLine(f"{text} [{percent} %]", stage, self.fraction, heartbeat))
 
 
 # -- public API ------------------------------------------------------------------------------------

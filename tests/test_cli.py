@@ -117,6 +117,33 @@ def test_existing_output_is_kept_unless_forced(tmp_path, monkeypatch, capsys):
     assert Packing.load(tmp_path / "packing.npz").n_particles == 30
 
 
+def test_progress_prints_every_stage_event_and_spaces_the_heartbeats(
+    tmp_path, monkeypatch, capsys
+):
+    from dolfinx_granular import __main__ as cli
+    from dolfinx_granular import generation
+
+    lines = []
+    generate_packing(350, seed=1, progress=lines.append)
+    expected = [line.strip() for line in lines if not line.heartbeat]
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(generation, "PROGRESS_INTERVAL", 0.0)  # a heartbeat after every chunk
+    monkeypatch.setattr(cli, "PROGRESS_AFTER", 0.0)  # a fast run prints too
+    monkeypatch.setattr(cli, "PROGRESS_EVERY", 3600.0)
+    assert main(["generate", "350", "--seed", "1"]) == 0
+    printed = [line.split("] ", 1)[1] for line in capsys.readouterr().err.splitlines()]
+    running = ("jamming:", "stress-free", "checking the contact network")  # heartbeats
+    events = [line for line in printed if not line.startswith(running)]
+
+    def text(line):  # without the elapsed time and the percentage, which differ between runs
+        return line.split(" [")[0].split(" (")[0]
+
+    # every minimisation's result, the jammed state and the end, in order
+    assert [text(line) for line in events] == [text(line) for line in expected]
+    assert sum("FIRE steps" in line for line in events) >= 3
+    assert len(printed) - len(events) == 1  # the first heartbeat; the next within PROGRESS_EVERY
+
+
 def test_help_is_plain_text_and_names_the_default_file(capsys):
     for argv in (["--help"], ["generate", "--help"]):
         with pytest.raises(SystemExit):

@@ -307,6 +307,8 @@ def test_progress_fractions_increase_to_one(monkeypatch):
     assert lines[-1].stage == "done" and lines[-1].startswith("done")
     assert {s.stage for s in lines} <= {"jamming", "stress-free", "checking", "done"}
     assert any(s.startswith("jamming:") for s in lines)  # heartbeats inside the minimisations
+    running = ("jamming:", "stress-free", "checking the contact network")  # still running
+    assert all(s.heartbeat == s.startswith(running) for s in lines)
     assert any(s.startswith("stress-free") for s in lines)
     assert p == generate_packing(350, seed=1)  # reporting does not change the result
 
