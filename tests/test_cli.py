@@ -117,9 +117,7 @@ def test_existing_output_is_kept_unless_forced(tmp_path, monkeypatch, capsys):
     assert Packing.load(tmp_path / "packing.npz").n_particles == 30
 
 
-def test_progress_prints_every_stage_event_and_spaces_the_heartbeats(
-    tmp_path, monkeypatch, capsys
-):
+def test_progress_prints_every_stage_event_and_spaces_the_heartbeats(tmp_path, monkeypatch, capsys):
     from dolfinx_granular import __main__ as cli
     from dolfinx_granular import generation
 
