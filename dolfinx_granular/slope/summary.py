@@ -47,11 +47,10 @@ def limit_message(failed: dict, run: SlopeRun) -> str | None:
     )
 
 
-def report_stop(run: SlopeRun, path: dict | None = None) -> None:
+def report_stop(run: SlopeRun, path: dict | None) -> None:
     """Log how the run ended (failure, limit load, the end of a path, a requested stop);
-    ``path``: :func:`~dolfinx_granular.slope.path.path_summary` of the run, if at hand."""
+    ``path``: :func:`~dolfinx_granular.slope.path.path_summary` of the run."""
     failed, stepper = run.stepper.failed, run.stepper
-    path = path_summary(run) if path is None else path
     if path is not None and path["peak"] is not None:
         peak = path["peak"]
         run.say(
