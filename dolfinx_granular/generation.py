@@ -32,7 +32,7 @@ the Newton correction are factorised with a symmetric fill-reducing order. What 
 is the number of FIRE steps a minimisation needs, which grows like N^0.4 to N^0.6 (seed 0: 46 000
 steps in all at 2800 disks, 149 000 at 45000; the slowest elastic mode of the cell relaxes on a
 time ~ its width), and a step's cost per disk at large N, which grows with the cache misses: the
-total grows like N^1.4 from 2800 to 11200 disks and N^1.7 from 11200 to 45000
+total grows like N^1.3 from 2800 to 11200 disks and N^1.9 from 11200 to 45000
 (``benchmarks/generation.py`` measures it). Above ``CELL_ORDER_ABOVE`` disks the initial centres
 are numbered along the cells, so that a step's memory access stays local (1.4x faster steps at
 45000 disks).
