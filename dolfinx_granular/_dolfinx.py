@@ -217,21 +217,45 @@ def _on_rank_zero(n_local: int) -> Callable:
 
 def mpi_command(ranks: int) -> list[str] | None:
     """The command prefix that starts ``ranks`` processes with the MPI library of this Python's
-    mpi4py: the venv's own ``mpiexec`` where the PyPI wheel installed one (MPICH), else
-    ``mpirun`` on PATH (Debian's OpenMPI, with ``--oversubscribe`` for more ranks than cores
-    and ``--allow-run-as-root`` for containers and CI, which run as root); None if there is no
-    launcher."""
+    mpi4py, whatever PATH says: the venv's own ``mpiexec`` where the PyPI wheel installed one
+    (MPICH); else the first launcher of the same MPI implementation among ``mpirun``/``mpiexec``
+    beside the base interpreter (Debian's ``/usr/bin``) and then on PATH (Open MPI gets
+    ``--oversubscribe`` for more ranks than cores and ``--allow-run-as-root`` for containers and
+    CI, which run as root); None if there is no such launcher."""
     own = os.path.join(sys.prefix, "bin", "mpiexec")
     if os.access(own, os.X_OK):
         return [own, "-n", str(ranks)]
-    launcher = shutil.which("mpirun") or shutil.which("mpiexec")
-    if launcher is None:
-        return None
     from mpi4py import MPI
 
     open_mpi = "Open MPI" in MPI.Get_library_version()
-    extra = ["--oversubscribe", "--allow-run-as-root"] if open_mpi else []
-    return [launcher, "-n", str(ranks), *extra]
+    for launcher in _launcher_candidates():
+        if _is_open_mpi_launcher(launcher) == open_mpi:
+            extra = ["--oversubscribe", "--allow-run-as-root"] if open_mpi else []
+            return [launcher, "-n", str(ranks), *extra]
+    return None
+
+
+def _launcher_candidates() -> list[str]:
+    """Executable ``mpirun``/``mpiexec`` files: beside the base interpreter first, then on PATH
+    (an activated venv of another stack puts its own launcher first there)."""
+    base = os.path.join(sys.base_prefix, "bin")
+    found = [os.path.join(base, name) for name in ("mpirun", "mpiexec")]
+    found += [shutil.which(name) for name in ("mpirun", "mpiexec")]
+    unique = dict.fromkeys(f for f in found if f and os.access(f, os.X_OK))
+    return list(unique)
+
+
+def _is_open_mpi_launcher(launcher: str) -> bool:
+    """True for Open MPI's launcher (``mpirun (Open MPI) 4.1.4``), False for MPICH's (HYDRA)."""
+    import subprocess
+
+    try:
+        proc = subprocess.run(
+            [launcher, "--version"], capture_output=True, text=True, timeout=30, check=False
+        )
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return "Open MPI" in proc.stdout + proc.stderr
 
 
 _XINCLUDE_WRONG = 'xmlns:xi="https://www.w3.org/2001/XInclude"'

@@ -6,6 +6,8 @@ or FFCx (run on the newest stack, this catches an API that is on its way out).
 """
 
 import os
+import subprocess
+import sys
 import warnings
 
 from dolfinx_granular import _dolfinx as dfx
@@ -78,6 +80,27 @@ def test_spaces_vectors_and_vtk_mesh():
 def test_mpi_command_matches_this_python():
     cmd = dfx.mpi_command(3)
     assert cmd is not None and cmd[1:3] == ["-n", "3"] and os.access(cmd[0], os.X_OK)
+
+
+def test_mpi_command_ignores_another_stacks_launcher_first_on_path(tmp_path):
+    """With another MPI's launcher first on PATH (an activated venv of the other stack), the
+    command still starts this Python's MPI: 2 ranks that see a world of size 2."""
+    other = "HYDRA build details:" if "Open MPI" in MPI.Get_library_version() else "(Open MPI) 4"
+    for name in ("mpirun", "mpiexec"):
+        fake = tmp_path / name
+        fake.write_text(f"#!/bin/sh\necho '{other}'\nexit 0\n")
+        fake.chmod(0o755)
+    env = {**os.environ, "PATH": f"{tmp_path}{os.pathsep}{os.environ.get('PATH', '')}"}
+    ask = "from dolfinx_granular._dolfinx import mpi_command; print(' '.join(mpi_command(2)))"
+    cmd = subprocess.run(
+        [sys.executable, "-c", ask], env=env, capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert not cmd[0].startswith(str(tmp_path)), cmd
+    size = "from mpi4py import MPI; print(MPI.COMM_WORLD.size)"
+    out = subprocess.run(
+        [*cmd, sys.executable, "-c", size], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0 and out.stdout.split() == ["2", "2"], out.stderr
 
 
 @pytest.mark.mpi
