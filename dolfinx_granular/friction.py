@@ -68,6 +68,8 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike
 
+    from .validity import OverlapStatistics
+
 _KEYS = ("F", "dissipation", "offsets", "force")
 
 
@@ -485,3 +487,10 @@ class FrictionalRVE:
             tangential_force=buf[on],
             sliding=(eps[on] > 0.0) & (stick[on] == 0),
         )
+
+    def overlap_statistics(
+        self, F: ArrayLike, state: FrictionState | None = None
+    ) -> OverlapStatistics:
+        """The validity measure at F (``TaylorRVE.overlap_statistics``); ``state`` is accepted
+        for symmetry with the other methods and not needed: the overlaps depend on F alone."""
+        return self._taylor.overlap_statistics(F)

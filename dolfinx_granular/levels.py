@@ -55,6 +55,7 @@ if TYPE_CHECKING:
 
     from .packing import Packing
     from .rve import ContactSet
+    from .validity import OverlapStatistics
 
 # relative safety margin of the singular-value contact test (see module docstring)
 _MARGIN = 1e-12
@@ -222,6 +223,11 @@ class _Level:
     def contacts(self, F: ArrayLike) -> ContactSet:
         """Active contacts of the full Taylor RVE at one F (2, 2) (force networks for figures)."""
         return self.taylor.contacts(F)
+
+    def overlap_statistics(self, F: ArrayLike) -> OverlapStatistics:
+        """The wrapped Taylor RVE's validity measure at F (``TaylorRVE.overlap_statistics``):
+        the overlaps the contacts would have at F, whatever this level's stress."""
+        return self.taylor.overlap_statistics(F)
 
 
 class SmallStrainRVE(_Level):

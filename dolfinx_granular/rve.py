@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import kernel
+from . import kernel, validity
 from .packing import Packing
 
 if TYPE_CHECKING:
@@ -297,6 +297,14 @@ class TaylorRVE:
         X, Y = self._L[:, 0], self._L[:, 1]
         l = np.stack([F[0, 0] * X + F[0, 1] * Y, F[1, 0] * X + F[1, 1] * Y], axis=1)
         return l, self._R - np.sqrt(l[:, 0] * l[:, 0] + l[:, 1] * l[:, 1])
+
+    def overlap_statistics(self, F: ArrayLike) -> validity.OverlapStatistics:
+        """The validity measure at F (n, 2, 2) (or (2, 2): scalars): ``(max_ratio (n,),
+        contacts (n,))``, the largest overlap of an active contact over the smaller radius of its
+        two disks, and the number of active contacts (:mod:`~dolfinx_granular.validity`)."""
+        if not hasattr(self, "_inv_rmin"):
+            self._inv_rmin = validity.candidate_inverse_radius(self)
+        return validity.overlap_statistics(self, F, self._inv_rmin)
 
 
 def _number(value, name):
