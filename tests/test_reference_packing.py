@@ -1,0 +1,30 @@
+"""The shipped default packing of the slope: what it claims to be, on every stack."""
+
+from dolfinx_granular import TaylorRVE, generate_packing
+from dolfinx_granular.generation import network_stats
+from dolfinx_granular.reference_packing import MADE_WITH, PARTICLES, SEED, reference_packing
+
+import numba
+import numpy as np
+import pytest
+
+
+@pytest.mark.skipif(
+    (np.__version__, numba.__version__) != (MADE_WITH["numpy"], MADE_WITH["numba"]),
+    reason="generate_packing reproduces the shipped file bit for bit only with the numpy and "
+    "numba that wrote it (Debian bookworm's)",
+)
+def test_reference_packing_is_the_generated_one():
+    shipped, generated = reference_packing(), generate_packing(PARTICLES, seed=SEED)
+    np.testing.assert_array_equal(shipped.centers, generated.centers)
+    np.testing.assert_array_equal(shipped.radii, generated.radii)
+    np.testing.assert_array_equal(shipped.box, generated.box)
+
+
+def test_reference_packing_is_jammed_and_stress_free():
+    packing = reference_packing()
+    stats = network_stats(packing)
+    assert packing.n_particles == PARTICLES
+    assert stats.rattler_fraction <= 0.15 and stats.coordination >= 3.8
+    assert 0.0 < stats.max_overlap <= 2e-11
+    assert TaylorRVE(packing, normal_stiffness=2.8e7).prestress_ratio < 1e-10
