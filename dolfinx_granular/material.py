@@ -25,7 +25,7 @@ from dolfinx import fem
 from . import _dolfinx as dfx
 from .law import has_history
 from .quadrature import QuadratureMaterial, flatten, unflatten
-from .rve import UnsupportedDeformationError
+from .rve import PRESTRESS_WARNING, UnsupportedDeformationError
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -90,6 +90,7 @@ class GranularMaterial(QuadratureMaterial):
                     "the quadrature dofmap is not cell-major (dof = cell * n_qp + q); this DOLFINx "
                     "version lays out quadrature spaces differently and is not supported"
                 )
+        self._hold_as_data(self.P, self.A)
         self._slots = _point_slots(self.cells, self.n_qp, imap.size_local)
         self.W = np.zeros(n)
         self.F = np.tile(np.eye(2), (n, 1, 1))
@@ -202,6 +203,26 @@ class GranularMaterial(QuadratureMaterial):
     def jacobian_form(self, du: ufl.Argument, v: ufl.Argument) -> ufl.Form:
         """Its linearisation ``∫ grad v : A : grad du dx`` (UFL bilinear form)."""
         return ufl.inner(ufl.dot(self.A, flatten(ufl.grad(du))), flatten(ufl.grad(v))) * self.dx
+
+    def reference_stress(self) -> np.ndarray:
+        """The law's P(I) (2, 2) in Pa, from the initial state of a law with history."""
+        I = np.eye(2)[None]
+        if self.history:
+            return self.rve.stress(I, self.rve.initial_state(1))[1][0]
+        return self.rve.stress(I)[1][0]
+
+    def stress_floor_form(self, v: ufl.Argument) -> ufl.Form | None:
+        """``∫ P(I) : grad v dx`` over the material's cells when the law counts as stress-free:
+        |P(I)| at most ``PRESTRESS_WARNING`` (1e-6) of its modulus, e.g. ~1e-11 for a generated
+        packing, whose contacts overlap by 1e-11 of the mean diameter. None when P(I) = 0, or when
+        the reference state is prestressed (then P(I) is a real stress to balance)."""
+        P0 = self.reference_stress()
+        modulus = np.linalg.norm(self.rve.small_strain_modulus())
+        if not 0.0 < np.linalg.norm(P0) <= PRESTRESS_WARNING * modulus:
+            return None
+        P0 = fem.Constant(self.mesh, np.asarray(P0, dtype=float))
+        stress = P0 if self.indicator is None else self.indicator * P0
+        return ufl.inner(stress, ufl.grad(v)) * self.dx
 
     def cauchy(self) -> np.ndarray:
         """Cauchy stress sigma (n_points, 2, 2) in Pa at the F of the last ``update``."""

@@ -18,6 +18,7 @@ add up in one residual with the one measure ``dx`` and no subdomain data.
 from __future__ import annotations
 
 import numbers
+import weakref
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -32,6 +33,16 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike
     from ufl.core.expr import Expr
+
+#: the material that writes each quadrature data Function (``id`` -> material): names a material
+#: whose data a residual reads but that was not handed to the solver (it would never be updated)
+_DATA_OWNERS: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+
+def data_owner(f: object) -> QuadratureMaterial | None:
+    """The material whose :meth:`~QuadratureMaterial.data` includes the Function f, or None."""
+    owner = _DATA_OWNERS.get(id(f))
+    return owner if owner is not None and any(g is f for g in owner.data) else None
 
 
 def flatten(T: Expr) -> Expr:
@@ -159,6 +170,24 @@ class QuadratureMaterial:
         -> (n_cells, ...) (unweighted: a display value, not an integral)."""
         values = np.asarray(values)
         return values.reshape(self.cells.size, self.n_qp, *values.shape[1:]).mean(axis=1)
+
+    @property
+    def data(self) -> tuple:
+        """The quadrature Functions ``(stress, tangent)`` that :meth:`update` writes and the forms
+        read (P and dP/dF), or ``()`` for a law written in UFL."""
+        return getattr(self, "_data", ())
+
+    def _hold_as_data(self, stress: fem.Function, tangent: fem.Function) -> None:
+        """Declare the Functions of :attr:`data` (the solver checks its forms against them)."""
+        self._data = (stress, tangent)
+        for f in self._data:
+            _DATA_OWNERS[id(f)] = self
+
+    def stress_floor_form(self, v: ufl.Argument) -> ufl.Form | None:
+        """``∫ P0 : grad v dx`` of the stress P0 (Pa) the material carries in its reference state
+        while counting as stress-free (a solver treats residuals within its forces as zero under
+        no load), or None: the material is exactly stress-free there."""
+        return None
 
     # -- state (no history here; see GranularMaterial) -----------------------------------------
 

@@ -35,6 +35,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ._dolfinx import SNES_NAN_REASON, petsc_vec
+from .diagnose import check_wiring, singular_jacobian
 from .quadrature import derivative
 from .timing import Stopwatch
 
@@ -168,6 +169,7 @@ class NewtonSolver:
         self.stagnation_it = int(stagnation_it)
         self.skip_final_tangent = bool(skip_final_tangent)
         self.verbose = verbose
+        check_wiring(residual, jacobian, u, self.materials)
         if jacobian is None:
             jacobian = derivative(residual, u, ufl.TrialFunction(u.function_space), self.materials)
         self.L = fem.form(residual)
@@ -184,8 +186,20 @@ class NewtonSolver:
             self._u_vec.duplicate() for _ in range(6)
         )
         self._have_eval = self._have_tangent = False
+        self._floor = self._stress_floor(residual.arguments()[0])
         self.snes = self._create_snes(prefix, petsc_options)
         self.clock = Stopwatch()
+
+    def _stress_floor(self, v):
+        """|f| (N) of the materials' reference stress where they count as stress-free (a
+        generated packing's P(I) ~ 1e-11 of its modulus), Dirichlet rows left out; 0 if none."""
+        forms = [f for m in self.materials if (f := m.stress_floor_form(v)) is not None]
+        if not forms:
+            return 0.0
+        f = self._f
+        self.assemble_forces(f, fem.form(sum(forms[1:], forms[0])))
+        set_bc(f, self.bcs, None, 0.0)
+        return f.norm()
 
     @property
     def timings(self) -> dict:
@@ -345,7 +359,8 @@ class NewtonSolver:
         internal = f.norm()
         f.axpy(-1.0, R)
         set_bc(f, self.bcs, None, 0.0)
-        return max(internal, f.norm())
+        self._external = f.norm()
+        return max(internal, self._external)
 
     def _converged(self, snes, it, norms):
         with self.clock("callbacks"):
@@ -380,6 +395,10 @@ class NewtonSolver:
             return self._stop_as("residual_atol", _CR.CONVERGED_FNORM_ABS)
         if fnorm <= self.residual_rtol * self._scale:
             return self._stop_as("round-off", _CR.CONVERGED_FNORM_ABS)
+        if max(fnorm, self._external) <= 2.0 * self._floor:
+            # no load and a stress-free material: R is the forces of its reference stress
+            # (contacts overlapping by 1e-11), which Newton cannot remove without opening them
+            return self._stop_as("no load", _CR.CONVERGED_FNORM_ABS)
         if it > 0 and self.history[-1][2] <= self.energy_rtol:
             return self._stop_as("energy norm", _CR.CONVERGED_SNORM_RELATIVE)
         if stalled and self.history[-1][2] <= self.roundoff_energy:
@@ -409,7 +428,7 @@ class NewtonSolver:
         the result says why.
         """
         self.history, self._error, self._stagnated, self._stop = [], None, False, ""
-        self._rnorm_prev = self._scale = float("nan")
+        self._rnorm_prev = self._scale = self._external = float("nan")
         self._have_eval, self._verdict = False, 0
         start = self.u.x.array.copy()
         set_bc(self._u_vec, self.bcs)
@@ -483,6 +502,10 @@ class NewtonSolver:
         elif reason == _CR.DIVERGED_LINEAR_SOLVE:
             ksp = self.snes.getKSP()
             self._error = self._error or f"KSP reason {_KSP_REASONS.get(ksp.getConvergedReason())}"
+        if reason == _CR.DIVERGED_LINEAR_SOLVE or any_petsc_error:
+            # (the material data are still those of the failed iterate: before the restore)
+            cause = singular_jacobian(self.materials)
+            self._error = f"{self._error}; {cause}" if cause else self._error
         return reason, name
 
     def _restore(self, start):
