@@ -85,6 +85,32 @@ def function_space(
     return fem.FunctionSpace(msh, (family, degree))
 
 
+def tensor_space(
+    msh: Mesh, family: str, degree: int, shape: tuple[int, int] = (2, 2)
+) -> fem.FunctionSpace:
+    """Space of ``shape``-tensor values (a DG0 (2, 2) space for cell-wise stresses):
+    ``fem.functionspace(msh, (family, degree, shape))`` (0.7+) or ``fem.TensorFunctionSpace``
+    (0.5, 0.6). One block of ``prod(shape)`` values per dof, row-major."""
+    if _NEW_SPACES:
+        return fem.functionspace(msh, (family, degree, tuple(shape)))
+    return fem.TensorFunctionSpace(msh, (family, degree), shape=tuple(shape))
+
+
+def xdmf_cell_tensor(f: fem.Function) -> fem.Function:
+    """A DG0 (2, 2) Function as ``XDMFFile.write_function`` must get it for ParaView and pyvista
+    to read the components right. XDMF tensors have 9 components (3x3, row-major); DOLFINx 0.5
+    and 0.6 embed a 2x2 tensor in them, 0.7 and later write its 4 values first and pad with
+    zeros (a reader then takes s10 for s_xz). There, the values are copied into a DG0 (3, 3)
+    Function of the same name (last row and column 0). The writer changed with the arrival of
+    ``fem.functionspace`` (0.7), which is the feature tested."""
+    if not _NEW_SPACES:
+        return f
+    msh = f.function_space.mesh
+    g = fem.Function(tensor_space(msh, "DG", 0, (3, 3)), name=f.name)
+    g.x.array.reshape(-1, 3, 3)[:, :2, :2] = f.x.array.reshape(-1, 2, 2)
+    return g
+
+
 def vector_space(msh: Mesh, degree: int = 1, family: str = "Lagrange") -> fem.FunctionSpace:
     """Vector space with one component per geometric dimension (displacements)."""
     return function_space(msh, family, degree, (msh.geometry.dim,))
@@ -113,6 +139,14 @@ def quadrature_points(msh: Mesh, degree: int) -> np.ndarray:
     celltype = getattr(basix.CellType, msh.topology.cell_type.name)
     X, _ = basix.make_quadrature(celltype, degree)
     return X
+
+
+def quadrature_weights(msh: Mesh, degree: int) -> np.ndarray:
+    """Reference weights (n_qp,) of the "default" scheme of ``degree`` (the points of
+    :func:`quadrature_points`, in the same order)."""
+    celltype = getattr(basix.CellType, msh.topology.cell_type.name)
+    _, w = basix.make_quadrature(celltype, degree)
+    return np.asarray(w)
 
 
 def expression(e: Expr, X: np.ndarray) -> fem.Expression:

@@ -108,12 +108,10 @@ def overlap_statistics(taylor: Any, F: ArrayLike, inv_rmin: np.ndarray) -> Overl
         raise ValueError(f"F must have shape (n, 2, 2) or (2, 2), got {F.shape}")
     n = Fb.shape[0]
     ratio, count, status = np.empty(n), np.empty(n, np.int64), np.empty(n, np.int8)
-    _overlap_batch(
-        Fb, taylor._X, taylor._Y, taylor._R, taylor._rho, inv_rmin, taylor.min_stretch, ratio, count,
-        status,
-    )  # fmt: skip
+    t = taylor
+    _overlap_batch(Fb, t._X, t._Y, t._R, t._rho, inv_rmin, t.min_stretch, ratio, count, status)
     if status.any():
-        taylor._raise(Fb, status)
+        t._raise(Fb, status)
     if single:
         return OverlapStatistics(float(ratio[0]), int(count[0]))
     return OverlapStatistics(ratio, count)
