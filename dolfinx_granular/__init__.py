@@ -20,6 +20,7 @@ from .gsd import SieveCurve, cen_standard_sand
 from .levels import AdaptiveRVE, SmallStrainRVE
 from .packing import Packing, PackingFileError
 from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
+from .validity import OVERLAP_THRESHOLD, OverlapMonitor, OverlapSummary, ValidityWarning
 
 __all__ = [
     "Packing",
@@ -42,6 +43,10 @@ __all__ = [
     "density_deviation",
     "SmallStrainRVE",
     "AdaptiveRVE",
+    "OVERLAP_THRESHOLD",
+    "OverlapSummary",
+    "OverlapMonitor",
+    "ValidityWarning",
 ]
 __version__ = "0.2.0"
 #: the DOLFINx releases this version supports and tests (Debian bookworm, trixie, PyPI wheel)
@@ -60,6 +65,10 @@ _LAZY = {
     "derivative": "quadrature",
     "von_mises": "postprocess",
     "vector_space": "_dolfinx",
+    "probe": "probing",
+    "point_values": "probing",
+    "cauchy_field": "fields",
+    "validity_summary": "validity",
 }
 __all__ += list(_LAZY)
 

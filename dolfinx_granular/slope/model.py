@@ -20,6 +20,7 @@ from .. import _dolfinx as dfx
 from ..material import GranularMaterial
 from ..postprocess import global_extremum, min_acoustic_eigenvalue, nearest_point, von_mises
 from ..solver import NewtonSolver
+from ..validity import OVERLAP_THRESHOLD, validity_summary
 from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
 
 if TYPE_CHECKING:
@@ -237,3 +238,15 @@ class SlopeModel:
         return self.comm.allreduce(
             float(np.linalg.svd(F, compute_uv=False).min()) if len(F) else np.inf, op=MPI.MIN
         )
+
+    def overlap_validity(self, threshold: float = OVERLAP_THRESHOLD) -> dict | None:
+        """Where the contact law leaves its range, for ``summary.json`` (the same on every rank;
+        collective): :class:`~dolfinx_granular.validity.OverlapSummary` as a dict, ``max_ratio``
+        (largest contact overlap over the smaller disk radius at any Gauss point), ``at`` (its
+        reference coordinates, m), ``points_above``, ``points``, ``fraction_above`` and
+        ``threshold`` (default 0.10), at the material's last update. None for a material without
+        a disk-packing law (a UFL yardstick)."""
+        law = getattr(self.material, "rve", None)
+        if not callable(getattr(law, "overlap_statistics", None)):
+            return None
+        return validity_summary(self.material, threshold).as_dict()
