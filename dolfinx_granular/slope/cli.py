@@ -3,13 +3,18 @@
 Bad input (options, packing files, ``--out``, restart files, meshes) is one line ``error: ...``
 on stderr and exit status 2 (``--debug`` shows the traceback), on every rank alike under MPI.
 Exit status 0: every load step converged, or the run stopped where ``--stop-after`` asked; 1: it
-stopped at a load step that did not converge (e.g. at a limit load).
+stopped at a load step that did not converge (e.g. at a limit load); 130 (SIGINT, Ctrl-C) or 143
+(SIGTERM): interrupted, after the load step in progress (:mod:`.interrupt`).
+
+A new run refuses an ``--out`` that holds a run's files unless ``--force`` (which removes those
+files, and only those, first) or ``--resume`` (which continues it).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import time
 from typing import TYPE_CHECKING
@@ -21,7 +26,8 @@ from .._dolfinx import show_warnings
 from ..packing import Packing, PackingFileError
 from ..runwriter import RestartError
 from .geometry import SlopeGeometry
-from .run import SlopeOptions, is_complete, load_restart, run_slope
+from .interrupt import RunInterrupted, StopRequest, exit_status
+from .run import SlopeOptions, clear_run, is_complete, load_restart, run_files, run_slope
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -30,6 +36,10 @@ if TYPE_CHECKING:
 
 class UserError(ValueError):
     """Bad input (options, files): reported as one line ``error: ...`` with exit status 2."""
+
+
+#: what a resumed run takes from the command line; its other options are those stored
+RESUME_OPTIONS = ("resume", "no_figure", "stop_after", "debug")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -70,6 +80,7 @@ def _finite(low=None):
 def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
     p = _Parser(
         prog=prog,
+        allow_abbrev=False,  # (--particle 50 is no --particles 50)
         description="Slope stability benchmark (section 5 of Meier, "
         "Steinmann & Kuhl): dead load, then an eccentric strip footing in load steps, a "
         "Taylor RVE at every Gauss point.",
@@ -87,7 +98,17 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
     p.add_argument(
         "--steps", type=_int_at_least(1), default=20, help="footing load steps (default 20)"
     )
-    p.add_argument("--out", default="results/slope", help="output folder (default results/slope)")
+    p.add_argument(
+        "--out",
+        default="results/slope",
+        help="output folder (default results/slope); one that holds a run is refused "
+        "unless --force",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the run in --out (removes the files a run writes there, no others)",
+    )
     p.add_argument("--no-figure", action="store_true", help="skip slope.png")
     p.add_argument(
         "--load-factor",
@@ -121,7 +142,13 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
         type=_finite(0.0),
         metavar="KT",
         help="tangential contact stiffness k_t in N/m² (default: the normal one, "
-        "2.8e7, where --friction > 0)",
+        "2.8e7, where --friction > 0; no effect with --friction 0)",
+    )
+    p.add_argument(
+        "--allow-overlaps",
+        action="store_true",
+        help="accept a packing whose disks overlap by more than 5 %% of their radius sums "
+        "(prestressed as it is; default: refused, relax it instead)",
     )
     p.add_argument(
         "--unload",
@@ -139,7 +166,7 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
         type=_int_at_least(1),
         default=100,
         metavar="N",
-        help="most arc-length increments with --path-following (default 100)",
+        help="most arc-length increments, with --path-following only (default 100)",
     )
     p.add_argument(
         "--refine",
@@ -157,20 +184,41 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
     p.add_argument(
         "--resume",
         metavar="DIR",
-        help="continue the run in DIR from its restart.npz (its options and packing; "
-        "the options above are ignored except --no-figure and --stop-after)",
+        help="continue the run in DIR from its restart.npz, with its options and packing "
+        "(of the options above only --no-figure and --stop-after apply)",
     )
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     return p
 
 
-def options_of(a: argparse.Namespace) -> SlopeOptions:
-    """The run's options from parsed command-line arguments."""
-    if a.tangential_stiffness is not None and a.friction == 0.0:
+def given_options(argv: Sequence[str], prog: str = "demos/slope.py") -> set[str]:
+    """The destinations of the options that ``argv`` names (whatever values they are given)."""
+    parser, unset = build_parser(prog), object()
+    parser.set_defaults(**{dest: unset for dest in vars(parser.parse_args([]))})
+    return {dest for dest, value in vars(parser.parse_args(argv)).items() if value is not unset}
+
+
+def check_combination(a: argparse.Namespace, given: set[str]) -> None:
+    """Refuse options that would be ignored (UserError naming them and the fix)."""
+    if a.resume:
+        ignored = sorted(given - set(RESUME_OPTIONS))
+        if ignored:
+            names = ", ".join("--" + d.replace("_", "-") for d in ignored)
+            raise UserError(
+                f"--resume continues the run in {a.resume} with the options it was started "
+                f"with: drop {names} (only --no-figure and --stop-after apply), or start a new "
+                "run with --out"
+            )
+    elif "max_increments" in given and not a.path_following:
         raise UserError(
-            "--tangential-stiffness needs --friction MU > 0 (frictionless contacts "
-            "carry no tangential force)"
+            "--max-increments applies to --path-following only (load control takes --steps "
+            "steps): add --path-following or drop --max-increments"
         )
+
+
+def options_of(a: argparse.Namespace) -> SlopeOptions:
+    """The run's options from parsed command-line arguments (--tangential-stiffness with
+    --friction 0 is the frictionless model: k_t has no effect there)."""
     geometry = SlopeGeometry().refined(a.refine)
     try:
         return SlopeOptions(
@@ -184,6 +232,7 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
             path_following=a.path_following,
             max_increments=a.max_increments,
             geometry=geometry,
+            allow_overlaps=a.allow_overlaps,
         )
     except ValueError as err:
         raise UserError(str(err)) from None
@@ -214,8 +263,21 @@ def _check_out(out):
         ) from None
 
 
+def _claim_out(out, force):
+    """A new run's ``out``: refused if it holds a run, unless ``force`` (then cleared of it)."""
+    _check_out(out)
+    held = run_files(out)
+    if held and not force:
+        raise UserError(
+            f"--out {out} holds a slope run ({', '.join(held)}): add --force to replace it, "
+            f"use --resume {out} to continue it, or choose another --out"
+        )
+    clear_run(out)
+
+
 def _prepare(a):
-    """Rank 0's part of the set-up: the restart dict for ``--resume``, else the packing."""
+    """Rank 0's part of the set-up: the restart dict for ``--resume``, else the packing (after
+    the output folder's checks: before any expensive work)."""
     if a.resume:
         try:
             restart = load_restart(a.resume)
@@ -223,7 +285,7 @@ def _prepare(a):
             raise UserError(f"--resume: {err}") from err
         _check_out(a.resume)
         return restart
-    _check_out(a.out)
+    _claim_out(a.out, a.force)
     try:
         return make_packing(a.particles, a.seed, a.packing)
     except PackingFileError as err:
@@ -233,22 +295,26 @@ def _prepare(a):
         ) from err
 
 
-def _shared(a, comm):
-    """Rank 0 prepares, every rank gets the result (or the error, so that none waits)."""
+def _shared(a, comm, stop):
+    """Rank 0 prepares, every rank gets the result (or the error, so that none waits); a
+    signal interrupts the preparation at once (no collective call is in progress there)."""
     value = failure = None
     if comm.rank == 0:
         try:
-            value = _prepare(a)
+            with stop.raising():
+                value = _prepare(a)
         except Exception as err:  # let the other ranks stop too instead of waiting in bcast
             value = failure = err
     value = comm.bcast(value, root=0)  # every rank must use the identical RVE
+    if isinstance(value, RunInterrupted):
+        raise value
     if isinstance(value, Exception):
         raise failure or UserError(str(value))  # rank 0: the original, with its cause
     return value
 
 
-def _resume(a, comm, started):
-    restart = _shared(a, comm)
+def _resume(a, comm, started, stop):
+    restart = _shared(a, comm, stop)
     if is_complete(restart):
         if comm.rank == 0:
             print(
@@ -265,6 +331,26 @@ def _resume(a, comm, started):
         restart=restart,
         stop_after=a.stop_after,
         started=started,
+        stop_request=stop,
+    )
+
+
+def _run(a, argv, prog, comm, started, stop):
+    """The run that the parsed arguments ``a`` ask for; its summary dict."""
+    check_combination(a, given_options(argv, prog))
+    if a.resume:
+        return _resume(a, comm, started, stop)
+    options = options_of(a)
+    packing = _shared(a, comm, stop)
+    return run_slope(
+        packing,
+        options,
+        out=a.out,
+        comm=comm,
+        figure=not a.no_figure,
+        stop_after=a.stop_after,
+        started=started,
+        stop_request=stop,
     )
 
 
@@ -274,26 +360,21 @@ def main(argv: Sequence[str] | None = None, prog: str = "demos/slope.py") -> int
     comm = MPI.COMM_WORLD
     started = time.perf_counter()
     show_warnings()  # e.g. a prestressed packing's PrestressWarning, on every DOLFINx release
+    stop = StopRequest(verbose=comm.rank == 0)
     try:
-        a = build_parser(prog).parse_args(argv)
-        if a.resume:
-            summary = _resume(a, comm, started)
-        else:
-            options = options_of(a)
-            packing = _shared(a, comm)
-            summary = run_slope(
-                packing,
-                options,
-                out=a.out,
-                comm=comm,
-                figure=not a.no_figure,
-                stop_after=a.stop_after,
-                started=started,
-            )
+        with stop.installed():
+            a = build_parser(prog).parse_args(argv)
+            summary = _run(a, argv, prog, comm, started, stop)
+    except RunInterrupted as err:  # in the set-up: no load step was taken
+        if comm.rank == 0:
+            print(f"slope: {err} before the first load step; nothing to resume", flush=True)
+        return exit_status(err.signum)
     except (ValueError, OSError) as err:  # user errors: bad options, files, meshes
         if "--debug" in argv:
             raise
         if comm.rank == 0:
             print(f"error: {err}", file=sys.stderr, flush=True)
         return 2
+    if summary["status"] == "interrupted":
+        return exit_status(signal.Signals[summary["interrupted_by"]])
     return 0 if summary["status"] in ("converged", "stopped") else 1

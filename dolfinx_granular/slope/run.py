@@ -32,6 +32,7 @@ from ..postprocess import cell_function, gather_mesh
 from ..runwriter import NodeOrder, PointOrder, RestartError, RunWriter, read_npz
 from ..rve import TaylorRVE
 from .geometry import SlopeGeometry
+from .interrupt import signal_name, write_line
 from .model import SlopeModel, granular_material, newton_solver
 from .path import follow_footing_path, path_summary
 from .summary import draw_figure, draw_load_settlement, report_stop, summarise
@@ -44,11 +45,24 @@ if TYPE_CHECKING:
     from ..friction import FrictionalRVE
     from ..quadrature import QuadratureMaterial
     from ..solver import NewtonSolver, SolveResult
+    from .interrupt import StopRequest
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 RESTART_FORMAT = "dolfinx_granular.slope_restart"
 CONVERGENCE_HEADER = ["step", "iterate", "residual_norm", "energy_norm_rel", "converged_by"]
 PHASES = ("gravity", "footing")
+#: every file a slope run writes in its folder (``--force`` removes these, and nothing else)
+RUN_FILES = (
+    "summary.json",
+    "restart.npz",
+    "convergence.csv",
+    "slope.xdmf",
+    "slope.h5",
+    "slope.png",
+    "load_settlement.png",
+)
+#: the figures, drawn at the end of a run (stale once a run continues)
+FIGURES = ("slope.png", "load_settlement.png")
 
 
 @dataclasses.dataclass
@@ -70,6 +84,8 @@ class SlopeOptions:
         path_following: take the footing phase by arc length (past a limit load): it stops
             once the load has fallen to ``unload_fraction`` of its peak, once the full load is
             carried, or after ``max_increments``; ``steps`` sets the first increment.
+        allow_overlaps: accept a packing whose disks overlap far (``allow_overlaps`` of
+            :class:`~dolfinx_granular.rve.TaylorRVE`), prestressed as it is.
     """
 
     steps: int = 20
@@ -85,6 +101,7 @@ class SlopeOptions:
     path_following: bool = False
     max_increments: int = 100
     unload_fraction: float = 0.9
+    allow_overlaps: bool = False
 
     def __post_init__(self):
         if self.path_following and self.unload:
@@ -103,6 +120,16 @@ class SlopeOptions:
 
     def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
         """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0."""
+        try:
+            return self._law(packing)
+        except ValueError as err:
+            if "allow_overlaps" in str(err) and not self.allow_overlaps:
+                raise ValueError(f"{err} (on the command line: --allow-overlaps)") from err
+            raise
+
+    def _law(self, packing):
+        # (the keyword only where asked for: a law that predates it still takes the default)
+        overlaps = {"allow_overlaps": True} if self.allow_overlaps else {}
         if self.friction > 0.0:
             from ..friction import FrictionalRVE
 
@@ -116,8 +143,9 @@ class SlopeOptions:
                 normal_stiffness=self.normal_stiffness,
                 tangential_stiffness=kt,
                 friction=self.friction,
+                **overlaps,
             )
-        return TaylorRVE(packing, self.normal_stiffness)
+        return TaylorRVE(packing, self.normal_stiffness, **overlaps)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> SlopeOptions:
@@ -144,6 +172,26 @@ def convergence_rows(
         )
         for i in range(len(residuals))
     ]
+
+
+def run_files(folder: str | os.PathLike[str]) -> list[str]:
+    """The names of the files in ``folder`` that a slope run writes (:data:`RUN_FILES`, and the
+    temporary files of an atomic write that a killed run left), sorted; [] if there is none."""
+    try:
+        names = os.listdir(folder)
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    return sorted(
+        n for n in names if n in RUN_FILES or any(n.startswith(f + ".tmp") for f in RUN_FILES)
+    )
+
+
+def clear_run(folder: str | os.PathLike[str], names: tuple[str, ...] | None = None) -> None:
+    """Remove the files of a slope run from ``folder`` (only ``names`` among them if given); the
+    folder's other files stay."""
+    for name in run_files(folder):
+        if names is None or name in names:
+            os.remove(os.path.join(folder, name))
 
 
 def load_restart(folder: str | os.PathLike[str]) -> dict:
@@ -183,6 +231,11 @@ class SlopeRun:
         law_factory: ``law_factory(packing, normal_stiffness)`` -> the material-point law
             (default: :meth:`SlopeOptions.law`).
         material_factory, solver_factory: see :class:`~dolfinx_granular.slope.model.SlopeModel`.
+        stop_request: a :class:`~dolfinx_granular.slope.interrupt.StopRequest` whose signals
+            stop the run after the load step in progress (on every rank alike), or None.
+
+    Attributes:
+        interrupted: the signal that stopped the run (0: none).
     """
 
     def __init__(
@@ -198,10 +251,14 @@ class SlopeRun:
         law_factory: Callable[[Packing, float], Any] | None = None,
         material_factory: Callable[[Any, Function], QuadratureMaterial] | None = None,
         solver_factory: Callable[..., NewtonSolver] | None = None,
+        stop_request: StopRequest | None = None,
     ) -> None:
         self.t_start = time.perf_counter() if started is None else started
         self.options = o = restart["options"] if restart else (options or SlopeOptions())
         self.packing, self.comm, self.stop_after = packing, comm, stop_after
+        self.verbose = verbose and comm.rank == 0
+        self.stop_request, self.interrupted = stop_request, 0
+        self._step_summary, self._writing = None, False  # (see _on_signal)
         self.say = (
             (lambda *a: print(*a, flush=True))
             if (verbose and comm.rank == 0)
@@ -218,6 +275,8 @@ class SlopeRun:
             comm, self.law, o.geometry, o.load_factor, material_factory, solver_factory
         )
         self.writer = RunWriter(out, comm)
+        if restart is not None and comm.rank == 0:
+            clear_run(out, FIGURES)  # the figures of the stored part: drawn anew at the end
         self.nodes = NodeOrder(comm, self.model.V, tolerance=1e-9 * o.geometry.width)
         # the history of a law with it (frictional contacts) travels with the restart, keyed by
         # the quadrature points' coordinates
@@ -238,6 +297,8 @@ class SlopeRun:
         self._begin_xdmf()
         if restart is not None:
             self._resume(restart)
+        if stop_request is not None:
+            stop_request.on_signal = self._on_signal
         self.setup_time = time.perf_counter() - self.t_start
 
     @property
@@ -315,23 +376,61 @@ class SlopeRun:
             u_history=np.asarray(self.u_history),
             **history,
         )
-        self.writer.json(
-            "summary.json",
+        self._step_summary = (
             {
-                "status": "running",
                 "ranks": self.comm.size,
                 "steps": self.n_nominal,
                 "completed_steps": step,
                 "resumed_from": self.resumed_from,
                 "cutbacks": state["cutbacks"],
-                "iterations": self.iterations,
+                "iterations": list(self.iterations),  # (copies: a signal handler writes it)
                 "footing_settlement": self.step_info[-1]["settlement"],
                 "load_factor": self.options.load_factor,
                 "stabilise": self.options.stabilise,
-                "step_info": self.step_info,
-            },
+                "step_info": list(self.step_info),
+            }
+            if self.comm.rank == 0
+            else None
         )
+        self._write_summary()
         self.time_output += time.perf_counter() - t_out
+
+    def _signalled(self) -> int:
+        """The signal this rank has received (0: none); not collective."""
+        return self.stop_request.signum if self.stop_request is not None else 0
+
+    def _write_summary(self):
+        """summary.json of the last step on disk: ``running``, ``interrupted`` once a signal
+        has come (rank 0)."""
+        if self.comm.rank != 0:
+            return
+        status = "interrupted" if self._signalled() else "running"
+        self._writing = True
+        try:
+            self.writer.json("summary.json", {"status": status, **self._step_summary})
+        finally:
+            self._writing = False
+        if status == "running" and self._signalled():  # it came during the write
+            self._write_summary()
+
+    def _on_signal(self, signum):
+        """The first SIGINT/SIGTERM on this rank, in its handler: say so and mark the last step
+        on disk as interrupted at once (Open MPI's mpirun kills the ranks a second later)."""
+        if self.comm.rank != 0:
+            return
+        if self.verbose:
+            write_line(
+                f"slope: {signal_name(signum)}: stopping after the load step in progress "
+                f"(again: at once); continue later with --resume {self.writer.out}"
+            )
+        if self._step_summary is not None and not self._writing:
+            self._write_summary()
+
+    def _stop_agreed(self) -> bool:
+        """Collective: True once any rank has received a signal (sets :attr:`interrupted`)."""
+        if self.stop_request is not None:
+            self.interrupted = self.stop_request.agreed(self.comm)
+        return bool(self.interrupted)
 
     # -- the load path ---------------------------------------------------------------------------
 
@@ -393,8 +492,10 @@ class SlopeRun:
                 "time": elapsed,
             }
         )
+        # (no "of n": cut-backs and path following take more steps than the nominal ones)
         self.say(
-            f"step {step:2d}/{self.n_nominal}: gravity x{lam_g:.2f}, footing "
+            f"step {step:2d} ({self.options.phases[phase_index]}, t = {t:.4g}): gravity "
+            f"x{lam_g:.2f}, footing "
             f"{footing:.3e} N/m, {result.iterations} iterations, "
             f"{elapsed:.2f} s"
         )
@@ -414,8 +515,12 @@ class SlopeRun:
             self._record(phase_index, step, t, result, time.perf_counter() - clock[0])
             self._write_step(phase_index, step, t)
             clock[0] = time.perf_counter()
+            if self._stop_agreed():
+                return False
             return not (self.stop_after is not None and step >= self.stop_after)
 
+        if self._stop_agreed():  # (a signal during the set-up)
+            return False
         start_phase, start_t, start_dt = self._start
         for i in range(start_phase, len(phases)):
             t0 = start_t if i == start_phase else 0.0
@@ -478,6 +583,9 @@ def run_slope(
             f"({run.law.prestress_ratio:.2g} of its modulus)"
         )
     run.run()
+    if run.stop_request is not None:
+        run.stop_request.on_signal = None  # the load path is done: a signal now changes nothing
+    figure = figure and not run.interrupted  # (asked to stop: no figure of a partial run)
     path = path_summary(run)
     report_stop(run, path)
     extremes = m.extremes()

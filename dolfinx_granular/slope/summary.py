@@ -7,6 +7,7 @@ failed at a limit load), the stress extremes at the last converged state and the
 
 from __future__ import annotations
 
+import signal
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -67,6 +68,14 @@ def report_stop(run: SlopeRun, path: dict | None) -> None:
         line = limit_message(failed, run)
         if line:
             run.say(line)
+    elif run.interrupted:
+        name = signal.Signals(run.interrupted).name
+        run.say(
+            f"slope: interrupted ({name}) after step {stepper.step}; continue with --resume "
+            f"{run.writer.out}"
+            if stepper.step
+            else f"slope: interrupted ({name}) before the first load step; nothing to resume"
+        )
     elif stepper.stopped:
         run.say(
             f"slope: stopped after step {stepper.step} as asked (--stop-after); continue "
@@ -93,7 +102,7 @@ def summarise(
     if footing_load is not None:  # the limit load's record with the load carried, in N/m
         failed = {**failed, "limit_load": {**failed["limit_load"], "footing_load": footing_load}}
     t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in m.solver.timings.items()}
-    status = "failed" if failed else ("stopped" if stepper.stopped else "converged")
+    status = run_status(run)
     info = run.step_info
     prestress = getattr(run.law, "prestress", None)
     return {
@@ -103,10 +112,13 @@ def summarise(
         "status": status,
         "converged": status == "converged",
         "failed": failed,
+        # the signal that stopped an interrupted run (SIGINT, SIGTERM)
+        "interrupted_by": signal.Signals(run.interrupted).name if run.interrupted else None,
         "resumed_from": run.resumed_from,
         "cutbacks": [c.as_dict() for c in stepper.cutbacks],
         "load_factor": run.options.load_factor,
         "stabilise": run.options.stabilise,
+        "allow_overlaps": run.options.allow_overlaps,
         "open_points": m.open_points(),
         # at the last converged step: points whose tangent lost strong ellipticity
         "non_elliptic_points": info[-1].get("non_elliptic_points", 0) if info else 0,
@@ -148,6 +160,16 @@ def summarise(
     }
 
 
+def run_status(run: SlopeRun) -> str:
+    """``failed`` (a phase gave up), ``interrupted`` (SIGINT/SIGTERM), ``stopped``
+    (``--stop-after``) or ``converged``."""
+    if run.stepper.failed:
+        return "failed"
+    if run.interrupted:
+        return "interrupted"
+    return "stopped" if run.stepper.stopped else "converged"
+
+
 def _permanent_settlement(run):
     info = run.step_info
     if not (info and info[-1]["phase"] == "unloading" and info[-1]["t"] >= 1.0):
@@ -181,7 +203,7 @@ def draw_figure(
         markers,
         insets,
         value_range=(vmin, vmax),
-        title=f"step {run.stepper.step}/{run.n_nominal}: settlement {settlement:.3f} m, "
+        title=f"step {run.stepper.step}: settlement {settlement:.3f} m, "
         f"{run.packing.n_particles} particles, deformation x1",
     )
     return time.perf_counter() - t0, colour_range
@@ -190,12 +212,13 @@ def draw_figure(
 def load_settlement_curve(
     step_info: Iterable[Mapping[str, Any]],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(settlement (m, down positive), footing load (N/m, down positive)) of the converged steps
-    from the gravity state on (loading, and unloading where there is one)."""
+    """(settlement (m), footing load (N/m)) of the converged steps from the gravity state on
+    (loading, and unloading where there is one), signed as in the log and ``summary.json``:
+    negative = downward."""
     steps = [s for s in step_info if s["phase"] != "gravity" or s["t"] >= 1.0]
     return (
-        np.array([-s["settlement"] for s in steps]),
-        np.array([-s["footing_load"] for s in steps]),
+        np.array([s["settlement"] for s in steps]),
+        np.array([s["footing_load"] for s in steps]),
     )
 
 
@@ -208,5 +231,6 @@ def draw_load_settlement(run: SlopeRun, path: str | PathLike[str]) -> None:
     plot_load_settlement(
         path,
         [(law, settlement, load, {"marker": "o", "ms": 3})],
-        title=f"slope, {run.packing.n_particles}-particle RVE, {law}",
+        title=f"slope, {run.packing.n_particles}-particle RVE, {law} (negative = downward, "
+        "as in summary.json)",
     )
