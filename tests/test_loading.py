@@ -92,7 +92,8 @@ def test_crushing_load_fails_cleanly_at_the_last_converged_state():
 @pytest.mark.mpi
 def test_singular_matrix_is_a_failed_solve():
     """The column pulled up: the contacts of the upper cells open, the Jacobian has zero rows and
-    LU fails; the solve reports it instead of raising, and restores the state it started from."""
+    LU fails; the solve reports it instead of raising, names the RVEs without contacts, and
+    restores the state it started from."""
     solver, material, u, p = column("sing_", verbose=False)
     opened = []
     update = material.update
@@ -107,6 +108,9 @@ def test_singular_matrix_is_a_failed_solve():
     assert not result.converged and result.reason_name == "DIVERGED_LINEAR_SOLVE"
     assert "singular" in result.why
     assert max(opened) > 0  # the iterate where LU failed had RVEs without contacts
+    # the result names the cause and the fixes
+    assert f"{opened[-2]} of 64 RVE points have lost every contact" in result.why, result.why
+    assert "a confining load" in result.why and "stabilise=" in result.why
     assert not u.x.array.any() and opened[-1] == 0  # restored: u = 0, data of u = 0
     solver.destroy()
 

@@ -150,3 +150,40 @@ def test_taylor_jacobian_against_residual():
     assert np.all(np.abs(rate1 - 1.0) < 0.1), rate1
     assert np.all(rate2 > 1.9), rate2
     assert r2[-1] < 1e-3 * r1[-1]
+
+
+@pytest.mark.mpi
+def test_stress_floor_is_the_reference_stress_of_a_stress_free_law():
+    """A generated packing's P(I) (~1e-11 of the modulus) is the floor, and its forces are those
+    of the material at u = 0, on a subdomain too; an exactly stress-free lattice and a
+    prestressed packing (a real stress to balance) have none. A law with history: the same."""
+    from dolfinx_granular import FrictionalRVE
+    from dolfinx_granular.rve import PrestressWarning
+
+    from helpers import random_packing, square_lattice
+
+    msh = unit_square(4)
+    V = vector_space(msh)
+    u, v = fem.Function(V), ufl.TestFunction(V)
+    packing = generate_packing(70, seed=1)
+    lower = mesh.locate_entities(msh, 2, lambda x: x[1] <= 0.5 + 1e-12)
+    for law, cells in [
+        (TaylorRVE(packing, K_N), None),
+        (TaylorRVE(packing, K_N), lower),
+        (FrictionalRVE(packing, K_N, 0.5 * K_N, 0.5), None),
+    ]:
+        material = GranularMaterial(law, u, cells=cells)
+        ratio = np.linalg.norm(material.reference_stress()) / K_N
+        assert 1e-13 < ratio < 1e-9, ratio
+        material.update()
+        f_int = assemble_vector(fem.form(material.residual_form(v)))
+        floor = assemble_vector(fem.form(material.stress_floor_form(v)))
+        for b in (f_int, floor):
+            b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        assert f_int.norm() > 0.0
+        floor.axpy(-1.0, f_int)
+        assert floor.norm() <= 1e-12 * f_int.norm()
+    assert GranularMaterial(TaylorRVE(square_lattice(6), K_N), u).stress_floor_form(v) is None
+    with pytest.warns(PrestressWarning):
+        overlapping = TaylorRVE(random_packing(40, seed=3), K_N, allow_overlaps=True)
+    assert GranularMaterial(overlapping, u).stress_floor_form(v) is None

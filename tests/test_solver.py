@@ -146,15 +146,15 @@ def test_a_converged_state_returns_at_once():
 @pytest.mark.mpi
 def test_readme_loop_from_zero_load_and_after_a_failure():
     """The README's loop with the loads 0, 1e5, 2e5 Pa: at zero load the reference state's
-    round-off overlaps (P(I) ~ 1e-11 of the modulus) are all there is to balance, and Newton may
-    open touching contacts and fail; a failed solve leaves u where it started, so that the next
-    loads converge. A crushing load fails the same way, and the next solve converges."""
+    overlaps (P(I) ~ 1e-11 of the modulus) are all there is to balance: converged at once. A
+    failed solve leaves u where it started, so that the next loads converge: a crushing load
+    fails, and the next solve converges."""
     solver, material, u, p = granular_column(
         TaylorRVE(generate_packing(70, seed=4), 2.8e7), "readme_loop_", n=6
     )
     p.value = 0.0
-    if not solver.solve().converged:
-        assert not u.x.array.any()
+    at_rest = solver.solve()
+    assert at_rest.converged and at_rest.iterations == 0 and not u.x.array.any()
     for pressure in [1e5, 2e5]:
         p.value = pressure
         assert solver.solve().converged, pressure
@@ -165,6 +165,26 @@ def test_readme_loop_from_zero_load_and_after_a_failure():
     assert np.array_equal(material.F, material.deformation_gradient())  # data belong to u
     p.value = 2.5e5
     assert solver.solve().converged
+    solver.destroy()
+
+
+@pytest.mark.mpi
+def test_zero_load_on_a_generated_packing_converges_at_once():
+    """The README column (8 x 8 cells, generate_packing(70, seed=1): P(I) ~ 3e-4 Pa) at 0 Pa from
+    u = 0. R is the forces of the reference stress (contacts overlapping by 1e-11 of the mean
+    diameter), which Newton could only remove by opening those contacts: it used to move u by
+    round-off and end with a singular Jacobian. A stress-free material under no load is in
+    equilibrium: converged with 0 Newton steps, u untouched; the loads after it converge."""
+    solver, _, u, p = granular_column(TaylorRVE(generate_packing(70, seed=1), 2.8e7), "zero_", n=8)
+    result = solver.solve()
+    assert result.converged and result.iterations == 0 and result.stopped_by == "no load"
+    # not round-off: the residual is the reference stress's forces, the round-off scale as large
+    assert result.residual_norm > 1e-12 * result.force_scale, result
+    assert not u.x.array.any()
+    for pressure in (1e5, 2e5):
+        p.value = pressure
+        loaded = solver.solve()
+        assert loaded.converged and loaded.stopped_by != "no load", (pressure, loaded)
     solver.destroy()
 
 
