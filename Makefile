@@ -19,7 +19,7 @@ define current
 	[ $$rc -eq 0 ] || exit $$rc; set -ex; $(1)
 endef
 
-.PHONY: setup demo test test-serial test-mpi lint bench setup-current demo-current test-current bench-current clean
+.PHONY: setup warm demo test test-serial test-mpi lint bench setup-current demo-current test-current bench-current clean
 
 setup: .venv/.setup-done
 
@@ -27,15 +27,21 @@ setup: .venv/.setup-done
 	bash scripts/setup.sh
 	touch $@
 
-demo: setup
+# The JIT caches (Numba kernels, FFCx forms) for the sources as they are now, so that a run does
+# not start by compiling: setup.sh fills them, this refills them after a source changed (about a
+# minute; a second or two when current). Not fatal: without it the run compiles instead.
+warm: setup
+	@$(PY) -m dolfinx_granular.warmup || echo "warm: the warm-up failed (above); the run will compile instead"
+
+demo: warm
 	$(MPIRUN) $(PY) demos/slope.py
 
 test: setup test-serial test-mpi
 
-test-serial: setup
+test-serial: warm
 	$(PY) -m pytest -q --color=no tests
 
-test-mpi: setup
+test-mpi: warm
 	$(MPIRUN) $(PY) -m pytest -q --color=no -m mpi -p no:cacheprovider tests
 
 # ruff pinned: another version may format differently (configuration in pyproject.toml)
@@ -45,7 +51,7 @@ lint: setup
 	.venv/bin/ruff check .
 	.venv/bin/ruff format --check .
 
-bench: setup
+bench: warm
 	$(PY) benchmarks/report.py
 
 setup-current:

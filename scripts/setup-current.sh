@@ -38,3 +38,6 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 "$VENV/bin/python" -c "import dolfinx_granular, dolfinx, numba, numpy; from petsc4py import PETSc; \
 print('setup-current: ok, dolfinx', dolfinx.__version__, 'PETSc', '.'.join(map(str, PETSc.Sys.getVersion())), \
 'numba', numba.__version__, 'numpy', numpy.__version__)"
+# Fill Numba's and FFCx's caches (see scripts/setup.sh); skipped in seconds while the sources are
+# unchanged, so that every `make *-current` can run this script.
+"$VENV/bin/python" -m dolfinx_granular.warmup || echo "setup-current: the warm-up failed (above); the first run will compile instead"

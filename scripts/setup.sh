@@ -39,3 +39,9 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 .venv/bin/python -m pip install -q -c "$constraints" --no-build-isolation -e .
 .venv/bin/python -m pip install -q -c "$constraints" "pyvista>=0.43" 
 .venv/bin/python -c "import numpy, dolfinx, pyvista, dolfinx_granular; print('setup: ok, numpy', numpy.__version__, 'dolfinx', dolfinx.__version__, 'pyvista', pyvista.__version__)"
+# Fill Numba's and FFCx's caches now (a tiny run of the demo's and the API's code paths), so that
+# the first `make demo` does not spend its set-up compiling; skipped in seconds while the sources
+# are unchanged. Numba's cache is keyed to each source's mtime: an edited source recompiles on its
+# first use (correct, just slower) until the next set-up warms it again. Not fatal: without it
+# the first run compiles instead.
+.venv/bin/python -m dolfinx_granular.warmup || echo "setup: the warm-up failed (above); the first run will compile instead"

@@ -1,0 +1,162 @@
+"""Fill the JIT caches during set-up, so that the first run does not spend its time compiling.
+
+``python -m dolfinx_granular.warmup [--force]`` (run by ``scripts/setup.sh`` and
+``scripts/setup-current.sh``) runs the package's real code paths once on a tiny packing
+(:data:`PARTICLES` disks), serially:
+
+* the usual API (:func:`warm_api`): ``generate_packing`` and ``relax_overlaps`` (generation
+  kernels), ``TaylorRVE.evaluate`` / ``stress`` / ``cauchy`` / ``spatial_tangent`` /
+  ``overlap_statistics`` and ``FrictionalRVE.evaluate`` / ``stress`` on plain arrays;
+* the slope benchmark (:func:`warm_slope`): its gravity step, frictionless (the demo) and with
+  friction, figure included: the material's kernel specialisations on DOLFINx quadrature data,
+  and the slope's forms, elements and expressions (FFCx).
+
+Two caches keep what it compiles. Numba's (``cache=True``) lives in ``dolfinx_granular/__pycache__``
+(or ``$NUMBA_CACHE_DIR``) and is keyed to each source file's modification time and to the CPU: a
+source edited later recompiles on its first use (correct, just slower; the next set-up warms it
+again). FFCx's lives in ``~/.cache/fenics`` (``$XDG_CACHE_HOME/fenics``) and is keyed to the form.
+
+A run whose inputs have not changed since the last one (the package's sources, the interpreter,
+Numba, the cache locations: :func:`fingerprint`) does nothing, so that a repeated set-up stays
+quick; the record is ``warmup.<python tag>.json`` next to Numba's cache, and goes with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+#: disks of the warm-up packing: the same kernels as any size, compiled in seconds of run time
+PARTICLES = 30
+_PACKAGE = Path(__file__).resolve().parent
+
+
+def warm_api(particles: int = PARTICLES) -> None:
+    """Run the public material-point API once on a tiny generated packing (every Numba kernel
+    specialisation that plain-array calls use)."""
+    from .friction import FrictionalRVE
+    from .generation import generate_packing, relax_overlaps
+    from .packing import Packing
+    from .rve import TaylorRVE
+
+    packing = generate_packing(particles, seed=0)
+    # the overlapping copy that relax_overlaps exists for (radii x 1.02, as in the README)
+    swollen = Packing(packing.centers, 1.02 * packing.radii, packing.box)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # its PrestressWarning is expected
+        relax_overlaps(swollen)
+    F = np.array([[[0.99, 0.002], [0.0, 1.0]], [[1.0, 0.0], [0.001, 0.995]]])
+    rve = TaylorRVE(packing, 2.8e7)
+    rve.evaluate(F), rve.stress(F), rve.cauchy(F), rve.spatial_tangent(F)
+    rve.evaluate(F[0]), rve.overlap_statistics(F)
+    frictional = FrictionalRVE(packing, 2.8e7, 2.8e7, 0.5)
+    state = frictional.initial_state(len(F))
+    frictional.evaluate(F, state), frictional.stress(F, state)
+
+
+def warm_slope(particles: int = PARTICLES) -> None:
+    """Run the slope benchmark's gravity step on a tiny packing, frictionless and with friction,
+    serially into a temporary folder (its kernels on quadrature data, its FFCx forms)."""
+    from mpi4py import MPI
+
+    from .generation import generate_packing
+    from .slope import SlopeOptions, run_slope
+
+    packing = generate_packing(particles, seed=0)
+    for friction in (0.0, 0.5):
+        options = SlopeOptions(steps=1, friction=friction)
+        with tempfile.TemporaryDirectory(prefix="dolfinx-granular-warmup-") as out:
+            run_slope(packing, options, out, MPI.COMM_SELF, verbose=False, stop_after=1)
+
+
+def _ffcx_cache_dir() -> Path:
+    """The FFCx cache of DOLFINx's default JIT options (every supported release)."""
+    return Path(os.getenv("XDG_CACHE_HOME", Path.home() / ".cache")) / "fenics"
+
+
+def stamp_path() -> Path:
+    """Where the record of the last warm-up lives: beside Numba's cache of this package, so that
+    clearing that cache clears the record too."""
+    folder = os.getenv("NUMBA_CACHE_DIR") or _PACKAGE / "__pycache__"
+    return Path(folder) / f"warmup.{sys.implementation.cache_tag}.json"
+
+
+def fingerprint() -> dict:
+    """What the caches' validity depends on: the sources (path: [mtime_ns, size]), the
+    interpreter, Numba's version, the CPU and the cache locations (an absent FFCx cache counts
+    as a change)."""
+    import numba
+    from llvmlite import binding
+
+    sources = {
+        str(p.relative_to(_PACKAGE)): [p.stat().st_mtime_ns, p.stat().st_size]
+        for p in sorted(_PACKAGE.rglob("*.py"))
+        if "__pycache__" not in p.parts
+    }
+    ffcx = _ffcx_cache_dir()
+    return {
+        "python": sys.executable,
+        "numba": numba.__version__,
+        "cpu": binding.get_host_cpu_name(),
+        "numba_cache_dir": os.getenv("NUMBA_CACHE_DIR", ""),
+        "ffcx_cache_dir": str(ffcx) if ffcx.is_dir() else None,
+        "sources": sources,
+    }
+
+
+def is_current(path: Path | None = None) -> bool:
+    """True if the last warm-up's record matches :func:`fingerprint` now."""
+    path = stamp_path() if path is None else path
+    try:
+        return json.loads(path.read_text()) == fingerprint()
+    except (OSError, ValueError):
+        return False
+
+
+def warm_up(force: bool = False, stamp: Path | None = None, say=print) -> bool:
+    """Compile what a first run would (:func:`warm_api`, :func:`warm_slope`) unless the last
+    warm-up recorded in ``stamp`` (default :func:`stamp_path`) is still current, or ``force``;
+    returns True if it ran."""
+    path = stamp_path() if stamp is None else Path(stamp)
+    if not force and is_current(path):
+        say("warmup: the JIT caches are current (nothing to compile)")
+        return False
+    say(
+        "warmup: compiling the Numba kernels and the slope's forms into their caches (about a "
+        "minute, once per change of the sources)"
+    )
+    t0 = time.perf_counter()
+    warm_api()
+    warm_slope()
+    say(f"warmup: Numba and FFCx caches filled in {time.perf_counter() - t0:.1f} s")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(fingerprint(), indent=1))
+    except OSError as err:  # an unwritable cache folder: the caches work, the next run repeats
+        say(f"warmup: could not record the warm-up in {path} ({err.strerror or err})")
+    return True
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: ``python -m dolfinx_granular.warmup [--force]``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m dolfinx_granular.warmup",
+        description="Compile the Numba kernels and the slope's forms into their caches "
+        "(once per change of the sources), so that the first run does not compile.",
+    )
+    parser.add_argument("--force", action="store_true", help="warm up even if current")
+    a = parser.parse_args(argv)
+    warm_up(force=a.force)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

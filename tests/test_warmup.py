@@ -1,0 +1,121 @@
+"""The set-up's warm-up (``python -m dolfinx_granular.warmup``): after it, the slope demo and the
+usual API find every Numba kernel and FFCx form in the caches, and a repeated warm-up is skipped."""
+
+import json
+import os
+import subprocess
+import sys
+
+from dolfinx_granular import warmup
+
+import pytest
+
+# Run in a fresh interpreter with its own FFCx cache (XDG_CACHE_HOME): warm up, then the demo's
+# command line (frictionless with its figure, and with friction) and a GranularMaterial on a mesh
+# of the user's; report what they compiled that the warm-up had not.
+PROBE = r"""
+import json, sys
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from dolfinx_granular import warmup
+
+tmp = Path(sys.argv[1])
+stamp = tmp / "warmup.json"
+ran = [warmup.warm_up(force=True, stamp=stamp, say=print), warmup.warm_up(stamp=stamp, say=print)]
+
+
+def signatures():
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("dolfinx_granular"):
+            for attr, obj in vars(module).items():
+                if isinstance(obj, numba.core.dispatcher.Dispatcher):
+                    found[f"{name}.{attr}"] = {str(s) for s in obj.signatures}
+    return found
+
+
+def ffcx_files():
+    return {p.name for p in warmup._ffcx_cache_dir().glob("*.so")}
+
+
+kernels, forms = signatures(), ffcx_files()
+from dolfinx_granular.slope import cli
+
+common = ["--particles", "40", "--seed", "1", "--steps", "1", "--stop-after", "1"]
+assert cli.main(common + ["--out", str(tmp / "a")]) == 0
+assert cli.main(common + ["--out", str(tmp / "b"), "--no-figure", "--friction", "0.3"]) == 0
+new_forms = sorted(ffcx_files() - forms)
+
+from dolfinx import fem, mesh
+from mpi4py import MPI
+
+from dolfinx_granular import GranularMaterial, TaylorRVE, generate_packing, vector_space
+
+msh = mesh.create_unit_square(MPI.COMM_SELF, 2, 2, mesh.CellType.quadrilateral)
+u = fem.Function(vector_space(msh))
+material = GranularMaterial(TaylorRVE(generate_packing(40, seed=2), 2.8e7), u)
+material.update()
+material.update(tangent=False)
+after = signatures()
+new_kernels = {k: sorted(s - kernels.get(k, set())) for k, s in after.items()}
+print("PROBE", json.dumps({
+    "ran": ran,
+    "new_kernels": {k: s for k, s in new_kernels.items() if s},
+    "new_forms": new_forms,
+    "compiled": sum(len(s) for s in after.values()),
+}))
+"""
+
+
+@pytest.mark.slow
+def test_after_warmup_the_demo_and_the_api_compile_nothing(tmp_path):
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "cache"))
+    proc = subprocess.run(
+        [sys.executable, "-c", PROBE, str(tmp_path)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    line = next(x for x in proc.stdout.splitlines() if x.startswith("PROBE "))
+    report = json.loads(line[len("PROBE ") :])
+    assert report["ran"] == [True, False]  # forced, then skipped as current
+    assert report["compiled"] > 0  # the probe did see the package's kernels
+    assert report["new_kernels"] == {}, "specialisations the warm-up does not compile"
+    assert report["new_forms"] == [], "forms the warm-up does not compile"
+
+
+def test_the_record_is_current_until_a_source_changes(tmp_path):
+    stamp = tmp_path / "warmup.json"
+    assert not warmup.is_current(stamp)  # no warm-up recorded yet
+    stamp.write_text(json.dumps(warmup.fingerprint()))
+    assert warmup.is_current(stamp)
+    record = json.loads(stamp.read_text())
+    source = sorted(record["sources"])[0]
+    record["sources"][source][0] -= 1  # an older modification time of one source
+    stamp.write_text(json.dumps(record))
+    assert not warmup.is_current(stamp)
+
+
+def test_the_record_covers_every_kernel_module_and_the_caches():
+    record = warmup.fingerprint()
+    for source in ("kernel.py", "friction_kernel.py", "generation.py", "warmup.py"):
+        assert source in record["sources"]
+    assert record["python"] == sys.executable
+    assert record["numba_cache_dir"] == os.getenv("NUMBA_CACHE_DIR", "")
+    assert warmup.stamp_path().name == f"warmup.{sys.implementation.cache_tag}.json"
+
+
+def test_a_bad_option_is_refused_in_one_line():
+    proc = subprocess.run(
+        [sys.executable, "-m", "dolfinx_granular.warmup", "--bogus"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    assert "unrecognized arguments: --bogus" in proc.stderr
