@@ -79,6 +79,21 @@ def run_slope_demo(out, *args, ranks=1, timeout=600, check=True):
     return proc, summary
 
 
+def assert_user_error(proc, *words, mpirun=False):
+    """``proc`` (a finished slope run) failed as bad input: exit status 2, no traceback, one line
+    ``error: ...`` on stderr that contains every one of ``words``; returns that line."""
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 2, out[-3000:]
+    assert "Traceback" not in out, out[-3000:]
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("INFO")]
+    if mpirun:  # mpirun adds its own notice about the exit status
+        lines = [ln for ln in lines if ln.startswith("error: ")]
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr[-3000:]
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
 def read_outputs(out):
     """The slope demo's ``summary.json`` (a dict) and ``convergence.csv`` (a list of row dicts)
     in the folder ``out``."""

@@ -8,26 +8,13 @@ from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
 import numpy as np
 import pytest
 
-from helpers import run_slope_demo
+from helpers import assert_user_error, run_slope_demo
 
 
 def demo(*args, ranks=1):
     """The slope demo's process for ``args``, not checked (it is to fail); a failing run ends at
     once, the timeout catches a rank that hangs."""
     return run_slope_demo(None, *args, ranks=ranks, timeout=300, check=False)[0]
-
-
-def assert_user_error(proc, *words, mpirun=False):
-    out = proc.stdout + proc.stderr
-    assert proc.returncode == 2, out[-3000:]
-    assert "Traceback" not in out, out[-3000:]
-    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("INFO")]
-    if mpirun:  # mpirun adds its own notice about the exit status
-        lines = [ln for ln in lines if ln.startswith("error: ")]
-    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr[-3000:]
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 def write_npz(path, **fields):

@@ -68,38 +68,97 @@ def test_stop_and_resume_gives_the_same_answer(tmp_path, uninterrupted):
     summary, rows, xdmf = read(out)
     assert summary["status"] == "stopped" and summary["completed_steps"] == 2
     assert sorted({int(r["step"]) for r in rows}) == [1, 2] and xdmf.count("<Time Value") == 4
-    stdout = demo("--resume", out, "--no-figure", "--particles", "5")  # stored options rule
+    with open(os.path.join(out, "slope.png"), "wb") as f:  # a figure of the stopped state
+        f.write(b"stale")
+    stdout = demo("--resume", out, "--no-figure")
     assert "resumed from" in stdout
+    assert not os.path.exists(os.path.join(out, "slope.png"))  # not beside the finished run
     resumed = read(out)
     assert resumed[0]["resumed_from"] == 2 and resumed[0]["particles"] == 70
     assert_same_run(uninterrupted, resumed, 1e-12)
 
 
-@pytest.mark.slow
-def test_killed_run_keeps_its_converged_steps_and_resumes(tmp_path, uninterrupted):
-    """SIGKILL once two steps are on disk: the files describe the converged steps exactly
-    (summary.json and restart.npz are replaced atomically), and the run resumes from them."""
-    out = tmp_path / "run"
+@pytest.fixture(scope="module")
+def twelve_steps(tmp_path_factory):
+    """The SMALL run with 12 footing steps, straight through: what interrupted runs resume to."""
+    out = tmp_path_factory.mktemp("twelve")
+    demo(*SMALL, "--out", str(out), "--steps", "12")
+    return read(out)
+
+
+def signal_after(out, sig, steps, ranks=1, output=subprocess.DEVNULL):
+    """Start the SMALL run with 12 footing steps in ``out`` (under MPI for ranks > 1) and send
+    ``sig`` to it (the launcher under MPI) once ``steps`` load steps are on disk; the process,
+    finished."""
     proc = subprocess.Popen(
-        slope_command(*SMALL, "--out", str(out), "--steps", "12"),
+        slope_command(*SMALL, "--out", str(out), "--steps", "12", ranks=ranks),
         cwd=ROOT,
         env=MPI_ENV,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+        stdout=output,
+        stderr=output,
+        text=True,
     )
     try:
-        deadline = time.time() + 120
+        deadline = time.time() + 300
         while time.time() < deadline and proc.poll() is None:
             try:
                 with open(out / "summary.json") as f:
-                    if json.load(f)["completed_steps"] >= 2:
+                    if json.load(f)["completed_steps"] >= steps:
                         break
             except (OSError, ValueError, KeyError):
                 pass
             time.sleep(0.005)
-        proc.send_signal(signal.SIGKILL)
+        proc.send_signal(sig)
+        proc.stdout_text, proc.stderr_text = proc.communicate(timeout=300)
     finally:
+        proc.kill()
         proc.wait()
+    return proc
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_after_a_step_and_resumes(tmp_path, twelve_steps):
+    """SIGINT (Ctrl-C): the step in progress ends, the run stops with it on disk, says so in
+    one line and in summary.json, exits with 130; --resume gives the uninterrupted answer."""
+    out = tmp_path / "run"
+    proc = signal_after(out, signal.SIGINT, 1, output=subprocess.PIPE)
+    assert proc.returncode == 130, proc.stdout_text[-3000:] + proc.stderr_text[-3000:]
+    assert "Traceback" not in proc.stderr_text
+    summary, rows, _ = read(out)
+    done = summary["completed_steps"]
+    assert summary["status"] == "interrupted" and summary["interrupted_by"] == "SIGINT"
+    assert 1 <= done < 13 and sorted({int(r["step"]) for r in rows})[-1] == done
+    assert f"interrupted (SIGINT) after step {done}; continue with --resume {out}" in (
+        proc.stdout_text
+    )
+    with np.load(out / "restart.npz") as f:
+        assert json.loads(str(f["state"]))["step"] == done
+    demo("--resume", str(out), "--no-figure")
+    assert_same_run(twelve_steps, read(out), 1e-12)
+
+
+@pytest.mark.slow
+def test_sigterm_under_mpi_marks_the_run_interrupted_and_resumes(tmp_path, twelve_steps):
+    """SIGTERM to the MPI launcher (Open MPI's mpirun passes SIGTERM on to the ranks and kills
+    them a second later; MPICH's mpiexec passes it on and waits): summary.json says
+    interrupted, the log says how to continue, and the run resumes to the same answer."""
+    out = tmp_path / "run"
+    proc = signal_after(out, signal.SIGTERM, 1, ranks=2, output=subprocess.PIPE)
+    assert "Traceback" not in proc.stderr_text, proc.stderr_text[-3000:]
+    summary, _, _ = read(out)
+    assert summary["status"] == "interrupted", proc.stdout_text[-3000:]
+    assert 1 <= summary["completed_steps"] < 13
+    assert f"continue later with --resume {out}" in proc.stdout_text
+    demo("--resume", str(out), "--no-figure", ranks=2)
+    assert_same_run(twelve_steps, read(out), 1e-10)
+
+
+@pytest.mark.slow
+def test_killed_run_keeps_its_converged_steps_and_resumes(tmp_path, twelve_steps):
+    """SIGKILL once two steps are on disk: the files describe the converged steps exactly
+    (summary.json and restart.npz are replaced atomically), and the run resumes from them."""
+    out = tmp_path / "run"
+    proc = signal_after(out, signal.SIGKILL, 2)
     summary, rows, xdmf = read(out)
     with np.load(out / "restart.npz") as f:
         state = json.loads(str(f["state"]))
@@ -115,9 +174,7 @@ def test_killed_run_keeps_its_converged_steps_and_resumes(tmp_path, uninterrupte
     for step in range(1, done + 1):
         assert xdmf.count(f'<Time Value="{step}"') == 2
     demo("--resume", str(out), "--no-figure")
-    reference = tmp_path / "reference"
-    demo(*SMALL, "--out", str(reference), "--steps", "12")
-    assert_same_run(read(reference), read(out), 1e-12)
+    assert_same_run(twelve_steps, read(out), 1e-12)
 
 
 @pytest.mark.slow

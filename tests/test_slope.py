@@ -86,7 +86,7 @@ def serial_run(tmp_path_factory):
 def test_demo_reduced_size_writes_everything(serial_run):
     tmp_path, stdout = serial_run
     summary, rows = read(tmp_path)
-    assert "step  3/3" in stdout
+    assert "step  3 (footing, t = 1): gravity x1.00, footing -4.000e+07 N/m" in stdout
     assert summary["ranks"] == 1 and summary["steps"] == 3 and summary["converged"]
     assert len(summary["iterations"]) == 3 and all(i >= 1 for i in summary["iterations"])
     for key in (
@@ -150,6 +150,17 @@ def test_serial_and_two_ranks_agree(tmp_path, serial_run):
             b = rows2[(a["step"], a["iterate"])]
             assert rel(float(a["residual_norm"]), float(b["residual_norm"])) <= 1e-10
             assert rel(float(a["energy_norm_rel"]), float(b["energy_norm_rel"])) <= 1e-8
+
+
+@pytest.mark.slow
+def test_tangential_stiffness_without_friction_is_the_frictionless_run(tmp_path, serial_run):
+    """--friction 0 with a k_t (a parameter sweep's first point) runs the frictionless model."""
+    _, summary = run_slope_demo(
+        tmp_path, *SMALL, "--no-figure", "--friction", "0", "--tangential-stiffness", "1e7"
+    )
+    reference, _ = read(serial_run[0])
+    assert summary["friction"] == 0.0 and summary["iterations"] == reference["iterations"]
+    assert summary["footing_settlement"] == reference["footing_settlement"]
 
 
 def test_prestressed_packing_is_reported(tmp_path):

@@ -1,0 +1,106 @@
+"""The slope's command line keeps results and refuses what it would ignore: an ``--out`` that
+holds a run (unless ``--force``, which removes that run's files and no others), options that
+``--resume`` or load control would ignore, abbreviations; ``--allow-overlaps`` travels with the
+run; the load-settlement curve is signed as the log and ``summary.json``."""
+
+import json
+
+import numpy as np
+import pytest
+
+from helpers import assert_user_error, run_slope_demo
+
+SMALL = ["--particles", "70", "--seed", "1", "--no-figure"]
+
+
+def demo(*args):
+    """The slope demo's process for ``args``, not checked (it is to fail)."""
+    return run_slope_demo(None, *args, timeout=300, check=False)[0]
+
+
+def snapshot(folder):
+    return {p.name: p.read_bytes() for p in folder.iterdir()}
+
+
+@pytest.fixture
+def old_run(tmp_path):
+    """A folder with an earlier run's files (their content does not matter) and a user's own."""
+    out = tmp_path / "old"
+    out.mkdir()
+    for name in ("summary.json", "restart.npz", "slope.png", "load_settlement.png"):
+        (out / name).write_text(f"the earlier run's {name}")
+    (out / "notes.txt").write_text("the user's own file")
+    return out
+
+
+def test_out_that_holds_a_run_is_refused(old_run):
+    before = snapshot(old_run)
+    line = assert_user_error(demo("--out", str(old_run), *SMALL), "--out", "holds a slope run")
+    assert "--force" in line and f"--resume {old_run}" in line and "notes.txt" not in line
+    assert snapshot(old_run) == before
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--particle", "50"], ["unrecognized arguments: --particle 50"]),
+        (["--resume", "x", "--steps", "3"], ["--resume", "drop --steps", "--stop-after"]),
+        (["--resume", "x", "--friction", "0.3"], ["--resume", "drop --friction"]),
+        (["--resume", "x", "--force"], ["--resume", "drop --force"]),
+        (["--resume", "x", "--out", "y"], ["--resume", "drop --out"]),
+        (["--resume", "x", "--steps", "20"], ["drop --steps"]),  # even the default value
+        (["--max-increments", "5"], ["--max-increments", "--path-following"]),
+    ],
+)
+def test_options_that_would_be_ignored_are_refused(args, words):
+    assert_user_error(demo(*args), *words)
+
+
+@pytest.mark.slow
+def test_force_replaces_the_run_and_keeps_other_files(old_run):
+    """--force: the earlier run's files go (its figures too, with --no-figure), the user's stay."""
+    proc, summary = run_slope_demo(old_run, *SMALL, "--steps", "1", "--force")
+    assert summary["status"] == "converged" and summary["completed_steps"] == 2
+    assert (old_run / "notes.txt").read_text() == "the user's own file"
+    assert not (old_run / "slope.png").exists() and not (old_run / "load_settlement.png").exists()
+    assert (old_run / "restart.npz").read_bytes()[:2] == b"PK"
+
+
+@pytest.mark.slow
+def test_allow_overlaps_is_used_recorded_and_resumed(tmp_path):
+    """Radii x 1.08 (overlaps of 7 % of the radius sums): refused with the option named; with
+    --allow-overlaps the run takes the packing as it is, records it, and --resume keeps it."""
+    from dolfinx_granular import Packing, generate_packing
+
+    p = generate_packing(70, seed=1)
+    swollen = tmp_path / "swollen.npz"
+    Packing(p.centers, 1.08 * p.radii, p.box).save(swollen)
+    args = ["--packing", swollen, "--steps", "2", "--no-figure"]
+    assert_user_error(demo(*args, "--out", str(tmp_path / "refused")), "--allow-overlaps")
+    out = tmp_path / "run"
+    _, summary = run_slope_demo(out, *args, "--allow-overlaps", "--stop-after", "1")
+    assert summary["status"] == "stopped" and summary["allow_overlaps"] is True
+    with np.load(out / "restart.npz") as f:
+        assert json.loads(str(f["options"]))["allow_overlaps"] is True
+    proc, _ = run_slope_demo(None, "--resume", out, "--no-figure", "--stop-after", "2")
+    with open(out / "summary.json") as f:
+        resumed = json.load(f)
+    assert resumed["resumed_from"] == 1 and resumed["completed_steps"] == 2
+    assert resumed["allow_overlaps"] is True and resumed["prestress_ratio"] > 0.01
+    # this run cuts its first footing step back: the log counts steps without a wrong "of n"
+    steps = [ln for ln in proc.stdout.splitlines() if ln.startswith("step ")]
+    assert steps and all("/" not in ln.split(":")[0] for ln in steps), steps
+
+
+def test_load_settlement_curve_is_signed_as_the_summary():
+    """Settlement and footing load negative = downward, as in the log and summary.json."""
+    pytest.importorskip("dolfinx")
+    from dolfinx_granular.slope.summary import load_settlement_curve
+
+    info = [
+        {"phase": "gravity", "t": 1.0, "settlement": -0.5, "footing_load": 0.0},
+        {"phase": "footing", "t": 0.5, "settlement": -2.0, "footing_load": -2e7},
+        {"phase": "footing", "t": 1.0, "settlement": -3.8, "footing_load": -4e7},
+    ]
+    settlement, load = load_settlement_curve(info)
+    assert settlement.tolist() == [-0.5, -2.0, -3.8] and load.tolist() == [0.0, -2e7, -4e7]
