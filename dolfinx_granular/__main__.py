@@ -116,14 +116,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_generate(args) -> int:
-    from .generation import generate_packing, network_stats
+    from .generation import _check_sizes, _seed, generate_packing, network_stats
     from .gsd import DEFAULT_D_MIN, SieveCurve
 
-    _check_output(args)
     gsd = SieveCurve.from_csv(args.sieve_curve) if args.sieve_curve else None
     d_min = args.d_min
     if d_min is _AUTO:
         d_min = None if gsd is not None else DEFAULT_D_MIN
+    # the arguments first: a bad count is the error to fix, whatever the output file
+    _check_sizes(args.n_particles, gsd, d_min, args.aspect)
+    _seed(args.seed)
+    _check_output(args)
     t0 = time.perf_counter()
 
     last = [-PROGRESS_EVERY]  # time of the last printed line
@@ -173,7 +176,10 @@ def _cmd_relax(args) -> int:
     after = relax_overlaps(before)
     after.save(args.output)
     ratio = TaylorRVE(after, 1.0).prestress_ratio
-    moved = np.abs(after.centers - before.centers).max() / before.radii.mean()
+    # displacements between nearest images: a disk that crossed the cell boundary moved little
+    step = after.centers - before.centers
+    step -= np.rint(step / before.box) * before.box
+    moved = np.abs(step).max() / before.radii.mean()
     print(
         f"wrote {args.output}: {after.n_particles} disks, centres moved up to {100 * moved:.2g} "
         f"% of the mean radius, radii changed up to "

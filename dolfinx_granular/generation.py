@@ -428,7 +428,7 @@ def generate_packing(
             apertures) or a parameter out of range.
     """
     n, curve = _check_arguments(
-        n_particles, gsd, aspect, pressure, max_rattlers, max_attempts, contact_overlap
+        n_particles, gsd, d_min, aspect, pressure, max_rattlers, max_attempts, contact_overlap
     )
     say = _Reporter(progress)
     rng = np.random.default_rng(_seed(seed))
@@ -499,34 +499,45 @@ def relax_overlaps(
     of the mean diameter, the cell unchanged. The reference stress P(I) then vanishes to
     ~1e-11 of the modulus, as for a generated packing.
 
+    Overlaps too large for such small moves (the Newton steps diverge; e.g. the radii of a
+    700-disk generated packing x 1.3) are removed as the generator does: the disks are jammed
+    afresh from their centres in the same cell, at radii scaled by one common factor
+    (p / k_n = 1e-4, stage 2), and that network is corrected.
+
     Args:
         packing: a packing whose disks overlap (a prestressed reference state).
         contact_overlap: overlap of every network contact, relative to the mean diameter.
         progress: callable receiving :class:`ProgressLine` s, or None.
+
+    Raises:
+        ValueError: ``contact_overlap`` out of range, or neither way found a stress-free state.
     """
     if not isinstance(packing, Packing):
         raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
     _check_contact_overlap(contact_overlap)
     delta = contact_overlap * 2.0 * float(packing.radii.mean())
-    centers, radii, box = _stress_free(
-        packing.centers.copy(), packing.radii.copy(), packing.box.copy(), delta, _Reporter(progress)
-    )
-    return Packing(centers, radii, box)
+    say = _Reporter(progress)
+    x, r, box = packing.centers.copy(), packing.radii.copy(), packing.box.copy()
+    try:
+        return Packing(*_stress_free(x, r, box, delta, say))
+    except _StressFreeError:
+        pass
+    say("stress-free", 0.0, "the overlaps are too large for small moves: jamming afresh")
+    try:
+        x, scale, _ = _jam(packing.centers.copy(), r, box, 1e-4, 2.0 * float(r.mean()), say)
+        return Packing(*_stress_free(x, scale * r, box, scale * delta, say))
+    except RuntimeError as err:  # the jamming search or the correction failed
+        raise ValueError(
+            f"relax_overlaps found no stress-free state next to this packing ({err}); "
+            "generate a new one with generate_packing (python -m dolfinx_granular generate)"
+        ) from None
 
 
 def _check_arguments(
-    n_particles, gsd, aspect, pressure, max_rattlers, max_attempts, contact_overlap
+    n_particles, gsd, d_min, aspect, pressure, max_rattlers, max_attempts, contact_overlap
 ):
     """Validate the arguments of :func:`generate_packing`; returns ``(n, sieve curve)``."""
-    try:
-        n = int(n_particles)
-    except (TypeError, ValueError):
-        raise ValueError(f"n_particles must be an integer >= 2, got {n_particles!r}") from None
-    if n != n_particles or n < 2:
-        raise ValueError(f"n_particles must be an integer >= 2, got {n_particles!r}")
-    curve = as_sieve_curve(gsd)
-    if not (np.isfinite(aspect) and 0.1 <= aspect <= 10.0):
-        raise ValueError(f"aspect (cell height / width) must lie in [0.1, 10], got {aspect}")
+    n, curve = _check_sizes(n_particles, gsd, d_min, aspect)
     if not (0.0 < pressure <= 1e-2):
         raise ValueError(f"pressure (p / k_n) must lie in (0, 1e-2], got {pressure}")
     if not (0.0 <= max_rattlers <= 1.0):
@@ -534,6 +545,22 @@ def _check_arguments(
     if int(max_attempts) != max_attempts or max_attempts < 1:
         raise ValueError(f"max_attempts must be an integer >= 1, got {max_attempts}")
     _check_contact_overlap(contact_overlap)
+    return n, curve
+
+
+def _check_sizes(n_particles, gsd, d_min, aspect):
+    """Validate the count, sieve curve, cut size and cell shape of :func:`generate_packing`
+    before any work (the command line, before it looks at its output file); ``(n, curve)``."""
+    try:
+        n = int(n_particles)
+    except (TypeError, ValueError):
+        raise ValueError(f"n_particles must be an integer >= 2, got {n_particles!r}") from None
+    if n != n_particles or n < 2:
+        raise ValueError(f"n_particles must be an integer >= 2, got {n_particles!r}")
+    curve = as_sieve_curve(gsd)
+    curve.classes(d_min)  # its ValueError for a d_min that cuts off the curve
+    if not (np.isfinite(aspect) and 0.1 <= aspect <= 10.0):
+        raise ValueError(f"aspect (cell height / width) must lie in [0.1, 10], got {aspect}")
     return n, curve
 
 
@@ -654,6 +681,10 @@ def _pressure(x, r, box):
 # -- stage 3: stress-free reference ----------------------------------------------------------------
 
 
+class _StressFreeError(RuntimeError):
+    """The minimum-norm correction of stage 3 found no stress-free state."""
+
+
 def _rattlers(pairs, n):
     """Boolean (n,) mask of disks with fewer than 3 contacts, removed recursively."""
     rattler = np.zeros(n, bool)
@@ -689,9 +720,12 @@ def _stress_free(x, r, box, delta, say):
     centers = Packing(x, r, box).centers
     net_keys = np.empty(0, np.int64)  # the network's pairs, in the order they joined it
     net_eps = np.empty(0)  # and their target overlaps
+    # cells by which each disk has been wrapped since the start: a pair is keyed by its image
+    # shift between the unwrapped centres, which a disk crossing the cell boundary keeps
+    wraps = np.zeros((n, 2), np.int64)
     for rnd in range(10):
         ij, shift, eps = _candidates(centers, r, box, 1.02)
-        keys = _pair_keys(ij, shift, n)
+        keys = _pair_keys(ij, shift + wraps[ij[:, 0]] - wraps[ij[:, 1]], n)
         if net_keys.size == 0:
             new = eps > 0.0
             rattler = _rattlers(ij[new], n)
@@ -716,9 +750,16 @@ def _stress_free(x, r, box, delta, say):
             f"stress-free correction, round {rnd + 1}: {sel.size} contacts ({say.elapsed():.1f} s)",
             heartbeat=True,
         )
-        centers, r = _newton(centers, r, box, ij[sel], shift[sel], tgt, delta)
-        centers = Packing(centers, r, box).centers
-    raise RuntimeError("the stress-free correction of the contact network did not converge")
+        try:
+            moved, r = _newton(centers, r, box, ij[sel], shift[sel], tgt, delta)
+            centers = Packing(moved, r, box).centers
+        except (ValueError, RuntimeError):  # diverged: singular equations, a radius <= 0, ...
+            break
+        wraps += np.rint((moved - centers) / box).astype(np.int64)
+    raise _StressFreeError(
+        "the stress-free correction of the contact network did not converge; try another seed "
+        "or a lower pressure"
+    )
 
 
 def _newton(x, r, box, ij, shift, target, delta):
@@ -742,6 +783,8 @@ def _newton(x, r, box, ij, shift, target, delta):
     for _ in range(8):
         L = x[j] + S - x[i]
         d = np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
+        if not np.all(d > 0.0):  # also NaN: the steps diverged
+            raise ValueError("two disks of the contact network reached the same centre")
         g = r[i] + r[j] - d - target
         if np.all(np.abs(g) <= 0.01 * delta):
             break
