@@ -165,3 +165,55 @@ def test_relax_command_makes_a_packing_stress_free(tmp_path, monkeypatch, capsys
         warnings.simplefilter("error")
         assert TaylorRVE(Packing.load("relaxed.npz"), 2.8e7).prestress_ratio < 1e-9
     assert main(["relax", "swollen.npz", "-o", "relaxed.npz"]) == 2  # kept unless --force
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["generate", "1"], "n_particles must be an integer >= 2"),
+        (["generate", "70", "--d-min", "5"], "d_min = 5.0 mm cuts off"),
+        (["generate", "70", "--aspect", "0"], "aspect"),
+        (["generate", "70", "--seed", "-1"], "seed must be an integer >= 0"),
+    ],
+)
+def test_bad_arguments_are_named_before_an_existing_output_file(
+    tmp_path, monkeypatch, capsys, argv, message
+):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "existing.npz").write_bytes(b"kept")
+    assert main([*argv, "-o", "existing.npz"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and len(err.splitlines()) == 1
+    assert message in err and "exists" not in err
+    assert (tmp_path / "existing.npz").read_bytes() == b"kept"
+
+
+def test_relax_command_relaxes_radii_swollen_by_a_fifth(tmp_path):
+    """The issue's reproduction: radii x 1.2 (beyond TaylorRVE's overlap limit); some disks
+    cross the cell boundary on the way, and the reported moves are the nearest-image ones."""
+    import re
+    import warnings
+
+    from dolfinx_granular import TaylorRVE
+
+    p = generate_packing(70, seed=4)
+    Packing(p.centers, 1.2 * p.radii, p.box).save(tmp_path / "in.npz")
+    res = run_module("relax", "in.npz", "-o", "out.npz", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    moved = float(re.search(r"centres moved up to ([0-9.e+-]+) %", res.stdout).group(1))
+    assert 0 < moved < 100  # % of the mean radius
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert TaylorRVE(Packing.load(tmp_path / "out.npz"), 2.8e7).prestress_ratio < 1e-9
+
+
+def test_relax_command_errors_are_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    Packing([[0.2, 0.2], [0.2, 0.2], [0.6, 0.6]], [0.2, 0.2, 0.2], [1, 1]).save("same.npz")
+    for argv, message in [
+        (["relax", "missing.npz", "-o", "out.npz"], "does not exist"),
+        (["relax", "same.npz", "-o", "out.npz"], "same centre"),
+    ]:
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error: ") and len(err.splitlines()) == 1 and message in err
