@@ -11,7 +11,13 @@ iterate including the first, when the residual is at round-off: ``|R| <= residua
 with scale the larger of the internal and the external force norms (the materials' ``∫ P : grad v``
 and ``f_int - R``, Dirichlet rows left out), or ``|R| <= residual_atol``, or the energy norm is
 below ``roundoff_energy`` while the residual no longer halves. A solve that starts converged (the
-same load twice) returns at once with 0 iterations.
+same load twice) returns at once with 0 iterations. So does one under no load on stress-free
+materials ("no load": the residual and the external forces are both within twice the forces of
+the materials' reference stress, e.g. a generated packing's P(I) ~ 1e-11 of its modulus from
+contacts overlapping by 1e-11, which Newton could remove only by opening those contacts).
+
+Wiring mistakes are refused when the solver is built, and a failed factorisation says what made the
+Jacobian singular (:mod:`dolfinx_granular.diagnose`).
 
 A solve is a transaction. Converged: the materials commit their history (laws with history).
 Failed: u and the material data return to the state the solve started from, and the result says
@@ -73,8 +79,8 @@ class SolveResult:
         force_scale: the force norm (N) the round-off test compared it with.
         error: message of an exception raised while evaluating a material (e.g. F outside the
             RVE's range), or what the stagnation test measured; else None.
-        stopped_by: the test that ended a converged solve: ``energy norm``, ``round-off`` or
-            ``residual_atol`` ('' for a failed one).
+        stopped_by: the test that ended a converged solve: ``energy norm``, ``round-off``,
+            ``residual_atol`` or ``no load`` ('' for a failed one).
     """
 
     converged: bool
@@ -137,6 +143,12 @@ class NewtonSolver:
             updates),
             ``"residual"``, ``"jacobian"`` and ``"scale"`` (assembly: residuals, Jacobians, the
             internal forces of the round-off test); ``clock.calls`` counts them.
+
+    Raises:
+        ValueError: a wiring mistake (:func:`~dolfinx_granular.diagnose.check_wiring`): the
+            residual reads the P of a material not in ``materials``; ``jacobian`` lacks the
+            tangent A of one that is (``ufl.derivative(residual, u)``); two materials share
+            cells; cells with no material and no other u-dependent term.
     """
 
     def __init__(
@@ -186,7 +198,8 @@ class NewtonSolver:
             self._u_vec.duplicate() for _ in range(6)
         )
         self._have_eval = self._have_tangent = False
-        self._floor = self._stress_floor(residual.arguments()[0])
+        # forces of the materials' reference stress, for the no-load test (0: no such test)
+        self._floor = 0.0 if self._f_int is None else self._stress_floor(residual.arguments()[0])
         self.snes = self._create_snes(prefix, petsc_options)
         self.clock = Stopwatch()
 
@@ -395,7 +408,7 @@ class NewtonSolver:
             return self._stop_as("residual_atol", _CR.CONVERGED_FNORM_ABS)
         if fnorm <= self.residual_rtol * self._scale:
             return self._stop_as("round-off", _CR.CONVERGED_FNORM_ABS)
-        if max(fnorm, self._external) <= 2.0 * self._floor:
+        if fnorm <= 2.0 * self._floor and self._external <= 2.0 * self._floor:
             # no load and a stress-free material: R is the forces of its reference stress
             # (contacts overlapping by 1e-11), which Newton cannot remove without opening them
             return self._stop_as("no load", _CR.CONVERGED_FNORM_ABS)

@@ -113,6 +113,8 @@ def test_uplift_is_cut_back_and_stops_at_its_limit_load(uplift):
     footing_t = check_consistent(summary, on_disk, rows)
     reasons = " ".join(c["reason"] for c in summary["cutbacks"])
     assert "singular" in reasons
+    # the singular matrices are named: RVEs without contacts, and the fixes
+    assert "RVE points have lost every contact" in reasons and "stabilise" in reasons, reasons
     limit = check_limit_load(summary, footing_t)
     # the last converged step carries an upward footing load, a small fraction of the nominal
     # one: the cohesionless soil holds the footing only through the weight of the cells below
