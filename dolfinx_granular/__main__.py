@@ -4,7 +4,11 @@ Commands:
     generate N [--seed S] [-o packing.npz] [--force] [--d-min MM] [--sieve-curve CSV] [--aspect A]
         Write a jammed, stress-free periodic packing of N disks (see
         :func:`dolfinx_granular.generation.generate_packing`); an existing file is kept unless
-        ``--force``.
+        ``--force``. The arguments are checked before the output file.
+    relax PACKING -o OUT.npz [--force]
+        Make an overlapping packing stress-free (see
+        :func:`dolfinx_granular.generation.relax_overlaps`): minimal moves of the disks, or, for
+        overlaps too large for that, the disks jammed afresh in the same cell.
 
 A user error (bad argument, bad sieve curve, unwritable file) prints one line ``error: ...`` to
 stderr and exits with status 2; ``--debug`` shows the traceback instead. New commands register a
@@ -105,7 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="make a packing whose disks overlap stress-free",
         description="Move the disks of a packing file minimally so that every contact of its "
         "network overlaps by 1e-11 of the mean diameter (the generator's last stage): a "
-        "prestressed reference state becomes stress-free.",
+        "prestressed reference state becomes stress-free. Overlaps too large for small moves "
+        "(e.g. radii x 1.5 of a generated packing) are removed by jamming the disks afresh in the "
+        "same cell, at radii scaled by one common factor.",
     )
     relax.add_argument("packing", help="input packing .npz")
     relax.add_argument("-o", "--output", required=True, help="output .npz file")

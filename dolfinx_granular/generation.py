@@ -21,6 +21,8 @@ Algorithm (:func:`generate_packing`):
    compression) and opens contacts of rattlers (disks with fewer than 3 contacts, removed
    recursively) to a small gap. Centres and radii move by ~1e-4 of a diameter. Near contacts
    that close during the correction are added to the network and the correction repeated.
+   A contact is identified by its disks and their image shift between the unwrapped centres,
+   so that a disk crossing the cell boundary (likelier at higher ``pressure``) keeps it.
    The Taylor model needs no force equilibrium in the reference state, only this geometry.
 4. **Acceptance.** A network with more than ``max_rattlers`` (15 %) rattlers or a mean
    coordination of the non-rattlers below 3.8 is rejected and the same disks are jammed again
