@@ -68,13 +68,16 @@ def test_force_replaces_the_run_and_keeps_other_files(old_run):
 
 @pytest.mark.slow
 def test_allow_overlaps_is_used_recorded_and_resumed(tmp_path):
-    """Radii x 1.08 (overlaps of 7 % of the radius sums): refused with the option named; with
-    --allow-overlaps the run takes the packing as it is, records it, and --resume keeps it."""
+    """One disk's radius x 1.15 (its contacts overlap by 9 % of the radius sums, P(I) is 0.5 %
+    of the modulus): refused with the option named; with --allow-overlaps the run takes the
+    packing as it is, records it, and --resume keeps it."""
     from dolfinx_granular import Packing, generate_packing
 
     p = generate_packing(70, seed=1)
+    radii = p.radii.copy()
+    radii[0] *= 1.15
     swollen = tmp_path / "swollen.npz"
-    Packing(p.centers, 1.08 * p.radii, p.box).save(swollen)
+    Packing(p.centers, radii, p.box).save(swollen)
     args = ["--packing", swollen, "--steps", "2", "--no-figure"]
     assert_user_error(demo(*args, "--out", str(tmp_path / "refused")), "--allow-overlaps")
     out = tmp_path / "run"
@@ -86,10 +89,21 @@ def test_allow_overlaps_is_used_recorded_and_resumed(tmp_path):
     with open(out / "summary.json") as f:
         resumed = json.load(f)
     assert resumed["resumed_from"] == 1 and resumed["completed_steps"] == 2
-    assert resumed["allow_overlaps"] is True and resumed["prestress_ratio"] > 0.01
-    # this run cuts its first footing step back: the log counts steps without a wrong "of n"
+    assert resumed["allow_overlaps"] is True and resumed["prestress_ratio"] > 1e-3
+
+
+@pytest.mark.slow
+def test_step_log_after_cutbacks(tmp_path):
+    """The doubled load cuts back toward its limit load: more steps than the nominal 3, each
+    logged with its phase and load parameter (no "step 4/3")."""
+    proc, summary = run_slope_demo(
+        tmp_path, *SMALL, "--steps", "2", "--load-factor", "2", check=False
+    )
+    assert proc.returncode == 1 and summary["cutbacks"] and summary["steps"] == 3
     steps = [ln for ln in proc.stdout.splitlines() if ln.startswith("step ")]
-    assert steps and all("/" not in ln.split(":")[0] for ln in steps), steps
+    assert len(steps) == summary["completed_steps"] > 3
+    for line, info in zip(steps, summary["step_info"]):
+        assert line.startswith(f"step {info['step']:2d} ({info['phase']}, t = {info['t']:.4g}): ")
 
 
 def test_load_settlement_curve_is_signed_as_the_summary():

@@ -81,6 +81,13 @@ class StopRequest:
                 signal.signal(s, handler)
             self._previous = {}
 
+    def reinstall(self) -> None:
+        """Handle SIGINT and SIGTERM again after a library reset them (if :meth:`installed`):
+        ``gmsh.initialize`` of gmsh 4.15 (PyPI) resets every signal to its default at the C
+        level while Python still names its handler."""
+        for s in self._previous:
+            signal.signal(s, self._handle)
+
     @contextlib.contextmanager
     def raising(self) -> Iterator[None]:
         """Inside the block a signal raises :class:`RunInterrupted` at once (work that has no

@@ -298,6 +298,7 @@ class SlopeRun:
         if restart is not None:
             self._resume(restart)
         if stop_request is not None:
+            stop_request.reinstall()  # (meshing with gmsh may have reset the handlers)
             stop_request.on_signal = self._on_signal
         self.setup_time = time.perf_counter() - self.t_start
 
