@@ -144,8 +144,9 @@ def singular_jacobian(materials: Sequence[QuadratureMaterial]) -> str:
     missing = uncovered_cells(materials)
     if missing:
         notes.append(
-            f"{missing} cells belong to no material (no stiffness there): give every cell a "
-            "material (the materials' cells= must cover the mesh)"
+            f"{missing} cells belong to no material (no stiffness there, unless a term of your "
+            "own gives them some): give every cell a material (the materials' cells= must "
+            "cover the mesh)"
         )
     # (a stabilised material carries its open points itself)
     granular = [m for m in materials if hasattr(m, "n_open") and not getattr(m, "stabilise", 0)]
