@@ -119,3 +119,24 @@ def test_a_bad_option_is_refused_in_one_line():
     )
     assert proc.returncode == 2
     assert "unrecognized arguments: --bogus" in proc.stderr
+
+
+def test_the_first_run_section_is_a_marked_table_of_both_variants():
+    import first_run
+
+    from sections import marked_sections
+
+    run = {"setup_s": 2.5, "total_s": 9.0}
+    rows = [
+        {"stack": "S", "warm_up": False, "load_before": 1.0, "load_after": 2.0, "first": run},
+        {"stack": "S", "warm_up": True, "load_before": 1.0, "load_after": 2.0, "first": run},
+    ]
+    for r, warmup_s in zip(rows, (None, [30.0, 0.5])):
+        r["second"] = run
+        if warmup_s:
+            r["warmup_s"] = warmup_s
+    text = first_run.markdown(rows, 700, "python benchmarks/first_run.py", 1.0)
+    assert marked_sections(text) == [text.strip()]
+    assert text.splitlines()[1] == "## 8. The first run after set-up"
+    assert "| S | none | 2.5 / 9.0 | 2.5 / 9.0 | 1.0 .. 2.0 |" in text
+    assert "| S | 30.0/0.5 | 2.5 / 9.0 | 2.5 / 9.0 | 1.0 .. 2.0 |" in text
