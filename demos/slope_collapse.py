@@ -31,6 +31,7 @@ import time
 from dolfinx_granular import generate_packing
 from dolfinx_granular.runwriter import RunWriter
 from dolfinx_granular.slope import SlopeGeometry, SlopeOptions, run_slope
+from dolfinx_granular.slope.run import clear_run
 
 from mpi4py import MPI
 
@@ -71,6 +72,8 @@ def runs(meshes, steps):
 def run_all(packing, meshes, steps, out, comm, say):
     results = {}
     for name, options in runs(meshes, steps):
+        if comm.rank == 0:  # no file of an earlier study beside this one's (e.g. its figures)
+            clear_run(os.path.join(out, name))
         t0 = time.perf_counter()
         s = run_slope(
             packing, options, out=os.path.join(out, name), comm=comm, figure=False, verbose=False
@@ -91,10 +94,12 @@ def run_all(packing, meshes, steps, out, comm, say):
 
 # %%
 def curve(summary):
+    """Settlement (m), footing load (MN/m) and non-elliptic RVEs of the footing steps, signed
+    as in summary.json and the log (negative = downward)."""
     steps = [s for s in summary["step_info"] if s["phase"] == "footing"]
     return (
-        [-s["settlement"] for s in steps],
-        [-s["footing_load"] / 1e6 for s in steps],
+        [s["settlement"] for s in steps],
+        [s["footing_load"] / 1e6 for s in steps],
         [s["non_elliptic_points"] for s in steps],
     )
 
@@ -116,8 +121,8 @@ def figure(results, path):
         ax1.plot(settle, load, style, ms=3, label=label)
         if not name.startswith("load"):
             ax2.plot(range(1, len(load) + 1), non_elliptic, label=label)
-    ax1.set_xlabel("settlement of the loaded footing edge (m)")
-    ax1.set_ylabel("footing load (MN/m)")
+    ax1.set_xlabel("settlement of the loaded footing edge (m, negative = down)")
+    ax1.set_ylabel("footing load (MN/m, negative = down)")
     ax1.set_title("doubled footing load: the limit load and past it", fontsize=10)
     ax1.legend(fontsize=8)
     ax1.grid(alpha=0.3)

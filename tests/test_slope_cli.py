@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from helpers import assert_user_error, run_slope_demo
+from helpers import assert_user_error, load_demo, run_slope_demo
 
 SMALL = ["--particles", "70", "--seed", "1", "--no-figure"]
 
@@ -118,3 +118,7 @@ def test_load_settlement_curve_is_signed_as_the_summary():
     ]
     settlement, load = load_settlement_curve(info)
     assert settlement.tolist() == [-0.5, -2.0, -3.8] and load.tolist() == [0.0, -2e7, -4e7]
+    for s in info:
+        s["non_elliptic_points"] = 0
+    settlement, load, _ = load_demo("slope_collapse").curve({"step_info": info})
+    assert settlement == [-2.0, -3.8] and load == [-20.0, -40.0]  # the footing steps, MN/m
