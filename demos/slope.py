@@ -16,6 +16,9 @@
 #     mpirun -n 2 python demos/slope.py [--particles 700] [--steps 20] [--out results/slope] ...
 #     python demos/slope.py --help
 #
+# An `--out` that holds a run is refused unless `--force` (replace it) or `--resume DIR`
+# (continue it); Ctrl-C stops after the load step in progress, and `--resume DIR` goes on.
+#
 # All the work is library code (`dolfinx_granular.slope`); this script is its command line.
 
 # %%

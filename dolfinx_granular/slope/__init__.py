@@ -7,6 +7,7 @@
 * :mod:`~dolfinx_granular.slope.run`: the load path, its records and files (:class:`SlopeRun`,
   :func:`run_slope`, restarts);
 * :mod:`~dolfinx_granular.slope.summary`: ``summary.json`` and the figure-7 view;
+* :mod:`~dolfinx_granular.slope.interrupt`: SIGINT/SIGTERM stop a run after a load step;
 * :mod:`~dolfinx_granular.slope.cli`: the command line (``python -m dolfinx_granular.slope``).
 """
 

@@ -405,10 +405,14 @@ class SlopeRun:
         has come (rank 0)."""
         if self.comm.rank != 0:
             return
-        status = "interrupted" if self._signalled() else "running"
+        signum = self._signalled()
+        status = "interrupted" if signum else "running"
+        by = signal_name(signum) if signum else None
         self._writing = True
         try:
-            self.writer.json("summary.json", {"status": status, **self._step_summary})
+            self.writer.json(
+                "summary.json", {"status": status, "interrupted_by": by, **self._step_summary}
+            )
         finally:
             self._writing = False
         if status == "running" and self._signalled():  # it came during the write
