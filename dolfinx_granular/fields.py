@@ -29,7 +29,9 @@ def point_weights(material: QuadratureMaterial) -> np.ndarray:
     rank, ordered like ``material.points``: ``∫ v dx = sum weights * v`` over the points."""
     w = dfx.quadrature_weights(material.mesh, material.quadrature_degree)
     detJ = dfx.expression(abs(ufl.JacobianDeterminant(material.mesh)), material.reference_points)
-    J = dfx.evaluate(detJ, material.mesh, material.cells).reshape(material.cells.size, -1)
+    J = dfx.evaluate(detJ, material.mesh, material.cells).reshape(
+        material.cells.size, material.n_qp
+    )
     return (J * w).reshape(-1)
 
 
@@ -44,7 +46,7 @@ def cell_means(material: QuadratureMaterial, values: ArrayLike) -> np.ndarray:
         )
     shape = values.shape[1:]
     w = point_weights(material).reshape(material.cells.size, material.n_qp)
-    v = values.reshape(material.cells.size, material.n_qp, -1)
+    v = values.reshape(material.cells.size, material.n_qp, int(np.prod(shape)))
     means = np.einsum("cq,cqk->ck", w, v) / w.sum(axis=1)[:, None]
     return means.reshape(material.cells.size, *shape)
 
