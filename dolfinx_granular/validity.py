@@ -19,7 +19,9 @@ where it occurs, the number and fraction of points whose ratio exceeds a thresho
 (:data:`OVERLAP_THRESHOLD`, 0.10 by default), and the number of points.
 
 Cost: one pass over the candidate contacts each point can reach (the stress kernel's prefix),
-without any stress arithmetic.
+without any stress arithmetic: about as much as a stress evaluation without tangent. For the
+slope's 700-particle RVE at its final state, 6 ms for its 1520 points and 30 ms for 6080
+(``benchmarks/overlap_validity.py``), once per load step.
 """
 
 from __future__ import annotations
