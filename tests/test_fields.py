@@ -107,3 +107,14 @@ def test_xdmf_cauchy_reads_back_with_its_components_in_place(tmp_path_factory):
     sigma = expected[1][order]
     np.testing.assert_allclose(values[:, :2, :2], sigma, rtol=1e-6)  # float32 on reading
     assert not values[:, 2, :].any() and not values[:, :, 2].any()
+
+
+def test_xdmf_output_holds_the_field_in_its_upper_left_block():
+    material = loaded_material()
+    field, out = cauchy_field(material), cauchy_output(material)
+    size = 4 * out.x.array.size // field.x.array.size  # 4 (as it is) or 9 (3x3 copy)
+    assert size in (4, 9) and out.name == "cauchy"
+    values = out.x.array.reshape(-1, 3, 3)[:, :2, :2] if size == 9 else out.x.array
+    np.testing.assert_array_equal(values.reshape(-1), field.x.array)
+    if size == 9:
+        assert not out.x.array.reshape(-1, 3, 3)[:, 2].any()
