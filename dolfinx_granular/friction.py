@@ -281,6 +281,11 @@ class FrictionalRVE:
         tangential_stiffness: k_t >= 0 in N/m² (0: no tangential force).
         friction: Coulomb coefficient mu >= 0 (0: frictionless).
         min_stretch: smallest supported singular value of F, in (0, 1].
+        allow_overlaps: accept far-overlapping disks at F = I, as :class:`TaylorRVE` does.
+
+    The reference state is the Taylor RVE's: at F = I no contact has slid or carries a
+    tangential force, so ``prestress`` (P(I)), ``prestress_ratio`` and ``max_reference_overlap``
+    are those of ``TaylorRVE(packing, normal_stiffness)``.
 
     Every method takes F of shape (n, 2, 2) (or (2, 2) for one point) with the committed
     :class:`FrictionState` of the same n points, and never changes that state. F outside the
@@ -294,10 +299,11 @@ class FrictionalRVE:
         tangential_stiffness: float,
         friction: float,
         min_stretch: float = 0.5,
+        allow_overlaps: bool = False,
     ) -> None:
         kt = _parameter("tangential_stiffness", tangential_stiffness, " (N/m²)")
         mu = _parameter("friction", friction, "")
-        self._taylor = TaylorRVE(packing, normal_stiffness, min_stretch)
+        self._taylor = TaylorRVE(packing, normal_stiffness, min_stretch, allow_overlaps)
         self.packing = packing
         self.normal_stiffness = self._taylor.normal_stiffness
         self.tangential_stiffness = kt
@@ -308,6 +314,21 @@ class FrictionalRVE:
         self._X, self._Y = t._X, t._Y
         self._inv_area = 1.0 / packing.area
         self._lmax2 = float(np.max(self._X**2 + self._Y**2)) if self._R.size else 1.0
+
+    @property
+    def prestress(self) -> np.ndarray:
+        """P(I) in Pa, (2, 2): the reference stress (no contact has slid at F = I)."""
+        return self._taylor.prestress
+
+    @property
+    def prestress_ratio(self) -> float:
+        """|P(I)| / |C|, as :attr:`TaylorRVE.prestress_ratio`."""
+        return self._taylor.prestress_ratio
+
+    @property
+    def max_reference_overlap(self) -> float:
+        """Largest overlap / radius sum at F = I (~1e-11 for a generated packing)."""
+        return self._taylor.max_reference_overlap
 
     @property
     def n_candidates(self) -> int:

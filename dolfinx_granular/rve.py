@@ -151,8 +151,9 @@ class TaylorRVE:
             raise ValueError(
                 f"the packing's disks overlap by up to {100 * worst:.3g} % of their radius sums at "
                 f"F = I (more than {100 * MAX_REFERENCE_OVERLAP:g} %): that is no contact network "
-                "but overlapping disks. Relax it with dolfinx_granular.relax_overlaps(packing), "
-                "or pass allow_overlaps=True to use it as it is"
+                "but overlapping disks. Relax it first (dolfinx_granular.relax_overlaps(packing), "
+                "or on the command line 'python -m dolfinx_granular relax IN.npz -o OUT.npz'), "
+                "or use it as it is with allow_overlaps=True (the slope: --allow-overlaps)"
             )
         self.prestress = self.stress(np.eye(2))[1]
         if self.prestress_ratio > PRESTRESS_WARNING:
@@ -160,7 +161,8 @@ class TaylorRVE:
                 f"the reference state is prestressed: P(I) = {self.prestress.round(1).tolist()} Pa "
                 f"({self.prestress_ratio:.2g} of the modulus), from disks overlapping by up to "
                 f"{100 * self.max_reference_overlap:.3g} % at F = I; dolfinx_granular."
-                "relax_overlaps(packing) makes it stress-free",
+                "relax_overlaps(packing) (command line: python -m dolfinx_granular relax IN.npz "
+                "-o OUT.npz) makes it stress-free",
                 PrestressWarning,
                 stacklevel=_user_stacklevel(),
             )

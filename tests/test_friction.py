@@ -775,3 +775,22 @@ def test_instruction_count_takes_the_innermost_loop_with_most_contacts():
     )
     assert benchmark.instructions_per_contact(asm) == 6 / 16
     assert benchmark.instructions_per_contact("\tvaddpd\t%ymm0, %ymm0, %ymm0") is None
+
+
+def test_reference_state_is_the_taylor_one_and_overlaps_are_refused_alike():
+    """P(I) of the frictional law is the Taylor RVE's (no slip, no tangential force at F = I);
+    far-overlapping disks are refused alike, and accepted with allow_overlaps=True."""
+    packing = generate_packing(40, seed=2)
+    law = FrictionalRVE(packing, K_N, tangential_stiffness=K_N, friction=0.5)
+    _, P, _, _ = law.evaluate(np.eye(2)[None], law.initial_state(1))
+    np.testing.assert_array_equal(law.prestress, TaylorRVE(packing, K_N).prestress)
+    # P(I) comes from overlaps of 1e-11: the two kernels' sums agree to round-off of the modulus
+    modulus = np.linalg.norm(law.small_strain_modulus())
+    np.testing.assert_allclose(P[0], law.prestress, rtol=0, atol=1e-15 * modulus)
+    assert law.prestress_ratio < 1e-9 and law.max_reference_overlap < 1e-9
+    overlapping = Packing(packing.centers, 1.1 * packing.radii, packing.box)
+    with pytest.raises(ValueError, match="overlap by up to .*--allow-overlaps"):
+        FrictionalRVE(overlapping, K_N, tangential_stiffness=K_N, friction=0.5)
+    with pytest.warns(PrestressWarning):
+        law = FrictionalRVE(overlapping, K_N, K_N, 0.5, allow_overlaps=True)
+    assert law.prestress_ratio > 1e-3 and law.max_reference_overlap > 0.05
