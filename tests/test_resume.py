@@ -154,6 +154,33 @@ def test_sigterm_under_mpi_marks_the_run_interrupted_and_resumes(tmp_path, twelv
 
 
 @pytest.mark.slow
+def test_ctrl_c_while_the_packing_is_generated(tmp_path):
+    """SIGINT before any load step (rank 0 generating 5000 disks, which takes seconds): one
+    line, no traceback, exit status 130, nothing written."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        slope_command("--particles", "5000", "--out", str(out)),
+        cwd=ROOT,
+        env=MPI_ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and proc.poll() is None and not out.exists():
+            time.sleep(0.005)  # the folder is made just before the packing
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130 and "Traceback" not in stderr, stderr[-3000:]
+    assert "interrupted by SIGINT before the first load step; nothing to resume" in stdout
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.slow
 def test_killed_run_keeps_its_converged_steps_and_resumes(tmp_path, twelve_steps):
     """SIGKILL once two steps are on disk: the files describe the converged steps exactly
     (summary.json and restart.npz are replaced atomically), and the run resumes from them."""
