@@ -121,7 +121,7 @@ def test_a_bad_option_is_refused_in_one_line():
     assert "unrecognized arguments: --bogus" in proc.stderr
 
 
-def test_the_first_run_section_is_a_marked_table_of_both_variants():
+def test_the_first_run_section_is_a_marked_table_of_runs_and_phases():
     import first_run
 
     from sections import marked_sections
@@ -135,8 +135,11 @@ def test_the_first_run_section_is_a_marked_table_of_both_variants():
         r["second"] = run
         if warmup_s:
             r["warmup_s"] = warmup_s
-    text = first_run.markdown(rows, 700, "python benchmarks/first_run.py", 1.0)
+    found = [{"stack": "S", "empty": {"a": 3.0, "b": 1.5}, "filled": {"a": 1.0, "b": 0.5}}]
+    text = first_run.markdown(rows, found, 700, "python benchmarks/first_run.py", 1.0)
     assert marked_sections(text) == [text.strip()]
     assert text.splitlines()[1] == "## 8. The first run after set-up"
     assert "| S | none | 2.5 / 9.0 | 2.5 / 9.0 | 1.0 .. 2.0 |" in text
     assert "| S | 30.0/0.5 | 2.5 / 9.0 | 2.5 / 9.0 | 1.0 .. 2.0 |" in text
+    assert "| a | 3.0 / 1.0 |" in text
+    assert "| sum | 4.5 / 1.5 |" in text  # the set-up's phases add up
