@@ -55,11 +55,13 @@ def warm_api(particles: int = PARTICLES) -> None:
         relax_overlaps(swollen)
     F = np.array([[[0.99, 0.002], [0.0, 1.0]], [[1.0, 0.0], [0.001, 0.995]]])
     rve = TaylorRVE(packing, 2.8e7)
-    rve.evaluate(F), rve.stress(F), rve.cauchy(F), rve.spatial_tangent(F)
-    rve.evaluate(F[0]), rve.overlap_statistics(F)
+    for method in (rve.evaluate, rve.stress, rve.cauchy, rve.spatial_tangent):
+        method(F)
+    rve.overlap_statistics(F)
     frictional = FrictionalRVE(packing, 2.8e7, 2.8e7, 0.5)
     state = frictional.initial_state(len(F))
-    frictional.evaluate(F, state), frictional.stress(F, state)
+    for method in (frictional.evaluate, frictional.stress):
+        method(F, state)
 
 
 def warm_slope(particles: int = PARTICLES) -> None:
