@@ -120,16 +120,6 @@ class SlopeOptions:
 
     def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
         """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0."""
-        try:
-            return self._law(packing)
-        except ValueError as err:
-            if "allow_overlaps" in str(err) and not self.allow_overlaps:
-                raise ValueError(f"{err} (on the command line: --allow-overlaps)") from err
-            raise
-
-    def _law(self, packing):
-        # (the keyword only where asked for: a law that predates it still takes the default)
-        overlaps = {"allow_overlaps": True} if self.allow_overlaps else {}
         if self.friction > 0.0:
             from ..friction import FrictionalRVE
 
@@ -143,9 +133,9 @@ class SlopeOptions:
                 normal_stiffness=self.normal_stiffness,
                 tangential_stiffness=kt,
                 friction=self.friction,
-                **overlaps,
+                allow_overlaps=self.allow_overlaps,
             )
-        return TaylorRVE(packing, self.normal_stiffness, **overlaps)
+        return TaylorRVE(packing, self.normal_stiffness, allow_overlaps=self.allow_overlaps)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> SlopeOptions:
