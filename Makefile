@@ -7,7 +7,8 @@ NP ?= 2
 export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
-MPIRUN := mpirun -n $(NP)
+# Each stack's own MPI launcher, whatever PATH says (an activated .venv-current puts MPICH's first)
+MPIRUN = $(shell $(PY) -c 'from dolfinx_granular._dolfinx import mpi_command; print(" ".join(mpi_command($(NP))))')
 CURRENT := .venv-current
 PYC := $(CURRENT)/bin/python
 MPIEXEC_C := $(CURRENT)/bin/mpiexec -n $(NP)
@@ -33,8 +34,9 @@ setup: .venv/.setup-done
 warm: setup
 	@$(PY) -m dolfinx_granular.warmup || echo "warm: the warm-up failed (above); the run will compile instead"
 
+# make demo replaces the previous make demo's results (results/slope) with --force
 demo: warm
-	$(MPIRUN) $(PY) demos/slope.py
+	$(MPIRUN) $(PY) demos/slope.py --force
 
 test: setup test-serial test-mpi
 
@@ -58,7 +60,7 @@ setup-current:
 	bash scripts/setup-current.sh
 
 demo-current:
-	$(call current,$(MPIEXEC_C) $(PYC) demos/slope.py --out results/slope-current)
+	$(call current,$(MPIEXEC_C) $(PYC) demos/slope.py --out results/slope-current --force)
 
 test-current:
 	$(call current,$(PYC) -m pytest -q --color=no tests; \

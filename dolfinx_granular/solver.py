@@ -382,15 +382,15 @@ class NewtonSolver:
 
     def _test(self, snes, it, fnorm):
         x, R = snes.getSolution(), snes.getFunction()[0]
+        rel = None
         if it > 0:
             rel = self._energy_rel(x)
             self.history.append((it, self._rnorm_prev, rel))
-            if self.verbose and self.comm.rank == 0:
-                print(
-                    f"    Newton {it:2d}: |R| = {self._rnorm_prev:.3e} N, energy norm (rel) = "
-                    f"{rel:.3e}",
-                    flush=True,
-                )
+        if self.verbose and self.comm.rank == 0:
+            # iterate k: the residual after Newton step k (that of the start for k = 0) and the
+            # energy norm of step k, as the rows of the slope's convergence.csv
+            energy = "" if rel is None else f", energy norm (rel) = {rel:.3e}"
+            print(f"    Newton {it:2d}: |R| = {fnorm:.3e} N{energy}", flush=True)
         stalled = it > 0 and fnorm > 0.5 * self._rnorm_prev
         # the first Newton step may well overshoot the starting residual: count from iterate 1
         if it <= 1 or fnorm < self._rnorm_best:

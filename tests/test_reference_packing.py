@@ -28,3 +28,13 @@ def test_reference_packing_is_jammed_and_stress_free():
     assert stats.rattler_fraction <= 0.15 and stats.coordination >= 3.8
     assert 0.0 < stats.max_overlap <= 2e-11
     assert TaylorRVE(packing, normal_stiffness=2.8e7).prestress_ratio < 1e-10
+
+
+def test_the_slope_takes_the_shipped_packing_for_its_defaults():
+    from dolfinx_granular.slope.cli import make_packing
+
+    default, shipped = make_packing(PARTICLES, SEED), reference_packing()
+    np.testing.assert_array_equal(default.centers, shipped.centers)
+    np.testing.assert_array_equal(default.radii, shipped.radii)
+    other, generated = make_packing(70, SEED), generate_packing(70, seed=SEED)
+    np.testing.assert_array_equal(other.centers, generated.centers)

@@ -93,21 +93,28 @@ def test_failure_is_reported_not_raised():
     solver.destroy()
 
 
-def test_small_slope_run_converges_quadratically(tmp_path):
-    """All 21 load steps of the slope with a 70-particle RVE, no figure."""
+def test_small_slope_run_converges_quadratically(tmp_path, capsys):
+    """All 21 load steps of the slope with a 70-particle RVE, no figure; the console numbers
+    the Newton iterates as convergence.csv does."""
     summary = run_slope(
         generate_packing(70, seed=2),
         SlopeOptions(steps=20),
         out=str(tmp_path),
         comm=MPI.COMM_SELF,
         figure=False,
-        verbose=False,
+        verbose=True,
     )
+    console = [line.strip() for line in capsys.readouterr().out.splitlines() if "Newton" in line]
     assert summary["converged"], summary["failed"]
     assert len(summary["iterations"]) == 21
     with open(tmp_path / "convergence.csv") as f:
         rows = list(csv.DictReader(f))
     assert list(rows[0]) == ["step", "iterate", "residual_norm", "energy_norm_rel", "converged_by"]
+    assert console == [
+        f"Newton {int(r['iterate']):2d}: |R| = {float(r['residual_norm']):.3e} N"
+        + (r["energy_norm_rel"] and f", energy norm (rel) = {float(r['energy_norm_rel']):.3e}")
+        for r in rows
+    ]
     by_step = {}
     for r in rows:
         by_step.setdefault(int(r["step"]), []).append(r)

@@ -123,7 +123,6 @@ def test_a_bad_option_is_refused_in_one_line():
 
 def test_the_first_run_section_is_a_marked_table_of_runs_and_phases():
     import first_run
-
     from sections import marked_sections
 
     run = {"setup_s": 2.5, "total_s": 9.0}
