@@ -328,11 +328,12 @@ def _inset(plotter, inset, network, scale, extent):
             faces = np.hstack([np.full((len(q), 1), 4), np.arange(4 * len(q)).reshape(-1, 4)])
             qpts = np.c_[q.reshape(-1, 2), np.zeros(4 * len(q))]
             plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color=colour)
-    overlap = c.overlap.max(initial=0.0) / rve.packing.radii.mean()
+    # the validity measure (validity.py): overlap over the smaller radius of the two disks
+    overlap = rve.overlap_statistics(np.asarray(F)[None]).max_ratio[0]
     slide = f", {int(sliding.sum())} sliding" if state is not None else ""
     plotter.add_text(
         f"{label}: {text}\n{len(force)} contacts{slide}, largest overlap "
-        f"{100 * overlap:.2f} % of the mean radius",
+        f"{100 * overlap:.3g} % of the smaller radius",
         font_size=10,
         position="upper_left",
     )

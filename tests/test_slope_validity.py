@@ -42,3 +42,34 @@ def test_overlap_validity_is_none_without_a_packing_law():
         material_factory=lambda law, u: LinearElasticMaterial(u, *lame_from_young(5e7, 0.3)),
     )
     assert model.overlap_validity() is None
+
+
+def test_the_slope_run_reports_its_validity_and_writes_the_cauchy_stress(tmp_path):
+    """The demo's log, summary.json and XDMF: the overlaps per step, one ValidityWarning when
+    they first pass the threshold, the final summary, and the cell-mean Cauchy stress."""
+    import json
+    import re
+
+    from helpers import run_slope_demo
+
+    out = tmp_path / "run"
+    proc, summary = run_slope_demo(out, "--particles", "40", "--steps", "2", "--no-figure")
+    steps = summary["step_info"]
+    beyond = [s["step"] for s in steps if s["overlap_points_above"] > 0]
+    entry = summary["overlap_validity"]
+    assert entry["first_step_beyond"] == (beyond[0] if beyond else None)
+    assert entry["max_ratio"] == steps[-1]["overlap_max_ratio"] > 0.0
+    assert entry["points_above"] == steps[-1]["overlap_points_above"]
+    assert entry["points"] == summary["rves"] and entry["threshold"] == 0.10
+    logged = re.findall(r"overlaps <= ([\d.]+) % of r \(([\d.]+) % of points > 10 %\)", proc.stdout)
+    assert logged == [
+        (f"{100 * s['overlap_max_ratio']:.3g}", f"{100 * s['overlap_fraction_above']:.3g}")
+        for s in steps
+    ]
+    warned = (proc.stdout + proc.stderr).count("ValidityWarning")
+    assert warned == (1 if beyond else 0), proc.stderr[-2000:]
+    assert beyond, "the paper's parameters overlap beyond 10 % under gravity already"
+    with open(out / "slope.xdmf") as f:
+        xdmf = f.read()
+    assert xdmf.count('<Attribute Name="cauchy" AttributeType="Tensor"') == len(steps)
+    assert json.loads((out / "summary.json").read_text())["overlap_validity"] == entry

@@ -26,11 +26,13 @@ from mpi4py import MPI
 
 from .. import _dolfinx as dfx
 from ..arclength import ASKED_TO_STOP
+from ..fields import cauchy_output
 from ..loading import Cutback, LoadStepper
 from ..packing import Packing
 from ..postprocess import cell_function, gather_mesh
 from ..runwriter import NodeOrder, PointOrder, RestartError, RunWriter, read_npz
 from ..rve import TaylorRVE
+from ..validity import OVERLAP_THRESHOLD, OverlapMonitor
 from .geometry import SlopeGeometry
 from .interrupt import signal_name, write_line
 from .model import SlopeModel, granular_material, newton_solver
@@ -280,6 +282,8 @@ class SlopeRun:
         )
         self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
         self.arclength = None  # the path of path_following
+        # one ValidityWarning per run, when contact overlaps first pass the threshold
+        self.validity = OverlapMonitor()
         self.restart = restart  # the stored run continued here (load_restart), or None
         self.resumed_from, self.time_output = None, 0.0
         self._V0 = dfx.function_space(self.model.mesh, "DG", 0)
@@ -309,15 +313,18 @@ class SlopeRun:
         self._repair_xdmf()
 
     def _append_xdmf(self, step):
-        """Append u and the cell-mean von Mises stress (file closed per step: complete on disk)."""
+        """Append u, the cell-mean von Mises and Cauchy stresses (file closed per step: complete
+        on disk)."""
         from dolfinx import io
 
         m = self.model
         vm = cell_function(self._V0, m.material.cell_average(m.von_mises()))
         vm.name = "von_mises"
+        cauchy = cauchy_output(m.material)  # cell means of the Cauchy stress (Pa)
         with io.XDMFFile(self.comm, self.writer.path("slope.xdmf"), "a") as xdmf:
             xdmf.write_function(m.u, float(step))
             xdmf.write_function(vm, float(step))
+            xdmf.write_function(cauchy, float(step))
         self._repair_xdmf()
 
     def _repair_xdmf(self):
@@ -436,6 +443,7 @@ class SlopeRun:
         self.resumed_from = state["step"]
         self.rows = [tuple(r) for r in state["rows"]]
         self.iterations, self.step_info = list(state["iterations"]), list(state["step_info"])
+        self.validity.warned = any(s.get("overlap_points_above") for s in self.step_info)
         self.stepper.step = state["step"]
         self.stepper.cutbacks = [Cutback(**c) for c in state["cutbacks"]]
         self.stepper.path = list(state.get("path", []))
@@ -485,6 +493,7 @@ class SlopeRun:
                 "stabiliser_force": m.stabiliser_share(),
                 "dissipated_energy": m.material.dissipated_energy(),
                 "time": elapsed,
+                **self._overlaps(step),
             }
         )
         # (no "of n": cut-backs and path following take more steps than the nominal ones)
@@ -492,8 +501,23 @@ class SlopeRun:
             f"step {step:2d} ({self.options.phases[phase_index]}, t = {t:.4g}): gravity "
             f"x{lam_g:.2f}, footing "
             f"{footing:.3e} N/m, {result.iterations} iterations, "
-            f"{elapsed:.2f} s"
+            f"{elapsed:.2f} s{_overlap_note(self.step_info[-1])}"
         )
+
+    def _overlaps(self, step):
+        """The step's validity measure for ``step_info`` (collective); warns once per run."""
+        summary = self.model.overlap_summary()
+        if summary is None:
+            return {}
+        if self.comm.rank == 0:
+            self.validity.check(summary, f"step {step}")
+        else:
+            self.validity.warned = self.validity.warned or summary.exceeded
+        return {
+            "overlap_max_ratio": summary.max_ratio,
+            "overlap_points_above": summary.points_above,
+            "overlap_fraction_above": summary.fraction_above,
+        }
 
     def run(self) -> bool:
         """Take the load phases from where the run stands; True if every phase completed."""
@@ -541,6 +565,16 @@ class SlopeRun:
             ):
                 return False
         return True
+
+
+def _overlap_note(info):
+    """``, overlaps <= 55 % of r (89 % of points > 10 %)`` for a step's log line ('' without)."""
+    if "overlap_max_ratio" not in info:
+        return ""
+    return (
+        f", overlaps <= {100 * info['overlap_max_ratio']:.3g} % of r "
+        f"({100 * info['overlap_fraction_above']:.3g} % of points > {100 * OVERLAP_THRESHOLD:g} %)"
+    )
 
 
 def is_complete(restart: Mapping[str, Any]) -> bool:

@@ -15,6 +15,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..postprocess import plot_load_settlement, plot_slope
+from ..validity import OVERLAP_THRESHOLD
 from .path import path_summary
 
 if TYPE_CHECKING:
@@ -144,6 +145,8 @@ def summarise(
         # the reference state of the RVE: P(I) in Pa, and |P(I)| / |C|
         "prestress": None if prestress is None else prestress.tolist(),
         "prestress_ratio": getattr(run.law, "prestress_ratio", None),
+        # where the contact law leaves its range: overlap / smaller radius (validity.py)
+        "overlap_validity": _overlap_validity(run),
         "wall_time": time.perf_counter() - run.t_start,
         "time_setup": run.setup_time,
         "time_rve": t["rve"],
@@ -168,6 +171,16 @@ def run_status(run: SlopeRun) -> str:
     if run.interrupted:
         return "interrupted"
     return "stopped" if run.stepper.stopped else "converged"
+
+
+def _overlap_validity(run):
+    """The last state's validity measure and the first step whose overlaps passed the
+    threshold (None: none did); None for a law without disks (collective)."""
+    entry = run.model.overlap_validity()
+    if entry is None:
+        return None
+    beyond = [s["step"] for s in run.step_info if s.get("overlap_points_above")]
+    return {**entry, "first_step_beyond": beyond[0] if beyond else None}
 
 
 def _permanent_settlement(run):
@@ -204,9 +217,20 @@ def draw_figure(
         insets,
         value_range=(vmin, vmax),
         title=f"step {run.stepper.step}: settlement {settlement:.3f} m, "
-        f"{run.packing.n_particles} particles, deformation x1",
+        f"{run.packing.n_particles} particles, deformation x1{_overlap_title(run)}",
     )
     return time.perf_counter() - t0, colour_range
+
+
+def _overlap_title(run):
+    """``; overlaps > 10 % of r at 89 % of the points`` for the figure's title ('' without)."""
+    info = run.step_info[-1] if run.step_info else {}
+    if "overlap_fraction_above" not in info:
+        return ""
+    return (
+        f"; overlaps > {100 * OVERLAP_THRESHOLD:g} % of r at "
+        f"{100 * info['overlap_fraction_above']:.3g} % of the points"
+    )
 
 
 def load_settlement_curve(
