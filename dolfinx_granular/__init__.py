@@ -17,6 +17,7 @@ from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor
 from .friction import FrictionalRVE, FrictionState
 from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
 from .gsd import SieveCurve, cen_standard_sand
+from .law import LawEvaluationError
 from .levels import AdaptiveRVE, SmallStrainRVE
 from .packing import Packing, PackingFileError
 from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
@@ -30,6 +31,7 @@ __all__ = [
     "FrictionState",
     "ContactSet",
     "UnsupportedDeformationError",
+    "LawEvaluationError",
     "SieveCurve",
     "cen_standard_sand",
     "generate_packing",

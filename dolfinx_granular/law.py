@@ -12,6 +12,10 @@ stress P (n, 2, 2) and its tangent A = dP/dF (n, 2, 2, 2, 2), all in Pa.
 
 The checks are structural (``isinstance(law, MaterialLaw)``): any class with these methods is a
 law, without subclassing.
+
+A law that cannot answer at some points (F outside its range, a micro-solver that fails) raises a
+:class:`LawEvaluationError`: the solvers turn exactly this exception into a failed solve, which a
+load stepper cuts back. Any other exception is a bug and propagates with its traceback.
 """
 
 from __future__ import annotations
@@ -19,6 +23,20 @@ from __future__ import annotations
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
+
+
+class LawEvaluationError(ValueError):
+    """A law could not be evaluated at some points; the solvers cut back on it (and on nothing
+    else). Subclasses name the reason, e.g.
+    :class:`~dolfinx_granular.rve.UnsupportedDeformationError`.
+
+    Attributes:
+        points: (k,) int indices of the points that failed (into the evaluated batch).
+    """
+
+    def __init__(self, message: str, points: np.ndarray | None = None) -> None:
+        super().__init__(message)
+        self.points = np.zeros(0, dtype=np.int64) if points is None else np.asarray(points)
 
 
 @runtime_checkable

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import kernel, validity
+from .law import LawEvaluationError
 from .packing import Packing
 
 if TYPE_CHECKING:
@@ -46,7 +47,7 @@ class PrestressWarning(UserWarning):
     """The packing's reference state (F = I) carries stress: its disks overlap."""
 
 
-class UnsupportedDeformationError(ValueError):
+class UnsupportedDeformationError(LawEvaluationError):
     """F is non-finite, has det F <= 0 or a singular value below ``min_stretch``.
 
     Attributes:
@@ -55,8 +56,7 @@ class UnsupportedDeformationError(ValueError):
     """
 
     def __init__(self, message: str, points: np.ndarray, status: np.ndarray) -> None:
-        super().__init__(message)
-        self.points = points
+        super().__init__(message, points)
         self.status = status
 
 

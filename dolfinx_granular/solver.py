@@ -42,6 +42,7 @@ from petsc4py import PETSc
 
 from ._dolfinx import SNES_NAN_REASON, petsc_vec
 from .diagnose import check_wiring, singular_jacobian
+from .law import LawEvaluationError
 from .quadrature import derivative
 from .timing import Stopwatch
 
@@ -305,7 +306,7 @@ class NewtonSolver:
         error = None
         try:
             self._evaluate(x, tangent)
-        except ValueError as err:  # UnsupportedDeformationError
+        except LawEvaluationError as err:  # e.g. UnsupportedDeformationError; bugs propagate
             error = str(err)
         errors = [e for e in self.comm.allgather(error) if e]
         if errors:  # every rank takes this branch: a NaN residual makes SNES stop
@@ -489,7 +490,7 @@ class NewtonSolver:
         error = None
         try:
             self._evaluate(self.x)
-        except ValueError as err:
+        except LawEvaluationError as err:
             error = str(err)
         return next((e for e in self.comm.allgather(error) if e), None)
 
@@ -534,7 +535,7 @@ class NewtonSolver:
         try:
             for m in self.materials:
                 m.update(tangent=False)
-        except ValueError:
+        except LawEvaluationError:
             pass  # u itself (the start of a failed solve) is outside a law's range: nothing to do
 
     def destroy(self) -> None:

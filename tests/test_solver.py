@@ -207,3 +207,64 @@ def test_gravity_only_slope_converges(tmp_path):
         verbose=False,
     )
     assert summary["converged"] and summary["iterations"][1:] == [0, 0], summary["iterations"]
+
+
+class _FailingLaw:
+    """A Taylor RVE that raises ``error`` once F compresses beyond a stretch ``below``."""
+
+    def __init__(self, rve, error, below):
+        self.rve, self.error, self.below = rve, error, below
+
+    def __getattr__(self, name):
+        return getattr(self.rve, name)
+
+    def _check(self, F):
+        if np.asarray(F)[..., 1, 1].min() < self.below:
+            raise self.error
+
+    def evaluate(self, F, out=None):
+        self._check(F)
+        return self.rve.evaluate(F, out)
+
+    def stress(self, F, out=None):
+        self._check(F)
+        return self.rve.stress(F, out)
+
+    def cauchy(self, F):
+        return self.rve.cauchy(F)
+
+    def spatial_tangent(self, F):
+        return self.rve.spatial_tangent(F)
+
+    def small_strain_modulus(self):
+        return self.rve.small_strain_modulus()
+
+
+def test_only_law_evaluation_errors_become_failed_solves():
+    """A LawEvaluationError (the law cannot answer there) is a failed, restored solve; any
+    other exception inside a law (a bug: an IndexError, or a shape bug's plain ValueError)
+    reaches the user as it is."""
+    from dolfinx_granular import LawEvaluationError
+
+    from helpers import granular_column
+
+    class OutOfRange(LawEvaluationError):
+        pass
+
+    rve = TaylorRVE(generate_packing(70, seed=4), 2.8e7)
+    cases = (
+        (OutOfRange("too compressed", np.array([0])), True),
+        (IndexError("a bug in the law"), False),
+        (ValueError("operands could not be broadcast together"), False),
+    )
+    for error, fails in cases:
+        solver, _, u, p = granular_column(_FailingLaw(rve, error, 0.999), "fail_", n=2)[:4]
+        p.value = 3e5
+        if fails:
+            result = solver.solve()
+            assert not result.converged and "too compressed" in result.error
+            assert np.all(u.x.array == 0.0)  # restored
+        else:
+            with pytest.raises(type(error), match=str(error)):
+                solver.solve()
+        solver.destroy()
