@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 from dolfinx_granular.cache import PackingCache
 from dolfinx_granular.friction import FrictionalRVE, FrictionState
+from dolfinx_granular.material_point import ControlError, solve_point
 
 import numpy as np
 from matplotlib import colormaps
@@ -83,14 +84,15 @@ SMALL = dict(particles=70, seeds=(0,), quarter_steps=20, cycles=2, monotonic_ste
 # ## The mixed-control driver
 #
 # F11 = 1, F12 = γ and F21 = 0 are prescribed, F22 = 1 + e22 is unknown and σ22 = −p is the
-# equation. Newton on the scalar e22 uses the consistent tangent dσ22/dF22 (chain rule of
-# σ = P Fᵀ / J with A = dP/dF); a bracket on e22 and bisection catch the rare iterate that
-# leaves it (stick/slip switches make σ22(e22) only piecewise smooth). Every iterate starts from
-# the committed state; the caller commits the returned state only after convergence.
+# equation: the package's material-point driver (`dolfinx_granular.material_point.solve_point`)
+# with `stress={(1, 1): -p}`. Newton on the scalar e22 uses the consistent tangent dσ22/dF22
+# (chain rule of σ = P Fᵀ / J with A = dP/dF); a bracket on e22 and bisection catch the rare
+# iterate that leaves it (stick/slip switches make σ22(e22) only piecewise smooth). Every iterate
+# starts from the committed state; the caller commits the returned state only after convergence.
 
 
 # %%
-class ConfinementError(RuntimeError):
+class ConfinementError(ControlError):
     """The mixed-control iteration did not reach |sigma_22 + p| <= rtol p."""
 
 
@@ -148,35 +150,19 @@ def confined_shear_step(
     if not pressure > 0.0:
         raise ValueError(f"pressure must be > 0 Pa, got {pressure!r}")
     e = 0.0 if F_guess is None else float(F_guess[1][1]) - 1.0
-    lo, hi = -np.inf, np.inf  # sigma_22 + p < 0 (too compressed) at lo, > 0 at hi
-    residuals = []
-    for it in range(max_iter + 1):
-        F = shear_F(gamma, e)
-        W, P, A, new = rve.evaluate(F, state)  # always from the committed state
-        J = np.linalg.det(F)
-        sigma = P @ F.T / J
-        r = sigma[1, 1] + pressure
-        residuals.append(float(r))
-        if abs(r) <= rtol * pressure:
-            return ShearStep(F, float(W), P, sigma, new, it, tuple(residuals))
-        if r < 0.0:
-            lo = e
-        else:
-            hi = e
-        # d sigma_22 / d F_22 = (A_2B22 F_2B + P_22) / J - sigma_22 (F^-1)_22
-        k = (A[1, :, 1, 1] @ F[1] + P[1, 1]) / J - sigma[1, 1] * np.linalg.inv(F)[1, 1]
-        step = -r / k if k > 0.0 else -np.sign(r) * max_increment  # no contact: compress
-        e_new = e + float(np.clip(step, -max_increment, max_increment))
-        if not lo < e_new < hi:
-            # a step always heads for the root's side of e, so only the far bound can be
-            # crossed, and that one is finite: bisect the bracket
-            e_new = 0.5 * (lo + hi)
-        e = e_new
-    raise ConfinementError(
-        f"confined shear step gamma = {gamma:.6g}, p = {pressure:.6g} Pa: |sigma_22 + p| = "
-        f"{abs(residuals[-1]):.3e} Pa > {rtol:.0e} p after {max_iter} iterations (residuals "
-        f"{', '.join(f'{x:.2e}' for x in residuals[-5:])}); state not committed"
-    )
+    try:
+        r = solve_point(
+            rve,
+            shear_F(gamma, e),
+            {(1, 1): -pressure},
+            state,
+            rtol=rtol,
+            max_iter=max_iter,
+            max_increment=max_increment,
+        )
+    except ControlError as err:
+        raise ConfinementError(f"confined shear step gamma = {gamma:.6g}: {err}") from None
+    return ShearStep(r.F, r.W, r.P, r.sigma, r.state, r.iterations, r.residuals)
 
 
 # %% [markdown]

@@ -29,6 +29,7 @@ from dolfinx_granular.cache import PackingCache
 from dolfinx_granular.fabric import anisotropy, contact_angles, density_deviation, fabric_tensor
 from dolfinx_granular.generation import network_stats
 from dolfinx_granular.gsd import DEFAULT_D_MIN
+from dolfinx_granular.material_point import MaterialPoint
 from dolfinx_granular.timing import time_per_point
 
 import numpy as np
@@ -56,12 +57,14 @@ PATHS = {
 
 
 def stress_paths(rves, steps):
-    """``{path: (s (steps+1,), mean (steps+1, 2, 2), std (steps+1, 2, 2))}`` over the RVEs."""
+    """``{path: (s (steps+1,), mean (steps+1, 2, 2), std (steps+1, 2, 2))}`` over the RVEs,
+    each path strain-controlled at one material point (:class:`MaterialPoint`)."""
     s = np.linspace(0.0, MAX_STRAIN, steps + 1)
     out = {}
     for name, (F_of, _) in PATHS.items():
         F = np.array([F_of(si) for si in s])
-        sig = np.array([rve.cauchy(F) for rve in rves])  # (seeds, steps+1, 2, 2)
+        # (seeds, steps+1, 2, 2)
+        sig = np.array([[r.sigma for r in MaterialPoint(rve).path(F)] for rve in rves])
         out[name] = (s, sig.mean(axis=0), sig.std(axis=0, ddof=1 if len(rves) > 1 else 0))
     return out
 

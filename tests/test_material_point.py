@@ -1,0 +1,170 @@
+"""The material-point driver (dolfinx_granular.material_point): mixed control against the
+hand-written confined-shear driver, pure stress control against a linear law's closed form,
+biaxial compression, and a stress-controlled cycle of a hyperelastic law."""
+
+from dolfinx_granular import FrictionalRVE, TaylorRVE, generate_packing
+from dolfinx_granular.material_point import (
+    ControlError,
+    MaterialPoint,
+    solve_point,
+    stress_tangent,
+)
+
+import numpy as np
+import pytest
+
+K_N, PRESSURE, RTOL = 2.8e7, 1e5, 1e-10
+
+
+@pytest.fixture(scope="module")
+def packing():
+    return generate_packing(70, seed=0)
+
+
+def hand_written_confined_shear(rve, gamma, state, pressure, e=0.0, max_iter=50, cap=0.02):
+    """The confined shear step as demos/friction_study.py wrote it by hand before the driver:
+    Newton on e22 (F = [[1, gamma], [0, 1 + e22]]) for sigma_22 = -pressure. Returns F."""
+    lo, hi = -np.inf, np.inf
+    for _ in range(max_iter + 1):
+        F = np.array([[1.0, gamma], [0.0, 1.0 + e]])
+        W, P, A, new = rve.evaluate(F, state)
+        J = np.linalg.det(F)
+        sigma = P @ F.T / J
+        r = sigma[1, 1] + pressure
+        if abs(r) <= RTOL * pressure:
+            return F, new
+        lo, hi = (e, hi) if r < 0.0 else (lo, e)
+        k = (A[1, :, 1, 1] @ F[1] + P[1, 1]) / J - sigma[1, 1] * np.linalg.inv(F)[1, 1]
+        step = -r / k if k > 0.0 else -np.sign(r) * cap
+        e_new = e + float(np.clip(step, -cap, cap))
+        e = e_new if lo < e_new < hi else 0.5 * (lo + hi)
+    raise AssertionError("hand-written driver did not converge")
+
+
+def test_mixed_control_matches_the_hand_written_confined_shear(packing):
+    rve = FrictionalRVE(packing, normal_stiffness=K_N, tangential_stiffness=K_N, friction=0.5)
+    point, ref_state, ref_F = MaterialPoint(rve), rve.initial_state(1), np.eye(2)
+    path = [(0.0, p) for p in np.linspace(0.0, PRESSURE, 6)[1:]]
+    path += [(g, PRESSURE) for g in (0.005, 0.01, 0.02, 0.01, -0.01, 0.0)]
+    iterations = 0
+    for gamma, p in path:
+        ref_F, ref_state = hand_written_confined_shear(rve, gamma, ref_state, p, ref_F[1, 1] - 1)
+        guess = np.array([[1.0, gamma], [0.0, point.F[1, 1]]])
+        step = point.step(guess, {(1, 1): -p})
+        np.testing.assert_allclose(step.F, ref_F, rtol=0, atol=1e-10)
+        assert abs(step.sigma[1, 1] + p) <= RTOL * p
+        iterations += step.iterations
+    assert iterations > len(path)  # the path exercised Newton, not only converged guesses
+    assert point.state.dissipation[0] > 0.0  # with friction the steps slid
+
+
+def test_cauchy_tangent_is_the_derivative_of_the_cauchy_stress(packing):
+    rve = TaylorRVE(packing, K_N)
+    F = np.array([[0.97, 0.02], [-0.01, 0.98]])
+    W, P, A = rve.evaluate(F)
+    T = stress_tangent(F, P, A, "cauchy")
+    h = 1e-7
+    for k, l in np.ndindex(2, 2):
+        dF = np.zeros((2, 2))
+        dF[k, l] = h
+        fd = (rve.cauchy(F + dF) - rve.cauchy(F - dF)) / (2 * h)
+        np.testing.assert_allclose(T[:, :, k, l], fd, rtol=1e-5, atol=1e-5 * np.abs(T).max())
+
+
+class LinearLaw:
+    """P = lam tr(H) I + mu (H + H^T), H = F - I: linear in F, its tangent constant (Pa)."""
+
+    def __init__(self, lam=2e6, mu=1e6):
+        self.lam, self.mu = lam, mu
+        I = np.eye(2)
+        self.A = lam * np.einsum("ij,kl->ijkl", I, I) + mu * (
+            np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)
+        )
+
+    def evaluate(self, F):
+        H = np.asarray(F) - np.eye(2)
+        P = np.einsum("ijkl,kl->ij", self.A, H)
+        return 0.5 * np.sum(P * H), P, self.A
+
+
+def test_pure_stress_control_of_a_linear_law_is_its_closed_form():
+    law, (p11, p22, p21) = LinearLaw(), (-3e4, -1e5, 2e4)
+    # F12 = 0 fixes the rotation; F11, F22, F21 are solved for P11, P22, P21
+    step = solve_point(
+        law, np.eye(2), {(0, 0): p11, (1, 1): p22, (1, 0): p21}, measure="piola", max_increment=1.0
+    )
+    lam, mu = law.lam, law.mu
+    h11, h22 = np.linalg.solve([[lam + 2 * mu, lam], [lam, lam + 2 * mu]], [p11, p22])
+    expected = np.array([[1 + h11, 0.0], [p21 / mu, 1 + h22]])
+    np.testing.assert_allclose(step.F, expected, rtol=0, atol=1e-12)
+    assert step.iterations == 1  # linear, no step cap: Newton is exact in one step
+    assert step.P[0, 1] == pytest.approx(p21)
+
+
+def test_biaxial_compression_under_lateral_pressure(packing):
+    """F22 prescribed (axial compression), F11 solved for sigma_11 = -p (lateral confinement)."""
+    rve = TaylorRVE(packing, K_N)
+    point = MaterialPoint(rve)
+    point.step(np.eye(2), {(0, 0): -PRESSURE, (1, 1): -PRESSURE})  # isotropic confinement
+    e0 = point.F.copy()
+    axial = e0[1, 1] * (1.0 - np.linspace(0.0, 0.05, 6)[1:])
+    Fs = np.array([[[1.0, 0.0], [0.0, a]] for a in axial])
+    steps = point.path(Fs, {(0, 0): -PRESSURE})
+    s11 = np.array([s.sigma[0, 0] for s in steps])
+    s22 = np.array([s.sigma[1, 1] for s in steps])
+    assert np.abs(s11 + PRESSURE).max() <= RTOL * PRESSURE
+    assert np.all(np.diff(s22) < 0) and s22[-1] < 2 * s11[-1]  # the axial stress grows
+    assert [s.F[1, 1] for s in steps] == list(axial)  # prescribed components stay as given
+
+
+def test_stress_controlled_cycle_of_a_hyperelastic_law_returns_to_its_start(packing):
+    """Shear stress 0 -> +t -> -t -> 0 under sigma_22 = -p, F11 = 1: every F12 and F22 is
+    solved; a law without history returns to the start's F within the Newton tolerance."""
+    rve = TaylorRVE(packing, K_N)
+    point = MaterialPoint(rve)
+    start = point.step(np.eye(2), {(0, 1): 0.0, (1, 1): -PRESSURE})
+    taus = (
+        0.3
+        * PRESSURE
+        * np.r_[np.linspace(0, 1, 5), np.linspace(1, -1, 9)[1:], -1 + np.linspace(0, 1, 5)[1:]]
+    )
+    steps = point.path(
+        np.broadcast_to(np.eye(2), (taus.size, 2, 2)),
+        {(0, 1): lambda k: taus[k], (1, 1): -PRESSURE},
+    )
+    assert max(abs(s.sigma[0, 1] - t) for s, t in zip(steps, taus)) <= RTOL * PRESSURE
+    assert max(s.F[0, 1] for s in steps) > 0.002 and min(s.F[0, 1] for s in steps) < -0.002
+    # both ends meet the stresses to RTOL p: their F differ by at most 2 RTOL p over the
+    # smallest singular value of d(sigma_12, sigma_22) / d(F12, F22)
+    T = stress_tangent(start.F, start.P, rve.evaluate(start.F)[2])
+    rows, cols = np.array([0, 1]), np.array([1, 1])  # the unknowns F12, F22
+    K = T[rows, cols][:, rows, cols]
+    bound = 2 * RTOL * PRESSURE / np.linalg.svd(K, compute_uv=False).min()
+    assert bound < 1e-10  # sharp against the shear of the cycle (> 2e-3)
+    np.testing.assert_allclose(steps[-1].F, start.F, rtol=0, atol=bound)
+
+
+def test_failure_raises_and_commits_nothing(packing):
+    rve = FrictionalRVE(packing, normal_stiffness=K_N, tangential_stiffness=K_N, friction=0.5)
+    point = MaterialPoint(rve)
+    before = point.state.to_arrays()
+    with pytest.raises(ControlError, match="not committed"):
+        point.step(np.eye(2), {(1, 1): -PRESSURE}, max_iter=1)
+    assert point.last is None and np.array_equal(point.F, np.eye(2))
+    assert all(np.array_equal(v, getattr(point.state, k)) for k, v in before.items())
+
+
+@pytest.mark.parametrize(
+    "kwargs, words",
+    [
+        (dict(F=np.eye(3)[:2]), "(d, d)"),
+        (dict(stress={(2, 0): 1.0}), "index pairs"),
+        (dict(measure="kirchhoff"), "measure"),
+        (dict(stress={(0, 0): 0.0}), "stress_scale"),
+    ],
+)
+def test_bad_control_is_refused_in_one_line(kwargs, words):
+    args = dict(F=np.eye(2), stress={(0, 0): 1.0}) | kwargs
+    with pytest.raises(ValueError, match=None) as err:
+        solve_point(LinearLaw(), **args)
+    assert words in str(err.value) and "\n" not in str(err.value)
