@@ -14,11 +14,14 @@ matrix). Of the constraint's two roots the one that keeps going forward is taken
 angle between the new increment and the last one. The predictor follows the previous increment's
 direction (the sign of ``Du_prev . b``), so the path turns round limit points by itself.
 
-The corrector's convergence tests are the solver's (its ``energy_rtol``, round-off tests and
-``stagnation_it``). Its work is timed on the solver's clock as SNES solves are (``"snes"``, with
-the residuals, Jacobians and convergence tests under ``"callbacks"``), so that the solver's
-:attr:`~dolfinx_granular.solver.NewtonSolver.timings` split the path's time as a load-controlled
-run's.
+The corrector's convergence test is the solver's :class:`~dolfinx_granular.convergence.
+ConvergenceTest` with its thresholds (``energy_rtol``, round-off tests, ``stagnation_it``), in its
+``corrector`` variant. The increments act on the solver's
+:class:`~dolfinx_granular.problem.GranularProblem` through its public methods, and use the LU
+solver (KSP) of the solver's SNES. Its work is timed on the solver's clock as SNES solves
+are (``"snes"``, with the residuals, Jacobians and convergence tests under ``"callbacks"``), so
+that the solver's :attr:`~dolfinx_granular.solver.NewtonSolver.timings` split the path's time
+as a load-controlled run's.
 
 Increments adapt to the Newton iterations they take; a failed increment (no real root, Newton
 divergence, an RVE outside its range, a singular tangent) is restored and halved. The sign of
@@ -37,22 +40,20 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from dolfinx import fem
-from dolfinx.fem.petsc import set_bc
 from petsc4py import PETSc
 
-from ._dolfinx import petsc_vec
+from .convergence import CONVERGED, NAN, STAGNATION, ConvergenceTest
+from .drivers import ASKED_TO_STOP, failure
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     import ufl
+    from dolfinx import fem
 
     from .solver import NewtonSolver
 
-#: :attr:`ArcLength.stopped` where ``on_converged`` returned False before the path reached an end
-#: of its own (a stop the caller asked for)
-ASKED_TO_STOP = "asked to stop"
+__all__ = ["ASKED_TO_STOP", "ArcLength", "CriticalPoint", "Increment"]
 
 
 @dataclass
@@ -70,6 +71,15 @@ class Increment:
     residual_norm: float = float("nan")  # |R| at the end (N)
     history: list | None = None  # (iteration, |R| at its start (N), relative energy norm) per step
     converged_by: str = ""  # "energy norm" or "round-off"
+
+    #: how an increment converged (the ``reason_name`` of :class:`~dolfinx_granular.drivers.
+    #: IncrementRecord`): by this driver's corrector
+    reason_name = "ARC_LENGTH"
+
+    @property
+    def t(self) -> float:
+        """The load parameter at the end (lam): the driver protocol's name of it."""
+        return self.lam
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -113,12 +123,18 @@ class ArcLength:
             ``ds_max / peak_refinement`` at most (1: off).
         max_cutbacks: most halvings of one increment in a row.
         log: callable taking one progress line, or None.
+        max_increments: the increments :meth:`run` takes at most by default.
+        stop: the default ``stop`` of :meth:`run`.
 
     Attributes:
         path: the converged :class:`Increment` s.
         critical: the :class:`CriticalPoint` s crossed.
         lam: load parameter of the converged state.
-        failed: None, or the reason the path ended early.
+        failed: None, or a :func:`~dolfinx_granular.drivers.failure` dict once the path ended
+            early (``phase`` "path", ``t`` the load parameter lam of the last converged state).
+        stopped: None, or why :meth:`run` stopped (its ``stop`` reason, ``"N increments"``,
+            :data:`~dolfinx_granular.drivers.ASKED_TO_STOP`).
+        problem: the solver's :class:`~dolfinx_granular.problem.GranularProblem`.
     """
 
     def __init__(
@@ -139,8 +155,12 @@ class ArcLength:
         max_cutbacks: int = 8,
         peak_refinement: float = 1.0,
         log: Callable[[str], object] | None = None,
+        max_increments: int = 100,
+        stop: Callable[[ArcLength], str | None] | None = None,
     ) -> None:
         self.solver, self.load = solver, load
+        self.problem, self.clock = solver.problem, solver.clock
+        self.max_increments, self.stop = int(max_increments), stop
         self.psi = float(psi)
         self.control = control
         self.direction = 1.0 if direction >= 0 else -1.0
@@ -160,7 +180,7 @@ class ArcLength:
         self.f = self._load_vector(external)
         # the load's share psi^2 |f|^2 of the constraint: f and psi are fixed, one reduction
         self._load_weight = self.psi**2 * self.f.dot(self.f)
-        with self.solver.clock("snes"):  # (timed as the increments are: see the module doc)
+        with self.clock("snes"):  # (timed as the increments are: see the module doc)
             self._check_form()
             if ds is None:
                 ds = self._arc_of(float(dlam))
@@ -172,26 +192,23 @@ class ArcLength:
 
     def _load_vector(self, external):
         """f assembled once (dead load), zero in the Dirichlet rows."""
-        f = petsc_vec(self.solver.u).duplicate()
-        self.solver.assemble_forces(f, fem.form(external))
-        set_bc(f, self.solver.bcs, None, 0.0)
-        return f
+        return self.problem.load_vector(external)
 
     def _check_form(self):
         """R(u, lam + 1) - R(u, lam) must be -f: the residual is R(u) - lam f."""
-        x = petsc_vec(self.solver.u).copy()
+        x = self.problem.u_vec.copy()
         r0, r1 = x.duplicate(), x.duplicate()
         lam = float(self.load.value)
         try:
-            with self.solver.clock("callbacks"):
+            with self.clock("callbacks"):
                 self.load.value = lam + 1.0
                 # with the tangent: the first factorisation, at this u, evaluates nothing again
-                error = self.solver.residual(x, r1)
+                error = self.problem.residual(x, r1)
                 self.load.value = lam
                 if error:
                     raise ValueError(f"the start state cannot be evaluated: {error}")
                 # the material data do not depend on lam: R at lam needs no evaluation
-                self.solver.assemble_residual(x, r0)
+                self.problem.assemble_residual(x, r0)
             r1.axpy(-1.0, r0)
             r1.axpy(1.0, self.f)
             scale = max(self.f.norm(), 1e-300)
@@ -207,7 +224,7 @@ class ArcLength:
 
     def _arc_of(self, dlam):
         """The arc of a load increment dlam from the current state: |dlam| |K^-1 f| (+ psi)."""
-        x = petsc_vec(self.solver.u).copy()
+        x = self.problem.u_vec.copy()
         b = x.duplicate()
         try:
             self._factorise(x)
@@ -252,8 +269,8 @@ class ArcLength:
     def _factorise(self, x):
         """Assemble K at x and factorise it; the sign of det K (0 where the LU solver does not
         give it). Raises RuntimeError if the factorisation fails."""
-        with self.solver.clock("callbacks"):  # (as SNES's Jacobian callback; the LU is not)
-            A = self.solver.jacobian(x)
+        with self.clock("callbacks"):  # (as SNES's Jacobian callback; the LU is not)
+            A = self.problem.assemble_jacobian(x)
         ksp = self.solver.snes.getKSP()
         ksp.setOperators(A)
         pc = ksp.getPC()
@@ -288,7 +305,7 @@ class ArcLength:
         dof = self.control[0]
         local = np.array([float(v.array_r[dof]) if dof >= 0 else 0.0 for v in vecs])
         # (one rank holds the dof, the others add zeros: the sum is exact)
-        return [float(c) for c in self.solver.comm.allreduce(local)]
+        return [float(c) for c in self.problem.comm.allreduce(local)]
 
     # -- one increment -------------------------------------------------------------------------
 
@@ -339,42 +356,28 @@ class ArcLength:
 
     def _corrector(self, x0, du, dlam):
         """Newton on (u, lam) under the constraint from x0 + du, lam + dlam. Returns the state x,
-        the increment (du, dlam) and the :class:`_Newton` record; raises _Failed with the
-        reason (no convergence, stagnation, no real root, an RVE outside its range); x is
-        freed then."""
-        solver = self.solver
+        the increment (du, dlam) and the :class:`~dolfinx_granular.convergence.ConvergenceTest`
+        record; raises _Failed with the reason (no convergence, stagnation, no real root, an
+        RVE outside its range); x is freed then."""
         x = x0.copy()
         x.axpy(1.0, du)
         R, a, b = (x.duplicate() for _ in range(3))
-        newton = _Newton(solver)
+        test, energy = self._new_test(), None
         converged = False
         try:
             for it in range(self.max_it + 1):
                 self.load.value = self.lam + dlam
-                with solver.clock("callbacks"):  # (as SNES's residual and convergence test)
-                    error = solver.residual(x, R)
-                    if error:
-                        raise _Failed(error)
-                    converged = newton.converged(it, R)
+                with self.clock("callbacks"):  # (as SNES's residual and convergence test)
+                    converged = self._converged(test, it, x, R, energy)
                 if converged:
-                    return x, du, dlam, newton
+                    return x, du, dlam, test
                 if it == self.max_it:
                     raise _Failed(
                         f"no convergence in {self.max_it} corrector iterations "
-                        f"(|R| = {newton.rnorm:.3e} N)"
+                        f"(|R| = {test.rnorm:.3e} N)"
                     )
-                self._factorise(x)
-                R.scale(-1.0)
-                self._solve(R, a)
-                self._solve(self.f, b)
-                r = self._constraint_root(du, dlam, a, b)
-                if r is None:
-                    raise _Failed(
-                        "the arc does not meet the linearised equilibrium path (no "
-                        "real root of the constraint)"
-                    )
-                a.axpy(r, b)  # the correction du = a + r b
-                newton.step(abs(R.dot(a)))
+                r = self._correction(x, R, a, b, du, dlam)
+                energy = abs(R.dot(a))  # (R is -R here: the step's energy |R . du|)
                 du.axpy(1.0, a)
                 x.axpy(1.0, a)
                 dlam += r
@@ -384,25 +387,68 @@ class ArcLength:
             if not converged:
                 x.destroy()
 
+    def _new_test(self):
+        """The corrector's convergence test: the solver's thresholds, its corrector variant."""
+        t = self.solver.test
+        return ConvergenceTest(
+            self.problem,
+            energy_rtol=t.energy_rtol,
+            residual_rtol=t.residual_rtol,
+            residual_atol=t.residual_atol,
+            roundoff_energy=t.roundoff_energy,
+            stagnation_it=t.stagnation_it,
+            corrector=True,
+        )
+
+    def _converged(self, test, it, x, R, energy):
+        """R at x and the test's verdict there: True if converged; raises _Failed where the
+        state cannot be evaluated, on a NaN residual or on stagnation."""
+        error = self.problem.residual(x, R)
+        if error:
+            raise _Failed(error)
+        verdict = test.check(it, R.norm(), R, energy)
+        if verdict == NAN:
+            raise _Failed("NaN residual")
+        if verdict == STAGNATION:
+            raise _Failed(f"stagnation: {test.error}")
+        return verdict == CONVERGED
+
+    def _correction(self, x, R, a, b, du, dlam):
+        """The correction of the bordered system at x into a (``a + r b`` with ``K a = -R``,
+        ``K b = f``; R is negated) and its dlam correction r; raises _Failed without a root."""
+        self._factorise(x)
+        R.scale(-1.0)
+        self._solve(R, a)
+        self._solve(self.f, b)
+        r = self._constraint_root(du, dlam, a, b)
+        if r is None:
+            raise _Failed(
+                "the arc does not meet the linearised equilibrium path (no "
+                "real root of the constraint)"
+            )
+        a.axpy(r, b)  # the correction du = a + r b
+        return r
+
     def advance(self) -> Increment | None:
         """One converged increment (cut back and retried as needed); the :class:`Increment`, or
         None once the path cannot go on (:attr:`failed` says why)."""
-        x0 = petsc_vec(self.solver.u).copy()  # the converged state a failed attempt returns to
+        x0 = self.problem.u_vec.copy()  # the converged state a failed attempt returns to
         try:
             cuts = 0
             while True:
                 try:
-                    x, du, dlam, newton, sign = self._attempt(x0)
+                    x, du, dlam, test, sign = self._attempt(x0)
                 except (_Failed, RuntimeError) as err:
-                    with self.solver.clock("after"):
+                    with self.clock("after"):
                         self._restore(x0)
                     cuts += 1
                     if cuts > self.max_cutbacks or self.ds / 2.0 < self.ds_min:
-                        self.failed = (
+                        reason = (
                             f"increment {len(self.path) + 1} failed at ds = {self.ds:.3g} "
                             f"after {cuts - 1} cut-backs: {err}"
                         )
-                        self.log(f"path: {self.failed}; stopping")
+                        self.failed = failure("path", len(self.path) + 1, self.lam, reason)
+                        self.log(f"path: {reason}; stopping")
                         return None
                     self.log(
                         f"path: increment {len(self.path) + 1} failed ({err}); ds "
@@ -410,35 +456,31 @@ class ArcLength:
                     )
                     self.ds /= 2.0
                     continue
-                with self.solver.clock("after"):  # (as NewtonSolver's commit)
-                    return self._accept(x, du, dlam, newton, sign)
+                with self.clock("after"):  # (as NewtonSolver's commit)
+                    return self._accept(x, du, dlam, test, sign)
         finally:
             x0.destroy()
 
     def _attempt(self, x0):
         """Predictor and corrector from the converged state x0 (timed as a SNES solve): the state
-        x, the increment (du, dlam), the :class:`_Newton` record and the sign of det K at x0.
+        x, the increment (du, dlam), the convergence test's record and the sign of det K at x0.
         Raises as :meth:`_corrector` does, with the attempt's vectors freed."""
-        with self.solver.clock("snes"):
+        with self.clock("snes"):
             du, dlam, sign = self._predictor(x0)
             try:
-                x, du, dlam, newton = self._corrector(x0, du, dlam)
+                x, du, dlam, test = self._corrector(x0, du, dlam)
             except BaseException:
                 du.destroy()
                 raise
-        return x, du, dlam, newton, sign
+        return x, du, dlam, test, sign
 
     def _restore(self, x0):
-        u_vec = petsc_vec(self.solver.u)
-        x0.copy(u_vec)
-        u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self.load.value = self.lam
-        self.solver.refresh_materials()
+        self.problem.restore(x0)
 
-    def _accept(self, x, du, dlam, newton, sign):
+    def _accept(self, x, du, dlam, test, sign):
         """Commit a converged increment: history, path record, critical points, next ds."""
-        for m in self.solver.materials:
-            m.commit()
+        self.problem.commit()
         self.lam += dlam
         self.load.value = self.lam
         if self._det_sign and sign and sign != self._det_sign and self.path:
@@ -454,7 +496,7 @@ class ArcLength:
         if self._du_prev is not None:
             self._du_prev.destroy()
         self._du_prev, self._dlam_prev = du, dlam
-        its = len(newton.history)
+        its = len(test.history)
         inc = Increment(
             len(self.path) + 1,
             self.lam,
@@ -464,9 +506,9 @@ class ArcLength:
             sign,
             du.norm(),
             self._control_value(x) if self.control is not None else None,
-            newton.rnorm,
-            newton.history,
-            newton.stopped_by,
+            test.rnorm,
+            test.history,
+            test.stopped_by,
         )
         self.path.append(inc)
         x.destroy()
@@ -508,18 +550,23 @@ class ArcLength:
 
     def run(
         self,
-        max_steps: int = 100,
+        max_steps: int | None = None,
         stop: Callable[[ArcLength], str | None] | None = None,
         on_converged: Callable[[Increment], bool | None] | None = None,
     ) -> bool:
-        """Follow the path for at most ``max_steps`` increments; True unless it failed.
+        """Follow the path for at most ``max_steps`` increments (default ``max_increments``);
+        True unless it failed (the :class:`~dolfinx_granular.drivers.Driver` protocol).
 
         Args:
             stop: ``stop(self) -> str | None``: a reason to stop after a converged increment
-                (see :func:`load_reaches`, :func:`unloaded_to`, :func:`control_reaches`).
+                (see :func:`load_reaches`, :func:`unloaded_to`, :func:`control_reaches`);
+                default: the ``stop`` given at construction.
             on_converged: ``on_converged(increment)`` after each converged increment, with u
-                and the materials at the converged state; returning False stops the run.
+                and the materials at the converged state; returning False stops the run
+                (:attr:`stopped` is then :data:`~dolfinx_granular.drivers.ASKED_TO_STOP`).
         """
+        max_steps = self.max_increments if max_steps is None else max_steps
+        stop = self.stop if stop is None else stop
         self.stopped = None
         for _ in range(int(max_steps)):
             inc = self.advance()
@@ -563,56 +610,6 @@ class ArcLength:
 
 class _Failed(Exception):
     """An increment that did not converge (the reason in words)."""
-
-
-class _Newton:
-    """The corrector's convergence record and tests, as NewtonSolver's and with its thresholds
-    (``energy_rtol``, ``residual_rtol``, ``roundoff_energy``, ``stagnation_it``): the relative
-    energy norm of each step, the residual at round-off of the forces, and stagnation (Newton
-    cycling between contact sets: |R| not below its best value for ``stagnation_it`` steps)."""
-
-    def __init__(self, solver):
-        self.solver = solver
-        self.energy_rtol, self.stagnation_it = solver.energy_rtol, solver.stagnation_it
-        self.history, self.e0, self.energy = [], None, 1.0
-        self.rnorm = self.best = float("inf")
-        self.scale, self.no_progress, self.stopped_by = 0.0, 0, ""
-
-    def converged(self, it, R) -> bool:
-        """Tests at iterate ``it`` with residual R; raises _Failed on stagnation."""
-        rnorm, previous = R.norm(), self.rnorm
-        if not np.isfinite(rnorm):
-            raise _Failed("NaN residual")
-        if it == 0:  # (dead loads: the force scale of the start is the step's)
-            self.scale = self.solver.force_scale(R)
-        self.rnorm = rnorm
-        stalled = it > 0 and rnorm > 0.5 * previous
-        if rnorm <= self.solver.residual_rtol * self.scale or (
-            stalled and self.energy <= self.solver.roundoff_energy
-        ):
-            self.stopped_by = "round-off"
-        elif it > 0 and self.energy <= self.energy_rtol:
-            self.stopped_by = "energy norm"
-        if self.stopped_by:
-            return True
-        # (unlike NewtonSolver's test, iterate 1 does not reset the best |R| to its own: the
-        # paths traced so far depend on this rule, so it stays)
-        if it > 1 and rnorm >= self.best:
-            self.no_progress += 1
-            if 0 < self.stagnation_it <= self.no_progress:
-                raise _Failed(
-                    f"stagnation: |R| = {rnorm:.3e} N has not gone below its best "
-                    f"value {self.best:.3e} N for {self.no_progress} corrector steps"
-                )
-        else:
-            self.best, self.no_progress = min(self.best, rnorm), 0
-        return False
-
-    def step(self, energy):
-        """Record a Newton step of energy |R . du| (from the residual of the current iterate)."""
-        self.e0 = energy if self.e0 is None else self.e0
-        self.energy = energy / self.e0 if self.e0 > 0 else 0.0
-        self.history.append((len(self.history) + 1, self.rnorm, self.energy))
 
 
 def load_reaches(target: float) -> Callable[[ArcLength], str | None]:

@@ -29,25 +29,24 @@ that a load stepper (:mod:`dolfinx_granular.loading`) can cut the step back.
 
 from __future__ import annotations
 
-import gc
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-import ufl
-from dolfinx import fem
-from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, create_matrix, set_bc
+from dolfinx.fem.petsc import set_bc
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ._dolfinx import SNES_NAN_REASON, petsc_vec
-from .diagnose import check_wiring, singular_jacobian
-from .law import LawEvaluationError
-from .quadrature import derivative
-from .timing import Stopwatch
+from ._dolfinx import SNES_NAN_REASON
+from .convergence import CONVERGED, MAX_IT, NAN, ConvergenceTest
+from .convergence import STAGNATION as STAGNATION_VERDICT
+from .diagnose import singular_jacobian
+from .problem import GranularProblem, collect_garbage
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
+
+    import ufl
+    from dolfinx import fem
 
     from .quadrature import QuadratureMaterial
 
@@ -103,6 +102,15 @@ class SolveResult:
         return f"{words}: {self.error}" if self.error else words
 
 
+def _threshold(name):
+    """A property that reads and writes the convergence test's threshold ``name``."""
+    return property(
+        lambda self: getattr(self.test, name),
+        lambda self, value: setattr(self.test, name, value),
+        doc=f"The convergence test's ``{name}``.",
+    )
+
+
 class NewtonSolver:
     """Solve R(u) = 0 with SNES; R and its Jacobian read quadrature data written by materials.
 
@@ -135,6 +143,8 @@ class NewtonSolver:
             converged, so SNES asks for no Jacobian there.
 
     Attributes:
+        problem: the :class:`~dolfinx_granular.problem.GranularProblem` this solver drives.
+        test: its :class:`~dolfinx_granular.convergence.ConvergenceTest` (the thresholds above).
         materials: the materials, a tuple.
         clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"snes"`` (whole SNES solves,
             and the increments of an :class:`~dolfinx_granular.arclength.ArcLength` on this
@@ -171,49 +181,39 @@ class NewtonSolver:
         skip_final_tangent: bool = False,
         stagnation_it: int = 4,
     ) -> None:
-        self.u = u
-        self.bcs = list(bcs)
-        self.materials = _as_tuple(materials)
-        self.energy_rtol = float(energy_rtol)
-        self.residual_rtol = float(residual_rtol)
-        self.residual_atol = float(residual_atol)
-        self.roundoff_energy = float(roundoff_energy)
-        self.max_it = int(max_it)
-        self.stagnation_it = int(stagnation_it)
+        self.problem = GranularProblem(
+            residual, jacobian, u, bcs, materials, roundoff_scale=residual_rtol > 0.0
+        )
+        self.test = ConvergenceTest(
+            self.problem,
+            energy_rtol=energy_rtol,
+            residual_rtol=residual_rtol,
+            residual_atol=residual_atol,
+            roundoff_energy=roundoff_energy,
+            stagnation_it=stagnation_it,
+            max_it=max_it,
+        )
+        p = self.problem
+        self.u, self.bcs, self.materials, self.comm = u, p.bcs, p.materials, p.comm
+        self.L, self.a, self.A, self.clock = p.L, p.a, p.A, p.clock
         self.skip_final_tangent = bool(skip_final_tangent)
         self.verbose = verbose
-        check_wiring(residual, jacobian, u, self.materials)
-        if jacobian is None:
-            jacobian = derivative(residual, u, ufl.TrialFunction(u.function_space), self.materials)
-        self.L = fem.form(residual)
-        self.a = fem.form(jacobian)
-        self._f_int = None  # the materials' internal forces, for the round-off scale
-        if self.materials and self.residual_rtol > 0.0:
-            v = residual.arguments()[0]
-            self._f_int = fem.form(sum(m.residual_form(v) for m in self.materials))
-        self.comm = u.function_space.mesh.comm
-        self._u_vec = petsc_vec(u)
-        self.A = create_matrix(self.a)
         # SNES's own vector x (line searches write trial points there) and work vectors
-        self.b, self.x, self._x_eval, self._x_prev, self._R_prev, self._f = (
-            self._u_vec.duplicate() for _ in range(6)
-        )
-        self._have_eval = self._have_tangent = False
-        # forces of the materials' reference stress, for the no-load test (0: no such test)
-        self._floor = 0.0 if self._f_int is None else self._stress_floor(residual.arguments()[0])
+        self.b, self.x, self._x_prev, self._R_prev = (p.u_vec.duplicate() for _ in range(4))
         self.snes = self._create_snes(prefix, petsc_options)
-        self.clock = Stopwatch()
 
-    def _stress_floor(self, v):
-        """|f| (N) of the materials' reference stress where they count as stress-free (a
-        generated packing's P(I) ~ 1e-11 of its modulus), Dirichlet rows left out; 0 if none."""
-        forms = [f for m in self.materials if (f := m.stress_floor_form(v)) is not None]
-        if not forms:
-            return 0.0
-        f = self._f
-        self.assemble_forces(f, fem.form(sum(forms[1:], forms[0])))
-        set_bc(f, self.bcs, None, 0.0)
-        return f.norm()
+    # the thresholds are the convergence test's (one copy)
+    energy_rtol = _threshold("energy_rtol")
+    residual_rtol = _threshold("residual_rtol")
+    residual_atol = _threshold("residual_atol")
+    roundoff_energy = _threshold("roundoff_energy")
+    stagnation_it = _threshold("stagnation_it")
+    max_it = _threshold("max_it")
+
+    @property
+    def history(self) -> list:
+        """``(iteration, |R| at its start, relative energy norm)`` per step of the last solve."""
+        return self.test.history
 
     @property
     def timings(self) -> dict:
@@ -263,118 +263,56 @@ class NewtonSolver:
             db.delValue(prefix + key)
         return snes
 
+    # -- the problem's methods, as before (ArcLength and users call them on the solver) --------
+
+    def residual(self, x: PETSc.Vec, b: PETSc.Vec, tangent: bool = True) -> str | None:
+        """:meth:`GranularProblem.residual <dolfinx_granular.problem.GranularProblem.residual>`."""
+        return self.problem.residual(x, b, tangent)
+
+    def assemble_residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """:meth:`~dolfinx_granular.problem.GranularProblem.assemble_residual`."""
+        self.problem.assemble_residual(x, b)
+
+    assemble_forces = staticmethod(GranularProblem.assemble_forces)
+
+    def jacobian(self, x: PETSc.Vec, A: PETSc.Mat | None = None) -> PETSc.Mat:
+        """:meth:`~dolfinx_granular.problem.GranularProblem.assemble_jacobian`."""
+        return self.problem.assemble_jacobian(x, A)
+
+    def force_scale(self, R: PETSc.Vec) -> float:
+        """:meth:`~dolfinx_granular.problem.GranularProblem.force_scale`."""
+        return self.problem.force_scale(R)
+
+    def refresh_materials(self) -> None:
+        """:meth:`~dolfinx_granular.problem.GranularProblem.refresh_materials`."""
+        self.problem.refresh_materials()
+
     # -- SNES callbacks ----------------------------------------------------------------------------
 
-    def _evaluate(self, x, tangent=True):
-        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        x.copy(self._u_vec)
-        self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        with self.clock("rve"):
-            for m in self.materials:
-                m.update(tangent=tangent)
-        x.copy(self._x_eval)
-        self._have_eval = True
-        self._have_tangent = tangent
-
-    def _energy_rel(self, x):
-        """|R_prev . (x - x_prev)| relative to the first Newton step's."""
+    def _step_energy(self, x):
+        """|R_prev . (x - x_prev)|: the energy of the Newton step to x."""
         du = x.copy()
         du.axpy(-1.0, self._x_prev)
         energy = abs(self._R_prev.dot(du))
         du.destroy()
-        if not self.history:
-            self._energy0 = energy
-        return energy / self._energy0 if self._energy0 > 0 else 0.0
+        return energy
 
     def _tangent_needed(self, x):
         """False if the energy norm of the step to x (what ``_converged`` will compute) already
         meets ``energy_rtol``: the solve ends at x and no Jacobian is assembled there."""
         if not (self.skip_final_tangent and self.history):
             return True
-        return not self._energy_rel(x) <= self.energy_rtol
+        return not self.test.relative(self._step_energy(x)) <= self.energy_rtol
 
     def _residual(self, snes, x, b):
         with self.clock("callbacks"):
-            error = self.residual(x, b, self._tangent_needed(x))
+            error = self.problem.residual(x, b, self._tangent_needed(x))
             if error:
                 self._error = error
 
-    def residual(self, x: PETSc.Vec, b: PETSc.Vec, tangent: bool = True) -> str | None:
-        """Evaluate the materials at the state x (a vector like u's) and assemble R(x) into b,
-        Dirichlet rows ``x - g`` (collective). Returns None, or the message of a material that
-        could not be evaluated (an RVE outside its range; b is NaN then, on every rank)."""
-        error = None
-        try:
-            self._evaluate(x, tangent)
-        except LawEvaluationError as err:  # e.g. UnsupportedDeformationError; bugs propagate
-            error = str(err)
-        errors = [e for e in self.comm.allgather(error) if e]
-        if errors:  # every rank takes this branch: a NaN residual makes SNES stop
-            self._have_eval = False
-            with b.localForm() as b_local:
-                b_local.set(np.nan)
-            return errors[0]
-        self.assemble_residual(x, b)
-        return None
-
-    def assemble_residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
-        """Assemble R(x) into b with the material data as they are (those of the last
-        evaluation, which must have been at x), Dirichlet rows ``x - g`` (collective): R again
-        after a change of the loads alone, without evaluating the materials again."""
-        with self.clock("residual"):
-            self._assemble(b, self.L)
-            apply_lifting(b, [self.a], [self.bcs], [x], -1.0)
-            b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            set_bc(b, self.bcs, x, -1.0)
-
-    @staticmethod
-    def _assemble(b, form):
-        with b.localForm() as b_local:
-            b_local.set(0.0)
-        assemble_vector(b, form)
-
-    @classmethod
-    def assemble_forces(cls, b: PETSc.Vec, form: fem.Form) -> None:
-        """Assemble the compiled linear form ``form`` (no Dirichlet lifting: internal forces, a
-        load pattern) into b, ghost contributions added to their owners; Dirichlet rows as
-        assembled."""
-        cls._assemble(b, form)
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-
-    def _same_as_evaluated(self, x):
-        same = self._have_eval and np.array_equal(x.array_r, self._x_eval.array_r)
-        return self.comm.allreduce(bool(same), op=MPI.LAND)
-
     def _jacobian(self, snes, x, A, P):
         with self.clock("callbacks"):
-            self.jacobian(x, A)
-
-    def jacobian(self, x: PETSc.Vec, A: PETSc.Mat | None = None) -> PETSc.Mat:
-        """Assemble dR/du at x into A (default: the solver's matrix), with the materials' tangent
-        at x (re-evaluated unless the last evaluation was at x with a tangent); returns A."""
-        A = self.A if A is None else A
-        if not (self._same_as_evaluated(x) and self._have_tangent):
-            self._evaluate(x)
-        with self.clock("jacobian"):
-            A.zeroEntries()
-            assemble_matrix(A, self.a, self.bcs)
-            A.assemble()
-        return A
-
-    def force_scale(self, R: PETSc.Vec) -> float:
-        """The magnitude of the forces in balance (N): max(|f_int|, |f_ext|) at the current
-        iterate, f_int the materials' internal forces (reactions included), f_ext = f_int - R on
-        the free dofs. Round-off in R is a small multiple of eps times it."""
-        if self._f_int is None:
-            return 0.0
-        f = self._f
-        with self.clock("scale"):
-            self.assemble_forces(f, self._f_int)
-        internal = f.norm()
-        f.axpy(-1.0, R)
-        set_bc(f, self.bcs, None, 0.0)
-        self._external = f.norm()
-        return max(internal, self._external)
+            self.problem.assemble_jacobian(x, A)
 
     def _converged(self, snes, it, norms):
         with self.clock("callbacks"):
@@ -383,54 +321,22 @@ class NewtonSolver:
 
     def _test(self, snes, it, fnorm):
         x, R = snes.getSolution(), snes.getFunction()[0]
-        rel = None
-        if it > 0:
-            rel = self._energy_rel(x)
-            self.history.append((it, self._rnorm_prev, rel))
+        verdict = self.test.check(it, fnorm, R, self._step_energy(x) if it > 0 else None)
         if self.verbose and self.comm.rank == 0:
             # iterate k: the residual after Newton step k (that of the start for k = 0) and the
             # energy norm of step k, as the rows of the slope's convergence.csv
-            energy = "" if rel is None else f", energy norm (rel) = {rel:.3e}"
+            energy = f", energy norm (rel) = {self.history[-1][2]:.3e}" if it > 0 else ""
             print(f"    Newton {it:2d}: |R| = {fnorm:.3e} N{energy}", flush=True)
-        stalled = it > 0 and fnorm > 0.5 * self._rnorm_prev
-        # the first Newton step may well overshoot the starting residual: count from iterate 1
-        if it <= 1 or fnorm < self._rnorm_best:
-            self._rnorm_best, self._no_progress = fnorm, 0
-        else:
-            self._no_progress += 1
         x.copy(self._x_prev)
         R.copy(self._R_prev)
-        self._rnorm_prev = fnorm
-        if not np.isfinite(fnorm):
-            return SNES_NAN_REASON
-        if it == 0 or stalled:  # (dead loads: |f_ext| is that of the start; once is enough)
-            self._scale = self.force_scale(R)
-        if fnorm == 0.0 or fnorm <= self.residual_atol:
-            return self._stop_as("residual_atol", _CR.CONVERGED_FNORM_ABS)
-        if fnorm <= self.residual_rtol * self._scale:
-            return self._stop_as("round-off", _CR.CONVERGED_FNORM_ABS)
-        if fnorm <= 2.0 * self._floor and self._external <= 2.0 * self._floor:
-            # no load and a stress-free material: R is the forces of its reference stress
-            # (contacts overlapping by 1e-11), which Newton cannot remove without opening them
-            return self._stop_as("no load", _CR.CONVERGED_FNORM_ABS)
-        if it > 0 and self.history[-1][2] <= self.energy_rtol:
-            return self._stop_as("energy norm", _CR.CONVERGED_SNORM_RELATIVE)
-        if stalled and self.history[-1][2] <= self.roundoff_energy:
-            return self._stop_as("round-off", _CR.CONVERGED_FNORM_ABS)
-        if it >= self.max_it:
-            return _CR.DIVERGED_MAX_IT
-        if self.stagnation_it > 0 and self._no_progress >= self.stagnation_it:
-            self._error = (
-                f"|R| = {fnorm:.3e} N has not gone below its best value "
-                f"{self._rnorm_best:.3e} N for {self._no_progress} Newton steps"
-            )
-            self._stagnated = True
+        if verdict == CONVERGED:
+            if self.test.stopped_by == "energy norm":
+                return _CR.CONVERGED_SNORM_RELATIVE
+            return _CR.CONVERGED_FNORM_ABS
+        if verdict == STAGNATION_VERDICT:
+            self._error, self._stagnated = self.test.error, True
             return _CR.DIVERGED_DTOL
-        return _CR.ITERATING
-
-    def _stop_as(self, test, reason):
-        self._stop = test
-        return reason
+        return {NAN: SNES_NAN_REASON, MAX_IT: _CR.DIVERGED_MAX_IT}.get(verdict, _CR.ITERATING)
 
     # -- driver ------------------------------------------------------------------------------------
 
@@ -441,13 +347,15 @@ class NewtonSolver:
         history is committed. Failed: u and the material data are those the solve started from;
         the result says why.
         """
-        self.history, self._error, self._stagnated, self._stop = [], None, False, ""
-        self._rnorm_prev = self._scale = self._external = float("nan")
-        self._have_eval, self._verdict = False, 0
+        self.test.reset()
+        self._error, self._stagnated, self._verdict = None, False, 0
+        self.problem.external = float("nan")
+        self.problem.invalidate()
         start = self.u.x.array.copy()
-        set_bc(self._u_vec, self.bcs)
-        self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        self._u_vec.copy(self.x)
+        u_vec = self.problem.u_vec
+        set_bc(u_vec, self.bcs)
+        u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        u_vec.copy(self.x)
         petsc_error = self._run_snes()
         with self.clock("after"):
             self._error = self._error or self._final_evaluation()
@@ -458,17 +366,16 @@ class NewtonSolver:
             reason_name=name,
             iterations=len(self.history),
             history=list(self.history),
-            residual_norm=float(self._rnorm_prev),
-            force_scale=float(self._scale),
+            residual_norm=float(self.test.rnorm),
+            force_scale=float(self.test.scale),
             error=self._error,
-            stopped_by=self._stop if reason > 0 else "",
+            stopped_by=self.test.stopped_by if reason > 0 else "",
         )
         with self.clock("after"):
             if result.converged:
-                for m in self.materials:
-                    m.commit()
+                self.problem.commit()
             else:
-                self._restore(start)
+                self.problem.restore(start)
         return result
 
     def _run_snes(self):
@@ -483,16 +390,10 @@ class NewtonSolver:
     def _final_evaluation(self):
         """Make u and the material data those of SNES's x (the last residual was at x with
         full Newton steps); an evaluation error message or None."""
-        if self._same_as_evaluated(self.x):
-            self.x.copy(self._u_vec)
-            self._u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        if self.problem.evaluated_at(self.x):
+            self.problem.set_state(self.x)
             return None
-        error = None
-        try:
-            self._evaluate(self.x)
-        except LawEvaluationError as err:
-            error = str(err)
-        return next((e for e in self.comm.allgather(error) if e), None)
+        return self.problem.try_evaluate(self.x)
 
     def _outcome(self, petsc_error):
         """The SNES reason and its name, corrected for what SNES does not see."""
@@ -522,48 +423,12 @@ class NewtonSolver:
             self._error = f"{self._error}; {cause}" if cause else self._error
         return reason, name
 
-    def _restore(self, start):
-        """u and the material data back at the start of a failed solve."""
-        self.u.x.array[:] = start
-        self.refresh_materials()
-
-    def refresh_materials(self) -> None:
-        """Evaluate the materials' stress (no tangent) at the current u, after u was set from
-        outside (a restore): their data belong to u again, and the next Jacobian evaluates them
-        afresh. A u outside a law's range leaves the data as far as they got."""
-        self._have_eval = False
-        try:
-            for m in self.materials:
-                m.update(tangent=False)
-        except LawEvaluationError:
-            pass  # u itself (the start of a failed solve) is outside a law's range: nothing to do
-
     def destroy(self) -> None:
         """Free the PETSc objects (collective: call it on every rank at the same point)."""
-        # petsc4py >= 3.18 defers the release of garbage-collected wrappers to a collective
-        # clean-up. Flush that first on every rank, or a rank whose Python GC ran at another
-        # moment destroys the MUMPS factor while the other waits elsewhere: a hang at exit.
-        gc.collect()
-        if hasattr(PETSc, "garbage_cleanup"):
-            PETSc.garbage_cleanup(self.comm)
-        for obj in (
-            self.snes,
-            self.A,
-            self.b,
-            self.x,
-            self._x_eval,
-            self._x_prev,
-            self._R_prev,
-            self._f,
-        ):
+        # (flush petsc4py's deferred destruction first on every rank: see collect_garbage)
+        collect_garbage(self.comm)
+        for obj in (self.snes, self.b, self.x, self._x_prev, self._R_prev):
             obj.destroy()
+        self.problem.destroy()
         if hasattr(PETSc, "garbage_cleanup"):
             PETSc.garbage_cleanup(self.comm)
-
-
-def _as_tuple(materials):
-    if materials is None:
-        return ()
-    if isinstance(materials, (list, tuple)):
-        return tuple(materials)
-    return (materials,)

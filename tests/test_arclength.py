@@ -104,7 +104,7 @@ def test_a_failed_increment_is_cut_back_from_the_converged_state():
     # and an increment that can never converge restores the state it started from
     al2 = ArcLength(model.solver, model.load, model.external, 1.0, max_it=0, max_cutbacks=2)
     u1 = model.u.x.array.copy()
-    assert al2.advance() is None and "failed" in al2.failed
+    assert al2.advance() is None and "failed" in al2.failed["reason"]
     assert np.array_equal(model.u.x.array, u1) and float(model.load.value) == inc.lam
     assert lam0 != inc.lam and not np.array_equal(u0, u1)
     model.solver.destroy()
