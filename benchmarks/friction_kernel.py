@@ -106,29 +106,30 @@ def _drive_frictionless(reps, F, X, Y, R, n_visit, tangent, acc):
     # ``tangent`` None or True, a compile-time choice as in _drive_contact: one loop per driver
     for _ in range(reps):
         if tangent is None:
-            kernel._moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, n_visit, False, acc)
+            kernel.moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, n_visit, False, acc)
         else:
-            kernel._moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, n_visit, True, acc)
+            kernel.moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, n_visit, True, acc)
 
 
 def breakdown(rve, F, state, repeats, reps=300):
     """µs per point of each phase (see the module docstring) at F[0] from state point 0."""
     F, G = np.ascontiguousarray(F[0]), np.ascontiguousarray(state.F[0])
     status, lengths = np.empty(1, np.int8), np.empty(1, np.int64)
-    fk.prefix_lengths(F[None], rve._rho, rve.min_stretch, status, lengths)
+    fk.prefix_lengths(F[None], rve.candidates.ratio, rve.min_stretch, status, lengths)
     m = int(lengths[0])
     history = np.array(state.forces(0))
     work, ft, acc = np.empty(m), np.empty(m), np.zeros(fk.N_ACC)
-    X, Y, R = rve._X, rve._Y, rve._R
+    X, Y = rve.candidates.components
+    R = rve.candidates.radius_sum
     out = (np.empty(1), np.empty((1, 2, 2)), np.empty((1, 2, 2, 2, 2)), np.empty((6, 2, 2)))
-    c = (F, G, rve._lmax2, X, Y, R, m, history, work, ft, acc)
+    c = (F, G, rve.candidates.max_branch_length2, X, Y, R, m, history, work, ft, acc)
     phases = {
         "copy history": lambda: _drive_copy(reps, history, work),
         "contact P": lambda: _drive_contact(reps, *c, None, None),
         "contact P+A": lambda: _drive_contact(reps, *c, None, True),
         "general P+A": lambda: _drive_contact(reps, *c, True, True),
         "history sums": lambda: _drive_sums(reps, work, ft, R, m, acc),
-        "per point": lambda: _drive_finish(reps, F, G, acc, rve._inv_area, *out),
+        "per point": lambda: _drive_finish(reps, F, G, acc, 1.0 / rve.packing.area, *out),
         "frictionless P": lambda: _drive_frictionless(reps, F, X, Y, R, m, None, acc),
         "frictionless P+A": lambda: _drive_frictionless(reps, F, X, Y, R, m, True, acc),
     }

@@ -16,7 +16,7 @@ import argparse
 import platform
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.levels import singular_values_2x2
+from dolfinx_granular.lawtools import singular_values_2x2
 from dolfinx_granular.timing import time_per_point
 
 import numba
@@ -88,7 +88,8 @@ def compare(rve, F, repeats=5, numpy_points=50):
         or max |A|; ``us_pa``, ``us_p``, ``us_loop``, ``us_numpy``: µs per point of
         ``evaluate`` (P and A), ``stress`` (P), the Numba loop and NumPy (both P and A).
     """
-    L, R, K = rve._L, rve._R, rve._K
+    c = rve.candidates
+    L, R, K = c.branch, c.radius_sum, rve.normal_stiffness / rve.packing.area
     m = min(len(F), numpy_points)
     W, P, A = rve.evaluate(F)
     P1, A1 = np.empty_like(P), np.empty_like(A)
@@ -108,7 +109,7 @@ def compare(rve, F, repeats=5, numpy_points=50):
     smin = singular_values_2x2(F)[1]
     return {
         "candidates": rve.n_candidates,
-        "visited": float(np.mean(np.searchsorted(rve._rho, 1.0 / smin, side="right"))),
+        "visited": float(np.mean(c.visited(smin))),
         "active": float(np.mean([len(rve.contacts(f).force) for f in F[:50]])),
         "agree": float(agree),
         "us_pa": 1e6 * time_per_point(rve.evaluate, F, repeats),

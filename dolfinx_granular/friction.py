@@ -59,9 +59,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import friction_kernel as fk
-from .levels import _outputs, _push_forward
+from .lawtools import as_batch, output_buffers, push_forward, to_float, unsupported_deformation
 from .packing import Packing
-from .rve import TaylorRVE, _as_batch, _number
+from .rve import TaylorRVE
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping
@@ -253,7 +253,7 @@ class FrictionContactSet:
 
 def _parameter(name, value, unit):
     """``value`` as a finite float >= 0, else a ValueError naming the parameter."""
-    v = _number(value, name)
+    v = to_float(value, name)
     if not (np.isfinite(v) and v >= 0.0):
         raise ValueError(f"{name} must be a finite number >= 0{unit}, got {value!r}")
     return v
@@ -290,6 +290,10 @@ class FrictionalRVE:
     Every method takes F of shape (n, 2, 2) (or (2, 2) for one point) with the committed
     :class:`FrictionState` of the same n points, and never changes that state. F outside the
     supported range raises :class:`~dolfinx_granular.rve.UnsupportedDeformationError`.
+
+    Attributes:
+        candidates: the :class:`~dolfinx_granular.contacts.ContactCandidates` of the wrapped
+            TaylorRVE (the same object); a state's forces follow their order.
     """
 
     def __init__(
@@ -309,11 +313,8 @@ class FrictionalRVE:
         self.tangential_stiffness = kt
         self.friction = mu
         self.min_stretch = self._taylor.min_stretch
-        t = self._taylor
-        self._L, self._R, self._rho, self._ij, self._shift = t._L, t._R, t._rho, t._ij, t._shift
-        self._X, self._Y = t._X, t._Y
+        self.candidates = self._taylor.candidates
         self._inv_area = 1.0 / packing.area
-        self._lmax2 = float(np.max(self._X**2 + self._Y**2)) if self._R.size else 1.0
 
     @property
     def prestress(self) -> np.ndarray:
@@ -333,7 +334,7 @@ class FrictionalRVE:
     @property
     def n_candidates(self) -> int:
         """Number of candidate contacts; a state stores at most this many forces per point."""
-        return self._R.shape[0]
+        return len(self.candidates)
 
     def initial_state(self, n: int) -> FrictionState:
         """Committed state of n points at F = I with no tangential force and no dissipation."""
@@ -368,27 +369,29 @@ class FrictionalRVE:
         self._check_state(state, n)
         status = np.empty(n, np.int8)
         lengths = np.empty(n, np.int64)
-        fk.prefix_lengths(F, self._rho, self.min_stretch, status, lengths)
+        fk.prefix_lengths(F, self.candidates.ratio, self.min_stretch, status, lengths)
         if status.any():
-            self._taylor._raise(F, status)
+            raise unsupported_deformation(F, status, self.min_stretch)
         return lengths
 
     def _run(self, F, state, tangent, out):
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         n = F.shape[0]
         off = _offsets(self._visited(F, state))
-        W, P, A = _outputs(n, tangent, out)
+        W, P, A = output_buffers(n, tangent, out)
         _check_outputs(n, tangent, W, P, A)
         status = np.empty(n, np.int8)  # the kernel's own output; _visited has checked every F
         f = np.empty(off[-1])
         D = np.empty(n)
+        c = self.candidates
+        X, Y = c.components
         fk.evaluate_batch(
             F,
-            self._X,
-            self._Y,
-            self._R,
-            self._rho,
-            self._lmax2,
+            X,
+            Y,
+            c.radius_sum,
+            c.ratio,
+            c.max_branch_length2,
             self.normal_stiffness,
             self.tangential_stiffness,
             self.friction,
@@ -442,15 +445,15 @@ class FrictionalRVE:
 
     def cauchy(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
         """Cauchy stress sigma = P F^T / J (n, 2, 2), in Pa; symmetric (Hill-Mandel)."""
-        Fb, single = _as_batch(F)
-        sigma = _push_forward(Fb, self._run(Fb, state, False, None)[1], None)[0]
+        Fb, single = as_batch(F)
+        sigma = push_forward(Fb, self._run(Fb, state, False, None)[1], None)[0]
         return sigma[0] if single else sigma
 
     def spatial_tangent(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
         """Spatial tangent a_abcd = F_bB F_dD A_aBcD / J (n, 2, 2, 2, 2), in Pa."""
-        Fb, single = _as_batch(F)
+        Fb, single = as_batch(F)
         _, P, A, _ = self._run(Fb, state, True, None)
-        a = _push_forward(Fb, P, A)[1]
+        a = push_forward(Fb, P, A)[1]
         return a[0] if single else a
 
     def small_strain_modulus(self) -> np.ndarray:
@@ -460,7 +463,7 @@ class FrictionalRVE:
         contacts with eps > 0 at F = I (none if mu = 0: it never sticks)."""
         C = self._taylor.small_strain_modulus()
         kt, mu = self.tangential_stiffness, self.friction
-        L, R = self._L, self._R
+        L, R = self.candidates.branch, self.candidates.radius_sum
         d = np.sqrt(L[:, 0] ** 2 + L[:, 1] ** 2)
         on = R - d > 0.0
         if kt == 0.0 or mu == 0.0 or not on.any():
@@ -482,14 +485,16 @@ class FrictionalRVE:
         stored = state.forces(0)[:m]
         buf[: stored.size] = stored
         eps, stick = np.empty(m), np.empty(m, np.int8)
+        c = self.candidates
+        X, Y = c.components
         fk.contact_step(
             F,
             np.ascontiguousarray(state.F[0]),
-            self._X,
-            self._Y,
-            self._R,
+            X,
+            Y,
+            c.radius_sum,
             m,
-            self._lmax2,
+            c.max_branch_length2,
             buf,
             self.normal_stiffness,
             self.tangential_stiffness,
@@ -498,10 +503,10 @@ class FrictionalRVE:
             stick,
         )
         on = np.flatnonzero(eps >= 0.0)
-        L = self._L[on]
+        L = c.branch[on]
         return FrictionContactSet(
-            pairs=self._ij[on],
-            shift=self._shift[on],
+            pairs=c.pairs[on],
+            shift=c.shift[on],
             branch=L @ F.T,
             overlap=eps[on],
             normal_force=self.normal_stiffness * eps[on],

@@ -41,7 +41,7 @@ branch (selects; a polynomial or a rational atan) and calls only helpers that LL
 vectorises. The helpers that decide the forces and the active set (:func:`_kinematics`,
 :func:`_inverse_and_turn` or :func:`_inverse_and_angle`, :func:`_contact_law`) are compiled
 without fast-math: they round the same with or without the tangent sums, and d as in
-:func:`kernel._moment_sums`; only the sums use fast-math. Every point is computed independently
+:func:`kernel.moment_sums`; only the sums use fast-math. Every point is computed independently
 by the same code path: results do not depend on how the points are batched.
 """
 
@@ -50,7 +50,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .kernel import _FASTMATH, OK, _check_F
+from .kernel import FASTMATH, OK, check_F
 
 # Cephes atan (S. L. Moshier), as in Go's math.Atan: rational approximation on |z| <= 0.66, peak
 # relative error ~2e-16 over the whole line.
@@ -134,7 +134,7 @@ def _atan_small(y, x):
     return _atan_poly(y / x)
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def atan2_array(y, x, out, kind):
     """Elementwise (n,) :func:`atan2` (kind 0), :func:`_atan2_unit` (1) or :func:`_atan_small`
     (2), for tests."""
@@ -154,7 +154,7 @@ def prefix_lengths(F, rho, min_stretch, status, lengths):
     The count is the prefix rho <= 1/s_min(F) that :func:`evaluate_batch` visits, and the length
     of the point's force array in the new state."""
     for q in range(F.shape[0]):
-        code, limit = _check_F(F[q, 0, 0], F[q, 0, 1], F[q, 1, 0], F[q, 1, 1], min_stretch)
+        code, limit = check_F(F[q, 0, 0], F[q, 0, 1], F[q, 1, 0], F[q, 1, 1], min_stretch)
         status[q] = code
         lengths[q] = np.searchsorted(rho, limit, side="right") if code == OK else 0
 
@@ -217,7 +217,7 @@ def _contact_law(ftn, r, dphi, ee, kt, mukn):
 
 @njit(cache=True)
 def _kinematics(F00, F01, F10, F11, cq, x, y, r):
-    """eps = R - |F L| (as kernel._moment_sums: same active set), xx, xy, yy and the scaled
+    """eps = R - |F L| (as kernel.moment_sums: same active set), xx, xy, yy and the scaled
     cross and dot of (G L, F L) of one candidate, and d = |F L|."""
     lx = F00 * x + F01 * y
     ly = F10 * x + F11 * y
@@ -245,7 +245,7 @@ def _inverse_and_angle(eps, d, cr, dt):
 
 # The sums decide nothing (the forces and the active set come from the helpers above), so they
 # may use fused multiply-adds.
-_FASTMATH_SUMS = _FASTMATH | {"contract"}
+_FASTMATH_SUMS = FASTMATH | {"contract"}
 
 
 @njit(cache=True, fastmath=_FASTMATH_SUMS, error_model="numpy")
@@ -482,7 +482,7 @@ def evaluate_batch(
     M = np.empty((6, 2, 2))
     for q in range(F.shape[0]):
         F00, F01, F10, F11 = F[q, 0, 0], F[q, 0, 1], F[q, 1, 0], F[q, 1, 1]
-        code, _ = _check_F(F00, F01, F10, F11, min_stretch)
+        code, _ = check_F(F00, F01, F10, F11, min_stretch)
         status[q] = code
         if code != OK:
             W[q] = 0.0

@@ -183,8 +183,10 @@ def candidate_pairs(centers, radii, box, max_ratio):
 
 
 @njit(cache=True, inline="always")
-def _check_F(F00, F01, F10, F11, min_stretch):
-    """Status code of one F and, when valid, the number-independent bound 1 / s_min(F)."""
+def check_F(F00, F01, F10, F11, min_stretch):
+    """Status code of one F and, when valid, the number-independent bound 1 / s_min(F).
+
+    The one rule of every kernel (stress, friction, validity): they accept the same F."""
     if not (np.isfinite(F00) and np.isfinite(F01) and np.isfinite(F10) and np.isfinite(F11)):
         return NOT_FINITE, 0.0
     J = F00 * F11 - F01 * F10
@@ -202,15 +204,15 @@ def _check_F(F00, F01, F10, F11, min_stretch):
     return OK, 1.0 / smin
 
 
-# Fast-math flags without 'nnan'/'ninf' (inputs are validated finite, d > 0) and without
-# 'contract', so that l = F L rounds exactly as in NumPy and the active set matches
-# TaylorRVE.contacts(). error_model="numpy" drops the ZeroDivisionError check, which would
-# otherwise stop LLVM from vectorising the loop.
-_FASTMATH = {"reassoc", "nsz", "arcp"}
+# Fast-math flags of every kernel that must find the same active set, without 'nnan'/'ninf'
+# (inputs are validated finite, d > 0) and without 'contract', so that l = F L rounds exactly as
+# in NumPy and the active set matches TaylorRVE.contacts(). error_model="numpy" drops the
+# ZeroDivisionError check, which would otherwise stop LLVM from vectorising the loop.
+FASTMATH = {"reassoc", "nsz", "arcp"}
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
-def _moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc):
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc):
     """Accumulate sum eps^2, S(L) (3) and, if ``tangent``, T(L) (5) into ``acc`` (9,) over the
     active contacts among the first ``n_visit`` candidates (X, Y, R of shape (M,))."""
     e2 = 0.0
@@ -289,7 +291,7 @@ def evaluate_batch(
         F01 = F[q, 0, 1]
         F10 = F[q, 1, 0]
         F11 = F[q, 1, 1]
-        code, limit = _check_F(F00, F01, F10, F11, min_stretch)
+        code, limit = check_F(F00, F01, F10, F11, min_stretch)
         status[q] = code
         if code != OK:
             W[q] = 0.0
@@ -298,7 +300,7 @@ def evaluate_batch(
                 A[q, :, :, :, :] = 0.0
             continue
         n_visit = np.searchsorted(rho, limit, side="right")
-        _moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc)
+        moment_sums(F00, F01, F10, F11, X, Y, R, n_visit, tangent, acc)
         S = acc[1:4]  # S[b + d] = S_bd
         T = acc[4:9]  # T[e + f + b + d] = T_efbd
         W[q] = 0.5 * K * acc[0]

@@ -48,7 +48,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import kernel
-from .rve import TaylorRVE, UnsupportedDeformationError, _as_batch
+from .lawtools import (
+    as_batch,
+    isotropic_lame,
+    output_buffers,
+    push_forward,
+    singular_values_2x2,
+    symmetrise_modulus,
+)
+from .rve import TaylorRVE, UnsupportedDeformationError
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -61,54 +69,8 @@ if TYPE_CHECKING:
 _MARGIN = 1e-12
 _REMAINDER_CONSTANT = 1.0 / np.sqrt(3.0)
 
-
-def singular_values_2x2(F: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    """Singular values ``(s_max, s_min)`` of (n, 2, 2) matrices, accurate to a few ulp absolute.
-
-    Uses ``s = |q| +- |r|`` with ``q = ((F00 + F11) / 2, (F10 - F01) / 2)`` and
-    ``r = ((F00 - F11) / 2, (F10 + F01) / 2)`` (no cancellation in a discriminant).
-    """
-    F = np.asarray(F, dtype=np.float64)
-    q = np.hypot(0.5 * (F[:, 0, 0] + F[:, 1, 1]), 0.5 * (F[:, 1, 0] - F[:, 0, 1]))
-    r = np.hypot(0.5 * (F[:, 0, 0] - F[:, 1, 1]), 0.5 * (F[:, 1, 0] + F[:, 0, 1]))
-    return q + r, np.abs(q - r)
-
-
-def _symmetrise(C):
-    """Average over the 8 major/minor index permutations, then copy one value per orbit so that
-    the symmetries hold exactly in floating point."""
-    perms = ["abcd", "bacd", "abdc", "badc", "cdab", "dcab", "cdba", "dcba"]
-    S = sum(np.einsum(f"{p}->abcd", C) for p in perms) / 8.0
-    out = np.empty_like(S)
-    for idx in np.ndindex(2, 2, 2, 2):
-        a, b, c, d = idx
-        orbit = [
-            (a, b, c, d),
-            (b, a, c, d),
-            (a, b, d, c),
-            (b, a, d, c),
-            (c, d, a, b),
-            (d, c, a, b),
-            (c, d, b, a),
-            (d, c, b, a),
-        ]
-        out[idx] = S[min(orbit)]
-    return out
-
-
-def isotropic_lame(C: ArrayLike) -> tuple[float, float]:
-    """Lamé constants ``(lam, mu)`` of the isotropic part of a 2-D modulus C (2, 2, 2, 2).
-
-    Orthogonal projection onto ``lam I (x) I + 2 mu I_sym``: it keeps the two isotropic invariants
-    ``a = C_iikk = 4 lam + 4 mu`` and ``b = C_ikik = 2 lam + 6 mu``, so
-    ``lam = (3a - 2b) / 8`` and ``mu = (2b - a) / 8``. For the central-force Taylor modulus of
-    eq. 15, C is fully symmetric (Cauchy relation a = b) and ``lam = mu = C_iikk / 8``; the bulk
-    modulus ``lam + mu = C_iikk / 4`` is exact for any fabric.
-    """
-    C = np.asarray(C, dtype=np.float64)
-    a = np.einsum("iikk->", C)
-    b = np.einsum("ikik->", C)
-    return (3.0 * a - 2.0 * b) / 8.0, (2.0 * b - a) / 8.0
+# isotropic_lame and singular_values_2x2 live in lawtools; importable from here as before
+__all__ = ["AdaptiveRVE", "SmallStrainRVE", "isotropic_lame", "singular_values_2x2"]
 
 
 def _full_model(rve):
@@ -133,27 +95,6 @@ def _validate_finite(F):
             bad,
             status,
         )
-
-
-def _outputs(n, tangent, out):
-    if out is None:
-        W, P = np.empty(n), np.empty((n, 2, 2))
-        A = np.empty((n, 2, 2, 2, 2)) if tangent else None
-    else:
-        W, P, A = out
-        if not tangent:
-            A = None
-    return W, P, A
-
-
-def _push_forward(F, P, A):
-    """Cauchy stress and spatial tangent (eqs. 11, 14) from P and A = dP/dF (A may be None)."""
-    J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
-    sigma = np.einsum("qaB,qbB->qab", P, F) / J[:, None, None]
-    if A is None:
-        return sigma, None
-    a = np.einsum("qbB,qdD,qaBcD->qabcd", F, F, A) / J[:, None, None, None, None]
-    return sigma, a
 
 
 class _Level:
@@ -187,7 +128,7 @@ class _Level:
         self, F: ArrayLike, out: tuple | None = None
     ) -> tuple[np.ndarray | float, np.ndarray, np.ndarray]:
         """Energy W (n,), first Piola stress P (n, 2, 2), A = dP/dF (n, 2, 2, 2, 2), in Pa."""
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         W, P, A = self._material(F, True, out)
         return (W[0], P[0], A[0]) if single else (W, P, A)
 
@@ -195,7 +136,7 @@ class _Level:
         self, F: ArrayLike, out: tuple | None = None
     ) -> tuple[np.ndarray | float, np.ndarray]:
         """Energy and first Piola stress without the tangent: ``(W (n,), P (n, 2, 2))``."""
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         W, P, _ = self._material(F, False, out)
         return (W[0], P[0]) if single else (W, P)
 
@@ -205,20 +146,20 @@ class _Level:
 
     def cauchy(self, F: ArrayLike) -> np.ndarray:
         """Cauchy stress (n, 2, 2) in Pa."""
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         _, P, _ = self._material(F, False, None)
         sigma = self._spatial(F, P, None)[0]
         return sigma[0] if single else sigma
 
     def spatial_tangent(self, F: ArrayLike) -> np.ndarray:
         """Spatial tangent (n, 2, 2, 2, 2) in Pa."""
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         _, P, A = self._material(F, True, None)
         a = self._spatial(F, P, A)[1]
         return a[0] if single else a
 
     def _spatial(self, F, P, A):
-        return _push_forward(F, P, A)
+        return push_forward(F, P, A)
 
     def contacts(self, F: ArrayLike) -> ContactSet:
         """Active contacts of the full Taylor RVE at one F (2, 2) (force networks for figures)."""
@@ -250,7 +191,7 @@ class SmallStrainRVE(_Level):
 
     def __init__(self, rve: TaylorRVE) -> None:
         super().__init__(rve)
-        self.C = _symmetrise(self.taylor.small_strain_modulus())
+        self.C = symmetrise_modulus(self.taylor.small_strain_modulus())
         self._C44 = np.ascontiguousarray(self.C.reshape(4, 4))
 
     def strain(self, F: ArrayLike) -> np.ndarray:
@@ -261,7 +202,7 @@ class SmallStrainRVE(_Level):
     def _material(self, F, tangent, out):
         _validate_finite(F)
         n = F.shape[0]
-        W, P, A = _outputs(n, tangent, out)
+        W, P, A = output_buffers(n, tangent, out)
         eps = self.strain(F).reshape(n, 4)
         sig = eps @ self._C44.T  # C is major-symmetric; P_ab = C_abcd eps_cd
         P[...] = sig.reshape(n, 2, 2)
@@ -311,7 +252,8 @@ class AdaptiveRVE(_Level):
         self.contact_test = bool(contact_test)
         self.W0, self.P0, self.A0 = self.taylor.evaluate(np.eye(2))
         self._A044 = np.ascontiguousarray(self.A0.reshape(4, 4))
-        R, L = self.taylor._R, self.taylor._L
+        c = self.taylor.candidates
+        R, L = c.radius_sum, c.branch
         d = np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])  # as the kernel computes |F L| at F = I
         closed = R - d >= 0.0
         ratio = R / d  # the contact stays active while the stretch along L is <= R / |L|
@@ -319,7 +261,8 @@ class AdaptiveRVE(_Level):
         smin_req = ratio[~closed].max() if (~closed).any() else 0.0
         self.stretch_bounds = (smax_ok * (1.0 - _MARGIN), smin_req * (1.0 + _MARGIN))
         self.n_reference_contacts = int(closed.sum())
-        self.error_constant = float(self.taylor._K * np.sum(R[closed] * d[closed]))
+        K = self.taylor.normal_stiffness / self.taylor.packing.area  # k_n / V, as the kernel's
+        self.error_constant = float(K * np.sum(R[closed] * d[closed]))
         self.counts = {"linear": 0, "taylor": 0}
         self.totals = {"linear": 0, "taylor": 0}
         self.linear_mask = np.zeros(0, dtype=bool)
@@ -329,12 +272,12 @@ class AdaptiveRVE(_Level):
 
     def strain_measure(self, F: ArrayLike) -> np.ndarray:
         """``||F - I||_2`` (n,), the largest singular value of F - I."""
-        F, _ = _as_batch(F)
+        F, _ = as_batch(F)
         return singular_values_2x2(F - np.eye(2))[0]
 
     def linear_points(self, F: ArrayLike) -> np.ndarray:
         """(n,) bool: points where the linear branch is taken (both criteria of the class doc)."""
-        F, _ = _as_batch(F)
+        F, _ = as_batch(F)
         with np.errstate(invalid="ignore"):
             ok = self.strain_measure(F) <= self.tol  # NaN -> False -> Taylor, which rejects it
             if self.contact_test:
@@ -377,7 +320,7 @@ class AdaptiveRVE(_Level):
             raise
 
     def _material(self, F, tangent, out):
-        W, P, A = _outputs(F.shape[0], tangent, out)
+        W, P, A = output_buffers(F.shape[0], tangent, out)
         idx, full = self._split(F)
         if full.size:
             if tangent:
@@ -394,23 +337,23 @@ class AdaptiveRVE(_Level):
     def cauchy(self, F: ArrayLike) -> np.ndarray:
         """Cauchy stress (n, 2, 2) in Pa: the kernel's (Taylor points) or the push-forward of the
         linear branch."""
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         sigma = np.empty((F.shape[0], 2, 2))
         idx, full = self._split(F)
         if full.size:
             sigma[full] = self._taylor("cauchy", F, full)
         if idx.size:
-            sigma[idx] = _push_forward(F[idx], self._linear(F[idx], False)[1], None)[0]
+            sigma[idx] = push_forward(F[idx], self._linear(F[idx], False)[1], None)[0]
         return sigma[0] if single else sigma
 
     def spatial_tangent(self, F: ArrayLike) -> np.ndarray:
         """Spatial tangent (n, 2, 2, 2, 2) in Pa (kernel, or push-forward of the linear branch)."""
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         a = np.empty((F.shape[0], 2, 2, 2, 2))
         idx, full = self._split(F)
         if full.size:
             a[full] = self._taylor("spatial_tangent", F, full)
         if idx.size:
             _, Pl, Al = self._linear(F[idx], True)
-            a[idx] = _push_forward(F[idx], Pl, np.ascontiguousarray(Al))[1]
+            a[idx] = push_forward(F[idx], Pl, np.ascontiguousarray(Al))[1]
         return a[0] if single else a

@@ -22,17 +22,21 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import kernel, validity
-from .law import LawEvaluationError
+from .contacts import ContactCandidates
+from .lawtools import UnsupportedDeformationError, as_batch, to_float, unsupported_deformation
 from .packing import Packing
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
-_REASONS = {
-    kernel.NOT_FINITE: "has a NaN or inf entry (or entries so large that F^T F overflows)",
-    kernel.NOT_ORIENTATION_PRESERVING: "has det F <= 0 (an inverted or collapsed element)",
-    kernel.BELOW_MIN_STRETCH: "compresses below the supported smallest singular value",
-}
+__all__ = [
+    "MAX_REFERENCE_OVERLAP",
+    "PRESTRESS_WARNING",
+    "ContactSet",
+    "PrestressWarning",
+    "TaylorRVE",
+    "UnsupportedDeformationError",  # defined in lawtools, the laws' shared helpers
+]
 
 
 #: |P(I)| / |C| above which the reference state counts as prestressed (a warning); a generated,
@@ -45,19 +49,6 @@ MAX_REFERENCE_OVERLAP = 0.05
 
 class PrestressWarning(UserWarning):
     """The packing's reference state (F = I) carries stress: its disks overlap."""
-
-
-class UnsupportedDeformationError(LawEvaluationError):
-    """F is non-finite, has det F <= 0 or a singular value below ``min_stretch``.
-
-    Attributes:
-        points: indices of the rejected points in the batch.
-        status: (n,) status code per point (see :mod:`dolfinx_granular.kernel`).
-    """
-
-    def __init__(self, message: str, points: np.ndarray, status: np.ndarray) -> None:
-        super().__init__(message, points)
-        self.status = status
 
 
 @dataclass(frozen=True)
@@ -109,6 +100,10 @@ class TaylorRVE:
     Every ``F`` argument is an array of shape (n, 2, 2) (or (2, 2) for a single point); an F that
     is non-finite, has det F <= 0 or a singular value below ``min_stretch`` raises
     :class:`UnsupportedDeformationError` naming the points.
+
+    Attributes:
+        candidates: the packing's :class:`~dolfinx_granular.contacts.ContactCandidates` at
+            ``min_stretch`` (shared, read-only: the other laws and levels build on it).
     """
 
     def __init__(
@@ -122,30 +117,25 @@ class TaylorRVE:
             raise TypeError(
                 f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}"
             )
-        k = _number(normal_stiffness, "normal_stiffness")
+        k = to_float(normal_stiffness, "normal_stiffness")
         if not (np.isfinite(k) and k > 0.0):
             raise ValueError(
                 f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}"
             )
-        s = _number(min_stretch, "min_stretch")
+        s = to_float(min_stretch, "min_stretch")
         if not (0.0 < s <= 1.0):
             raise ValueError(f"min_stretch must lie in (0, 1], got {min_stretch!r}")
         self.packing = packing
         self.normal_stiffness = k
         self.min_stretch = s
-        self._L, self._R, self._rho, self._ij, self._shift = kernel.candidate_pairs(
-            packing.centers, packing.radii, packing.box, 1.0 / s
-        )
-        # structure-of-arrays copies: contiguous loads let the kernel loop vectorise
-        self._X = np.ascontiguousarray(self._L[:, 0])
-        self._Y = np.ascontiguousarray(self._L[:, 1])
+        self.candidates = ContactCandidates.from_packing(packing, s)
         self._K = k / packing.area
         self._check_reference(bool(allow_overlaps))
 
     def _check_reference(self, allow_overlaps):
         """Refuse far-overlapping disks, report the prestress P(I) of overlapping ones."""
-        _, eps = self._overlaps(np.eye(2))
-        worst = float((eps / self._R).max()) if eps.size else 0.0
+        _, eps = self.candidates.overlaps(np.eye(2))
+        worst = float((eps / self.candidates.radius_sum).max()) if eps.size else 0.0
         self.max_reference_overlap = max(worst, 0.0)
         if worst > MAX_REFERENCE_OVERLAP and not allow_overlaps:
             raise ValueError(
@@ -177,12 +167,12 @@ class TaylorRVE:
     @property
     def n_candidates(self) -> int:
         """Number of candidate contacts (pairs that can touch at a supported F)."""
-        return self._R.shape[0]
+        return len(self.candidates)
 
     # -- batch evaluation -------------------------------------------------------------------------
 
     def _run(self, F, spatial, tangent, out=None):
-        F, single = _as_batch(F)
+        F, single = as_batch(F)
         n = F.shape[0]
         if out is None:
             W = np.empty(n)
@@ -193,12 +183,14 @@ class TaylorRVE:
             if not tangent:
                 A = np.empty((0, 2, 2, 2, 2))
         status = np.empty(n, dtype=np.int8)
+        c = self.candidates
+        X, Y = c.components
         kernel.evaluate_batch(
             F,
-            self._X,
-            self._Y,
-            self._R,
-            self._rho,
+            X,
+            Y,
+            c.radius_sum,
+            c.ratio,
             self._K,
             self.min_stretch,
             spatial,
@@ -209,27 +201,10 @@ class TaylorRVE:
             status,
         )
         if status.any():
-            self._raise(F, status)
+            raise unsupported_deformation(F, status, self.min_stretch)
         if single:
             return W[0], P[0], (A[0] if tangent else None)
         return W, P, (A if tangent else None)
-
-    def _raise(self, F, status):
-        bad = np.flatnonzero(status)
-        q = int(bad[0])
-        reason = _REASONS[int(status[q])]
-        if status[q] == kernel.BELOW_MIN_STRETCH:
-            smin = np.linalg.svd(F[q], compute_uv=False).min()
-            reason += (
-                f" ({smin:.4g} < min_stretch={self.min_stretch}; "
-                "build the TaylorRVE with a smaller min_stretch)"
-            )
-        raise UnsupportedDeformationError(
-            f"F at {bad.size} of {F.shape[0]} points is outside the Taylor RVE's range; the first, "
-            f"point {q}, F = {F[q].tolist()}, {reason}",
-            bad,
-            status,
-        )
 
     def evaluate(
         self, F: ArrayLike, out: tuple | None = None
@@ -272,8 +247,7 @@ class TaylorRVE:
         C_abcd = (k_n / V) sum_c |L|² n_a n_b n_c n_d. It equals A(I) when the reference contacts
         are exactly touching (no prestress).
         """
-        l, eps = self._overlaps(np.eye(2))
-        L = self._L[eps >= 0.0]
+        L = self.candidates.branch[self.candidates.overlaps(np.eye(2))[1] >= 0.0]
         w = self._K / np.einsum("ci,ci->c", L, L)
         return np.einsum("m,ma,mb,mc,md->abcd", w, L, L, L, L)
 
@@ -283,44 +257,18 @@ class TaylorRVE:
         if F.shape != (2, 2):
             raise ValueError(f"contacts() takes one F of shape (2, 2), got {F.shape}")
         self.stress(F)  # validates F with the kernel's own rule
-        l, eps = self._overlaps(F)
+        l, eps = self.candidates.overlaps(F)
         on = eps >= 0.0
         return ContactSet(
-            pairs=self._ij[on],
-            shift=self._shift[on],
+            pairs=self.candidates.pairs[on],
+            shift=self.candidates.shift[on],
             branch=l[on],
             overlap=eps[on],
             force=self.normal_stiffness * eps[on],
         )
 
-    def _overlaps(self, F):
-        """Current branch vectors (M, 2) and overlaps (M,) of all candidates, with the same
-        arithmetic as the kernel so that the active set is identical."""
-        X, Y = self._L[:, 0], self._L[:, 1]
-        l = np.stack([F[0, 0] * X + F[0, 1] * Y, F[1, 0] * X + F[1, 1] * Y], axis=1)
-        return l, self._R - np.sqrt(l[:, 0] * l[:, 0] + l[:, 1] * l[:, 1])
-
     def overlap_statistics(self, F: ArrayLike) -> validity.OverlapStatistics:
         """The validity measure at F (n, 2, 2) (or (2, 2): scalars): ``(max_ratio (n,),
         contacts (n,))``, the largest overlap of an active contact over the smaller radius of its
         two disks, and the number of active contacts (:mod:`~dolfinx_granular.validity`)."""
-        if not hasattr(self, "_inv_rmin"):
-            self._inv_rmin = validity.candidate_inverse_radius(self)
-        return validity.overlap_statistics(self, F, self._inv_rmin)
-
-
-def _number(value, name):
-    """``value`` as a float; a TypeError or ValueError that names the parameter otherwise."""
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-
-
-def _as_batch(F):
-    F = np.asarray(F, dtype=np.float64)
-    if F.shape == (2, 2):
-        return np.ascontiguousarray(F[None]), True
-    if F.ndim != 3 or F.shape[1:] != (2, 2):
-        raise ValueError(f"F must have shape (n, 2, 2) or (2, 2), got {F.shape}")
-    return np.ascontiguousarray(F), False
+        return validity.overlap_statistics(self, F)

@@ -33,7 +33,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from .kernel import _FASTMATH, OK, _check_F
+from .kernel import FASTMATH, OK, check_F
+from .lawtools import as_batch, unsupported_deformation
 from .postprocess import global_extremum
 
 if TYPE_CHECKING:
@@ -61,7 +62,7 @@ class OverlapStatistics(NamedTuple):
     contacts: np.ndarray
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model="numpy")
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _largest_ratio(F00, F01, F10, F11, X, Y, R, inv_rmin, n_visit):
     """``(max(0, max_c eps_c / r_min,c), active count)`` over the first ``n_visit`` candidates,
     with the stress kernel's arithmetic for l = F L and eps = R - |l| (the same active set). An
@@ -83,7 +84,7 @@ def _overlap_batch(F, X, Y, R, rho, inv_rmin, min_stretch, ratio, count, status)
     visits; status as the kernel's (ratio and count 0 where F is rejected)."""
     for q in range(F.shape[0]):
         F00, F01, F10, F11 = F[q, 0, 0], F[q, 0, 1], F[q, 1, 0], F[q, 1, 1]
-        code, limit = _check_F(F00, F01, F10, F11, min_stretch)
+        code, limit = check_F(F00, F01, F10, F11, min_stretch)
         status[q] = code
         ratio[q] = 0.0
         count[q] = 0
@@ -92,28 +93,28 @@ def _overlap_batch(F, X, Y, R, rho, inv_rmin, min_stretch, ratio, count, status)
             ratio[q], count[q] = _largest_ratio(F00, F01, F10, F11, X, Y, R, inv_rmin, n_visit)
 
 
-def candidate_inverse_radius(taylor: Any) -> np.ndarray:
-    """(M,) 1 / the smaller radius of the two disks of each candidate contact of a TaylorRVE."""
-    r = taylor.packing.radii
-    i, j = taylor._ij[:, 0], taylor._ij[:, 1]
-    return np.ascontiguousarray(1.0 / np.minimum(r[i], r[j]))
+def candidate_inverse_radius(law: Any) -> np.ndarray:
+    """(M,) 1 / the smaller radius of the two disks of each candidate contact of a law with
+    ``candidates`` (a TaylorRVE)."""
+    return law.candidates.inverse_smaller_radius
 
 
-def overlap_statistics(taylor: Any, F: ArrayLike, inv_rmin: np.ndarray) -> OverlapStatistics:
-    """:class:`OverlapStatistics` of a TaylorRVE at F (n, 2, 2) (or (2, 2): scalars), ``inv_rmin``
-    from :func:`candidate_inverse_radius`. F outside the RVE's range raises its
-    UnsupportedDeformationError."""
-    F = np.asarray(F, dtype=np.float64)
-    single = F.shape == (2, 2)
-    Fb = np.ascontiguousarray(F[None] if single else F)
-    if Fb.ndim != 3 or Fb.shape[1:] != (2, 2):
-        raise ValueError(f"F must have shape (n, 2, 2) or (2, 2), got {F.shape}")
+def overlap_statistics(
+    law: Any, F: ArrayLike, inv_rmin: np.ndarray | None = None
+) -> OverlapStatistics:
+    """:class:`OverlapStatistics` of a law with ``candidates`` and ``min_stretch`` (a TaylorRVE)
+    at F (n, 2, 2) (or (2, 2): scalars); ``inv_rmin`` (M,) defaults to the candidates'
+    :attr:`~dolfinx_granular.contacts.ContactCandidates.inverse_smaller_radius`. F outside the
+    law's range raises UnsupportedDeformationError."""
+    Fb, single = as_batch(F)
+    c = law.candidates
+    inv_rmin = c.inverse_smaller_radius if inv_rmin is None else inv_rmin
     n = Fb.shape[0]
     ratio, count, status = np.empty(n), np.empty(n, np.int64), np.empty(n, np.int8)
-    t = taylor
-    _overlap_batch(Fb, t._X, t._Y, t._R, t._rho, inv_rmin, t.min_stretch, ratio, count, status)
+    X, Y = c.components
+    _overlap_batch(Fb, X, Y, c.radius_sum, c.ratio, inv_rmin, law.min_stretch, ratio, count, status)
     if status.any():
-        t._raise(Fb, status)
+        raise unsupported_deformation(Fb, status, law.min_stretch)
     if single:
         return OverlapStatistics(float(ratio[0]), int(count[0]))
     return OverlapStatistics(ratio, count)

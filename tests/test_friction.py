@@ -49,28 +49,28 @@ def model(rve, state):
 
 def angles(rve, F):
     """Branch angles phi (m,) of all candidates and the particle spin theta at F, by np.arctan2."""
-    lc = rve._L @ F.T
+    lc = rve.candidates.branch @ F.T
     return np.arctan2(lc[:, 1], lc[:, 0]), np.arctan2(F[1, 0] - F[0, 1], F[0, 0] + F[1, 1])
 
 
 def sliding(rve, F, Fn):
     """ds (m,) of the corrected, objective formula R wrap((phi - phi_n) - (theta - theta_n))."""
     (phi, th), (phin, thn) = angles(rve, F), angles(rve, Fn)
-    return rve._R * wrap((phi - phin) - (th - thn))
+    return rve.candidates.radius_sum * wrap((phi - phin) - (th - thn))
 
 
 def note_sliding(rve, F, Fn):
     """ds (m,) of the note's literal formula R (wrap(phi - phi_n) - wrap(theta - theta_n)), which
     is not objective near a half-turn (used only to demonstrate that)."""
     (phi, th), (phin, thn) = angles(rve, F), angles(rve, Fn)
-    return rve._R * (wrap(phi - phin) - wrap(th - thn))
+    return rve.candidates.radius_sum * (wrap(phi - phin) - wrap(th - thn))
 
 
 def ref_step(rve, F, Fn, ftn_stored, ds=None):
     """W, P, the tangent as a dict of named terms, new forces, stick/slip masks and the
     dissipation increment of one point, straight from the note with np.arctan2 (but ds from
     :func:`sliding` unless given)."""
-    L, R, V = rve._L, rve._R, rve.packing.area
+    L, R, V = rve.candidates.branch, rve.candidates.radius_sum, rve.packing.area
     kn, kt, mu = rve.normal_stiffness, rve.tangential_stiffness, rve.friction
     ftn = np.zeros(len(R))
     ftn[: len(ftn_stored)] = ftn_stored[: len(R)]
@@ -208,7 +208,9 @@ def test_matches_reference(rve, sheared, case):
     assert np.all(ref["ft"][m:] == 0.0)  # nothing active beyond the stored prefix
     assert new.dissipation[0] - sheared.dissipation[0] == pytest.approx(ref["dD"], rel=1e-9)
     cs = rve.contacts(F, sheared)
-    on = ref["act"] | (rve._R - np.linalg.norm(rve._L @ F.T, axis=1) == 0.0)
+    on = ref["act"] | (
+        rve.candidates.radius_sum - np.linalg.norm(rve.candidates.branch @ F.T, axis=1) == 0.0
+    )
     assert cs.sliding.sum() == ref["slip"].sum() and len(cs.overlap) == on.sum()
 
 
@@ -277,7 +279,7 @@ def test_stick_stress_is_gradient_of_incremental_potential(rve, sheared):
 
     def psi(F):  # sum [k_n/2 <eps>² + f_t,n ds + k_t/2 ds²] / V
         r = ref_step(rve, F, FS, sheared.forces(0))
-        L, R = rve._L, rve._R
+        L, R = rve.candidates.branch, rve.candidates.radius_sum
         eps = np.maximum(R - np.linalg.norm(L @ F.T, axis=1), 0.0)
         ftn = np.zeros(len(R))
         ftn[: sheared.lengths[0]] = sheared.forces(0)
@@ -360,7 +362,7 @@ def test_note_wraps_are_not_objective_near_a_half_turn(rve, sheared):
     F = shear(0.02) @ FS  # a 2 % shear step: every branch turns by at most 0.02
     W, P, _A, base = rve.evaluate(F[None], sheared)
     ref = ref_step(rve, F, FS, sheared.forces(0))
-    act, R, scale = ref["act"], rve._R, np.abs(base.force).max()
+    act, R, scale = ref["act"], rve.candidates.radius_sum, np.abs(base.force).max()
     assert np.max(np.abs(ref["ds"][act])) < 0.02 * R.max()
     # (a) the note: at alpha = -pi + 0.002 some active contacts slide 2 pi R further, the rest not
     Fa = rotation(-np.pi + 0.002) @ F
@@ -648,7 +650,7 @@ def test_fuzz_hostile_F(rng):
         }[kind]()
     status = np.empty(400, np.int8)
     lengths = np.empty(400, np.int64)
-    fk.prefix_lengths(F, rve._rho, rve.min_stretch, status, lengths)
+    fk.prefix_lengths(F, rve.candidates.ratio, rve.min_stretch, status, lengths)
     ok = status == 0
     assert 50 < ok.sum() < 350
     state = committed(rve, [0.95 * np.eye(2), shear(0.05) @ (0.95 * np.eye(2))], n=ok.sum())

@@ -39,8 +39,11 @@ def test_fuzz_batch_gives_finite_results_or_status(seed):
     F = hostile_F(rng, 1000)
     W, P, A = np.empty(1000), np.empty((1000, 2, 2)), np.empty((1000, 2, 2, 2, 2))
     status = np.empty(1000, np.int8)
+    c = rve.candidates
+    K = rve.normal_stiffness / rve.packing.area
+    X, Y = c.components
     kernel.evaluate_batch(
-        F, rve._X, rve._Y, rve._R, rve._rho, rve._K, rve.min_stretch, False, True, W, P, A, status
+        F, X, Y, c.radius_sum, c.ratio, K, rve.min_stretch, False, True, W, P, A, status
     )
     assert np.isfinite(W).all() and np.isfinite(P).all() and np.isfinite(A).all()
     ok = status == kernel.OK

@@ -84,15 +84,15 @@ def _safe_points(rve, F, h):
     """Keep points whose contact set does not change within +-h in any F component."""
     keep = []
     for q in range(len(F)):
-        _, eps = rve._overlaps(F[q])
-        margin = h * 4.0 * np.abs(rve._L).max(axis=1).max()
+        _, eps = rve.candidates.overlaps(F[q])
+        margin = h * 4.0 * np.abs(rve.candidates.branch).max(axis=1).max()
         keep.append(np.min(np.abs(eps)) > margin)
     return F[np.array(keep)]
 
 
 def _changes_contacts(rve, F):
-    _, eps0 = rve._overlaps(np.eye(2))
-    return any(np.any((rve._overlaps(f)[1] >= 0) != (eps0 >= 0)) for f in F)
+    _, eps0 = rve.candidates.overlaps(np.eye(2))
+    return any(np.any((rve.candidates.overlaps(f)[1] >= 0) != (eps0 >= 0)) for f in F)
 
 
 def test_finite_differences(rve, rng):
@@ -151,7 +151,7 @@ def test_cauchy_relation_and_exact_bulk_modulus(packing, rve):
     assert rel(C, reference_modulus(packing, K_N)) <= 1e-13
     # central forces: C is fully symmetric, so lambda = C_1122 equals mu = C_1212 for any packing
     assert C[0, 0, 1, 1] == pytest.approx(C[0, 1, 0, 1], rel=1e-13)
-    L, R = rve._L, rve._R
+    L, R = rve.candidates.branch, rve.candidates.radius_sum
     on = R - np.sqrt(L[:, 0] ** 2 + L[:, 1] ** 2) >= 0
     bulk = K_N / (4 * packing.area) * np.sum(L[on] ** 2)
     assert np.einsum("iikk", C) / 4.0 == pytest.approx(bulk, rel=1e-13)
