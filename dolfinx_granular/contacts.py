@@ -57,12 +57,16 @@ class ContactCandidates:
     min_stretch: float
 
     def __post_init__(self):
-        m = self.radius_sum.shape[0]
+        m = np.shape(self.radius_sum)[0]
         for name in ("branch", "radius_sum", "ratio", "pairs", "shift", "smaller_radius"):
-            a = getattr(self, name)
-            if a.shape[0] != m:
-                raise ValueError(f"ContactCandidates.{name} has {a.shape[0]} rows, expected {m}")
+            a = np.asarray(getattr(self, name))
+            if a.shape[:1] != (m,):
+                raise ValueError(
+                    f"ContactCandidates.{name} has shape {a.shape}, expected one row per "
+                    f"candidate ({m}): build it with ContactCandidates.from_packing"
+                )
             object.__setattr__(self, name, _readonly(a))
+        object.__setattr__(self, "min_stretch", float(self.min_stretch))
 
     @classmethod
     def from_packing(cls, packing: Packing, min_stretch: float = 0.5) -> ContactCandidates:

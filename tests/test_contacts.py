@@ -125,6 +125,19 @@ def test_bad_input_is_named(packing, call, error, match):
         call(packing)
 
 
+def test_rows_must_agree(cands):
+    with pytest.raises(ValueError, match=r"pairs has shape \(3, 2\), expected one row per"):
+        ContactCandidates(
+            cands.branch,
+            cands.radius_sum,
+            cands.ratio,
+            np.zeros((3, 2), np.int64),
+            cands.shift,
+            cands.smaller_radius,
+            0.6,
+        )
+
+
 def test_lawtools_shapes_and_errors(rng):
     F, single = lawtools.as_batch(np.eye(3), dim=3)
     assert single and F.shape == (1, 3, 3)
