@@ -13,6 +13,7 @@ import importlib.util as _importlib_util
 if _importlib_util.find_spec("dolfinx_solver") is not None:
     import dolfinx_solver  # noqa: F401
 
+from .contacts import ContactCandidates
 from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
 from .friction import FrictionalRVE, FrictionState
 from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
@@ -30,6 +31,7 @@ __all__ = [
     "FrictionalRVE",
     "FrictionState",
     "ContactSet",
+    "ContactCandidates",
     "UnsupportedDeformationError",
     "LawEvaluationError",
     "SieveCurve",
