@@ -21,6 +21,9 @@
 
     python demos/friction_study.py [--out results/friction_study] [--small] [--no-cache]
 
+``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests; under ``mpirun`` rank 0 runs
+the (serial) study and the other ranks exit.
+
 * packing: ``generate_packing(n, seed)`` through :class:`~dolfinx_granular.cache.PackingCache`
   (350 particles, seeds 0-4 for monotonic shear, seed 0 for the cycles; ``--small``: 70, seed 0);
 * contacts: k_n = 2.8e7 N/m² (table 1 of the paper), k_t = k_n (a common DEM choice), Coulomb μ;
@@ -704,11 +707,26 @@ def run(out="results/friction_study", small=False, use_cache=True, verbose=True)
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="results/friction_study", help="output directory")
-    parser.add_argument("--small", action="store_true", help="reduced run (tests)")
+    parser.add_argument(
+        "--small",
+        action="store_true",
+        default=os.environ.get("DEMO_SMALL") == "1",
+        help="reduced run (tests; also DEMO_SMALL=1)",
+    )
     parser.add_argument("--no-cache", action="store_true", help="regenerate the packings")
     args = parser.parse_args(argv)
-    run(args.out, small=args.small, use_cache=not args.no_cache)
+    if _mpi_rank() == 0:  # a serial study: under mpirun, rank 0 runs it and the others rest
+        run(args.out, small=args.small, use_cache=not args.no_cache)
     return 0
+
+
+def _mpi_rank():
+    """This process's rank in MPI.COMM_WORLD (0 without mpi4py: the study needs no MPI)."""
+    try:
+        from mpi4py import MPI
+    except ImportError:
+        return 0
+    return MPI.COMM_WORLD.rank
 
 
 # %% [markdown]

@@ -1,6 +1,25 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+# ---
+
+# %% [markdown]
+# # How large must the RVE be? Section 4 of Meier, Steinmann & Kuhl
+#
+# Packings of 70 ... 2800 disks from the CEN standard sand, each a Taylor RVE: their grains and
+# fabric (figures 2 and 3), the stress along four strain-controlled paths at one material point
+# (figures 4 and 5, `MaterialPoint.path`), and the scatter over seeds against the cost of a point.
+
+# %%
 """RVE-size study (section 4 of Meier, Steinmann & Kuhl): figures 2-5 and speed against error.
 
     python demos/rve_study.py [--out results/rve_study] [--small] [--no-cache]
+
+``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests; under ``mpirun`` rank 0 runs
+the (serial) study and the other ranks exit.
 
 * 5 packings each of 70, 350 and 700 particles (seeds 0-4) from the CEN standard sand;
 * figure 2 (sieve curve with a packing's grains), figure 3 (packings and contact-normal densities
@@ -56,6 +75,11 @@ PATHS = {
 }
 
 
+# %% [markdown]
+# ## Stress along strain paths, at one material point
+
+
+# %%
 def stress_paths(rves, steps):
     """``{path: (s (steps+1,), mean (steps+1, 2, 2), std (steps+1, 2, 2))}`` over the RVEs,
     each path strain-controlled at one material point (:class:`MaterialPoint`)."""
@@ -84,6 +108,11 @@ def write_csv(path, header, rows):
         w.writerows(rows)
 
 
+# %% [markdown]
+# ## Tables and figures
+
+
+# %%
 def packing_table(cache, rves, out):
     """``OUT/packings.csv``: per packing its generation time, volume fraction, coordination,
     rattlers, the residual prestress, fabric anisotropy and the deviation of the contact-normal
@@ -231,6 +260,11 @@ def speed_error(cache, rve_sets, out):
     return table
 
 
+# %% [markdown]
+# ## The study
+
+
+# %%
 def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     """Run the study, write figures and tables to ``out``; returns a summary dict."""
     t_start = time.perf_counter()
@@ -284,12 +318,31 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="results/rve_study", help="output directory")
-    parser.add_argument("--small", action="store_true", help="reduced run (tests)")
+    parser.add_argument(
+        "--small",
+        action="store_true",
+        default=os.environ.get("DEMO_SMALL") == "1",
+        help="reduced run (tests; also DEMO_SMALL=1)",
+    )
     parser.add_argument("--no-cache", action="store_true", help="regenerate the packings")
     args = parser.parse_args(argv)
-    run(args.out, small=args.small, use_cache=not args.no_cache)
+    if _mpi_rank() == 0:  # a serial study: under mpirun, rank 0 runs it and the others rest
+        run(args.out, small=args.small, use_cache=not args.no_cache)
     return 0
 
 
+def _mpi_rank():
+    """This process's rank in MPI.COMM_WORLD (0 without mpi4py: the study needs no MPI)."""
+    try:
+        from mpi4py import MPI
+    except ImportError:
+        return 0
+    return MPI.COMM_WORLD.rank
+
+
+# %% [markdown]
+# Run as a script; in a notebook call `run("results/rve_study", small=True)` instead of this cell.
+
+# %%
 if __name__ == "__main__":
     sys.exit(main())

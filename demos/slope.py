@@ -16,15 +16,20 @@
 #     mpirun -n 2 python demos/slope.py [--particles 700] [--steps 20] [--out results/slope] ...
 #     python demos/slope.py --help
 #
+# `--small` (or `DEMO_SMALL=1`) is a reduced run for the tests: `--particles 70 --steps 4`.
 # An `--out` that holds a run is refused unless `--force` (replace it) or `--resume DIR`
 # (continue it); Ctrl-C stops after the load step in progress, and `--resume DIR` goes on.
 #
 # All the work is library code (`dolfinx_granular.slope`); this script is its command line.
 
 # %%
+import os
 import sys
 
 from dolfinx_granular.slope import SlopeOptions, cli, run_slope  # noqa: F401 (walkthrough)
+
+#: what ``--small`` (or ``DEMO_SMALL=1``) puts before the other arguments (they override it)
+SMALL = ["--particles", "70", "--steps", "4"]
 
 # %% [markdown]
 # ## The pieces
@@ -48,6 +53,14 @@ from dolfinx_granular.slope import SlopeOptions, cli, run_slope  # noqa: F401 (w
 #
 # In your own code the same run is `run_slope(packing, SlopeOptions(steps=20), out="results")`.
 
+
 # %%
+def main(argv=None):
+    """The slope's command line; ``--small`` (or ``DEMO_SMALL=1``): a reduced run for tests."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    small = "--small" in argv or os.environ.get("DEMO_SMALL") == "1"
+    return cli.main((SMALL if small else []) + [a for a in argv if a != "--small"])
+
+
 if __name__ == "__main__":
-    sys.exit(cli.main(sys.argv[1:]))
+    sys.exit(main())

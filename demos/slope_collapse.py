@@ -16,6 +16,8 @@
 #
 #     mpirun -n 2 python demos/slope_collapse.py [--particles 700] [--meshes 1 2] [--out DIR]
 #
+# ``--small`` (or ``DEMO_SMALL=1``): 70 particles (seed 1), 4 footing steps, the 380-cell mesh only.
+#
 # Writes ``collapse.png`` (load-settlement curves, and how the RVEs that lost ellipticity spread
 # along the path), ``collapse.csv`` (every converged state of every run) and ``collapse.json``
 # (peak loads, critical points, increments, wall times), and each run's own output folder.
@@ -159,6 +161,10 @@ def records(results):
 
 
 # %%
+#: the reduced run of ``--small``: one 380-cell mesh, a 70-particle packing, 4 footing steps
+SMALL = dict(particles=70, seed=1, steps=4, meshes=[1])
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(
         description="The slope's collapse: load control and path "
@@ -169,6 +175,14 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=20, help="nominal footing steps")
     p.add_argument("--meshes", type=int, nargs="+", default=[1, 2], help="refinements K")
     p.add_argument("--out", default="results/slope_collapse")
+    p.add_argument(
+        "--small",
+        action="store_true",
+        default=os.environ.get("DEMO_SMALL") == "1",
+        help=f"reduced run (tests; also DEMO_SMALL=1): {SMALL}, unless given",
+    )
+    if p.parse_args(argv).small:
+        p.set_defaults(**SMALL)
     a = p.parse_args(argv)
     comm = MPI.COMM_WORLD
     say = (lambda *x: print(*x, flush=True)) if comm.rank == 0 else (lambda *x: None)

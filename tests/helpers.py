@@ -227,3 +227,37 @@ def taylor_remainders(L, a, u, direction, update, h0, halvings=5):
         vec.destroy()
     r1, r2 = np.array(r1), np.array(r2)
     return np.log2(r1[:-1] / r1[1:]), np.log2(r2[:-1] / r2[1:]), r1, r2
+
+
+# -- demos -----------------------------------------------------------------------------------------
+
+#: every demo in demos/, each honouring ``--small`` and ``DEMO_SMALL=1`` (tests/test_demos.py)
+DEMOS = ("granular_column", "friction_study", "rve_study", "slope", "slope_collapse")
+
+
+def demo_command(name, *args, ranks=1):
+    """``python demos/<name>.py *args``, under this Python's MPI launcher with ``ranks``
+    processes if ranks > 1 (the test fails without one)."""
+    cmd = [sys.executable, os.path.join(ROOT, "demos", f"{name}.py"), *map(str, args)]
+    if ranks > 1:
+        from dolfinx_granular._dolfinx import mpi_command
+
+        launcher = mpi_command(ranks)
+        assert launcher is not None, "no MPI launcher (mpiexec/mpirun) found"
+        cmd = [*launcher, *cmd]
+    return cmd
+
+
+def run_demo(name, *args, ranks=1, env=None, timeout=900):
+    """Run :func:`demo_command` from the checkout's root with ``MPI_ENV`` and ``env`` added;
+    asserts exit status 0 and returns the ``subprocess.CompletedProcess`` (text output)."""
+    proc = subprocess.run(
+        demo_command(name, *args, ranks=ranks),
+        cwd=ROOT,
+        env=dict(MPI_ENV, **(env or {})),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc
