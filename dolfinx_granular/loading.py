@@ -15,6 +15,10 @@ No increment, however small, passes a limit point of the load-displacement path 
 collapses, or a cohesionless soil lets go of a pulled footing): past it no equilibrium exists at a
 higher load. A failed phase is therefore checked for one (:func:`limit_point`) and, if the path
 stiffness has collapsed, reported as a limit load rather than a solver failure.
+
+:meth:`LoadStepper.phase` gives one phase as a driver of the
+:class:`~dolfinx_granular.drivers.Driver` protocol (``run(on_converged)`` with one
+:class:`LoadIncrement` per converged increment), as path following is driven.
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from .drivers import ASKED_TO_STOP, failure
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -52,6 +58,47 @@ class Cutback:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+@dataclass
+class LoadIncrement:
+    """One converged increment of load control (an
+    :class:`~dolfinx_granular.drivers.IncrementRecord`).
+
+    Attributes:
+        step: number of the converged increment (1-based, all phases of the stepper).
+        phase: name of the load phase.
+        t, dt: the load parameter at its end and the increment that led there.
+        increment_norm: |du| over all dofs and ranks (m).
+        result: the :class:`~dolfinx_granular.solver.SolveResult` of its solve.
+    """
+
+    step: int
+    phase: str
+    t: float
+    dt: float
+    increment_norm: float
+    result: SolveResult
+
+    @property
+    def iterations(self) -> int:
+        return self.result.iterations
+
+    @property
+    def history(self) -> list:
+        return self.result.history
+
+    @property
+    def residual_norm(self) -> float:
+        return self.result.residual_norm
+
+    @property
+    def converged_by(self) -> str:
+        return self.result.stopped_by
+
+    @property
+    def reason_name(self) -> str:
+        return self.result.reason_name
 
 
 def limit_point(
@@ -117,10 +164,11 @@ class LoadStepper:
         cutbacks: every :class:`Cutback` so far, in order.
         step: number of converged increments so far (all phases).
         dt: the increment the next attempt will use (None before the first phase).
-        failed: None, or a dict ``{"phase", "step", "t", "reason", "limit_load"}`` once a phase
-            has given up; ``limit_load`` is the :func:`limit_point` dict when the path stiffness
-            shows a limit point there, else None.
-        stopped: True once ``on_converged`` asked to stop.
+        failed: None, or a :func:`~dolfinx_granular.drivers.failure` dict ``{"phase", "step",
+            "t", "reason", "limit_load"}`` once a phase has given up; ``limit_load`` is the
+            :func:`limit_point` dict when the path stiffness shows a limit point there, else None.
+        stopped: None, or :data:`~dolfinx_granular.drivers.ASKED_TO_STOP` once ``on_converged``
+            asked to stop.
         path: one dict per converged increment: ``phase``, ``t``, ``dt`` and ``increment_norm``
             (Euclidean norm of the displacement increment over all dofs and ranks, m).
 
@@ -152,8 +200,20 @@ class LoadStepper:
         self.step = 0
         self.dt = None
         self.failed = None
-        self.stopped = False
+        self.stopped = None
         self.path: list[dict] = []
+
+    def phase(
+        self,
+        name: str,
+        set_load: Callable[[float], object],
+        increment: float,
+        t: float = 0.0,
+        dt: float | None = None,
+    ) -> LoadPhase:
+        """One load phase as a :class:`~dolfinx_granular.drivers.Driver` (arguments as
+        :meth:`run`)."""
+        return LoadPhase(self, name, set_load, increment, t, dt)
 
     def run(
         self,
@@ -176,6 +236,21 @@ class LoadStepper:
                 u and the material data at the converged state; returning False stops the run
                 there (:attr:`stopped`, not :attr:`failed`).
         """
+        record = None
+        if on_converged is not None:
+            record = lambda inc: on_converged(inc.step, inc.t, inc.result)  # noqa: E731
+        return self.run_phase(phase, set_load, increment, t, dt, record)
+
+    def run_phase(
+        self,
+        phase: str,
+        set_load: Callable[[float], object],
+        increment: float,
+        t: float = 0.0,
+        dt: float | None = None,
+        on_converged: Callable[[LoadIncrement], bool | None] | None = None,
+    ) -> bool:
+        """:meth:`run`, with ``on_converged(increment)`` given a :class:`LoadIncrement`."""
         if not 0.0 < increment <= 1.0:
             raise ValueError(f"increment must lie in (0, 1], got {increment!r}")
         n_grid = 1.0 / increment
@@ -190,21 +265,13 @@ class LoadStepper:
             set_load(target)
             result, increment_norm = self._solve()
             if result.converged:
-                self.path.append(
-                    {
-                        "phase": phase,
-                        "t": float(target),
-                        "dt": float(target - t),
-                        "increment_norm": increment_norm,
-                    }
-                )
-                self.step += 1
+                inc = self._converged(phase, t, target, increment_norm, result)
                 t, cuts = target, 0
                 if result.iterations <= self.easy_iterations:
                     dt = min(dt * self.grow, increment)
                 self.dt = dt
-                if on_converged is not None and on_converged(self.step, t, result) is False:
-                    self.stopped = True  # the caller asked to stop here (e.g. --stop-after)
+                if on_converged is not None and on_converged(inc) is False:
+                    self.stopped = ASKED_TO_STOP  # the caller asked to stop here (--stop-after)
                     return False
                 continue
             # (the solver has restored u and the material data of the converged state at t)
@@ -225,6 +292,18 @@ class LoadStepper:
                 f"retrying with increment {dt:.4g}"
             )
         return True
+
+    def _converged(self, phase, t, target, increment_norm, result):
+        """Record a converged increment from t to target; its :class:`LoadIncrement`."""
+        record = {
+            "phase": phase,
+            "t": float(target),
+            "dt": float(target - t),
+            "increment_norm": increment_norm,
+        }
+        self.path.append(record)
+        self.step += 1
+        return LoadIncrement(self.step, result=result, **record)
 
     def _solve(self):
         """One solve; its result and the norm of the displacement increment (m, all ranks)."""
@@ -249,13 +328,7 @@ class LoadStepper:
         )
         # (the last attempt is the smallest: each cut-back halves the increment)
         limit = limit_point([p for p in self.path if p["phase"] == phase], target)
-        self.failed = {
-            "phase": phase,
-            "step": self.step + 1,
-            "t": float(t),
-            "reason": cut.reason,
-            "limit_load": limit,
-        }
+        self.failed = failure(phase, self.step + 1, t, cut.reason, limit)
         if limit is not None:
             self.log(
                 f"{phase}: limit load: the path stiffness fell to "
@@ -263,3 +336,29 @@ class LoadStepper:
                 f"extrapolates to zero at t = {limit['t_estimate']:.6g}; no larger load has "
                 "an equilibrium nearby (load control cannot pass a limit point)"
             )
+
+
+class LoadPhase:
+    """One phase of a :class:`LoadStepper` as a :class:`~dolfinx_granular.drivers.Driver`:
+    :meth:`run` takes t to 1 (arguments of :meth:`LoadStepper.run`, bound here)."""
+
+    def __init__(self, stepper, name, set_load, increment, t=0.0, dt=None):
+        self.stepper, self.name, self.set_load = stepper, name, set_load
+        self.increment, self.t, self.dt = increment, t, dt
+
+    @property
+    def failed(self) -> dict | None:
+        return self.stepper.failed
+
+    @property
+    def stopped(self) -> str | None:
+        return self.stepper.stopped
+
+    def run(self, on_converged: Callable[[LoadIncrement], bool | None] | None = None) -> bool:
+        """Take the phase's t to 1; True unless it failed (the protocol's rule: a stop asked
+        for by ``on_converged`` shows in :attr:`stopped`)."""
+        self.stepper.stopped = None
+        ok = self.stepper.run_phase(
+            self.name, self.set_load, self.increment, self.t, self.dt, on_converged
+        )
+        return ok or self.stopped is not None

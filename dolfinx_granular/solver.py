@@ -94,6 +94,12 @@ class SolveResult:
     stopped_by: str = ""
 
     @property
+    def converged_by(self) -> str:
+        """:attr:`stopped_by`: the name of the :class:`~dolfinx_granular.drivers.
+        IncrementRecord` field."""
+        return self.stopped_by
+
+    @property
     def why(self) -> str:
         """One-line reason of a failure ('' if converged)."""
         if self.converged:

@@ -133,60 +133,28 @@ def test_serial_path_is_reproduced_on_every_rank_count():
 
 
 def snes_newtonal_final_state(model, target, step_size):
-    """PETSc's own arc length (SNESNEWTONAL, in recent PETSc) on the same residual and Jacobian:
-    lam from 0 to 1 of the load ``target``, through every limit point; returns (w, v)."""
-    from dolfinx_granular._dolfinx import petsc_vec
+    """PETSc's own arc length (SNESNEWTONAL, in recent PETSc) through the package's driver on the
+    same problem: lam from 0 to 1 of the load ``target``, through every limit point; (w, v)."""
+    from dolfinx_granular.snes_al import SNESArcLength
 
-    from petsc4py import PETSc
-
-    solver = model.solver
-    f = ArcLength(solver, model.load, model.external, 0.02).f  # the assembled load pattern
-    snes = PETSc.SNES().create(solver.comm)
-    snes.setOptionsPrefix("test_newtonal_")
-    opts = PETSc.Options()
-    settings = {
-        "snes_type": "newtonal",
-        "snes_newtonal_step_size": step_size,
-        "snes_newtonal_psisq": 0.0,
-        "snes_newtonal_lambda_min": -2.0,
-        "snes_newtonal_max_continuation_steps": 500,
-        "snes_max_it": 30,
-        "snes_rtol": 1e-12,
-        "ksp_type": "preonly",
-        "pc_type": "lu",
-    }
-    for key, value in settings.items():
-        opts["test_newtonal_" + key] = value
-    b = petsc_vec(model.u).duplicate()
-
-    def residual(snes_, x, out):
-        model.load.value = snes_.getNewtonALLoadParameter() * target
-        solver.residual(x, out)
-
-    def tangent_load(snes_, x, q):  # Q = -dF/dlam
-        q.set(0.0)
-        q.axpy(target, f)
-
-    snes.setFunction(residual, b)
-    snes.setJacobian(lambda snes_, x, A, P: solver.jacobian(x, A), solver.A)
-    snes.setFromOptions()
-    snes.setNewtonALFunction(tangent_load)
-    x = petsc_vec(model.u).copy()
-    snes.solve(None, x)
-    assert snes.getConvergedReason() > 0 and snes.getNewtonALLoadParameter() == 1.0
-    solver.residual(x, b)  # u = x
-    for key in settings:
-        opts.delValue("test_newtonal_" + key)
+    driver = SNESArcLength(
+        model.solver, model.load, model.external, target, step_size=step_size, prefix="t_al_"
+    )
+    records = []
+    assert driver.run(on_converged=records.append) and driver.failed is None
+    assert driver.lam == 1.0 and [r.t for r in records] == [1.0]
+    assert float(model.load.value) == target  # u and the load at the end state
+    driver.destroy()
     return deflections(model)
 
 
 def test_same_far_branch_as_petsc_snes_newtonal():
     """Where PETSc has SNESNEWTONAL: 1.5 x the peak load is carried only on the far branch, past
     both limit points; PETSc's arc length and this package's reach the same state there."""
-    from petsc4py import PETSc
+    from dolfinx_granular.snes_al import has_newtonal
 
-    if not hasattr(PETSc.SNES.Type, "NEWTONAL"):
-        pytest.skip("this PETSc has no SNESNEWTONAL: nothing to compare with")
+    if not has_newtonal():
+        pytest.skip("this PETSc has no SNESNEWTONAL (PETSc < 3.23): nothing to compare with")
 
     target = 1.5 * P_MAX
     theirs = snes_newtonal_final_state(truss(prefix="al_petsc_"), target, 0.05)
@@ -198,3 +166,33 @@ def test_same_far_branch_as_petsc_snes_newtonal():
     ours = deflections(model)
     assert np.allclose(ours, theirs, rtol=1e-10, atol=0), (ours, theirs)
     assert abs(load_of_apex(ours[0]) - target) <= 1e-9 * P_MAX
+
+
+def test_snes_newtonal_driver_refused_without_it():
+    """Where PETSc lacks SNESNEWTONAL (Debian's 0.5.2: PETSc 3.18) the driver says so and
+    names the alternative, in one line."""
+    from dolfinx_granular.snes_al import SNESArcLength, has_newtonal
+
+    if has_newtonal():
+        pytest.skip("this PETSc has SNESNEWTONAL (tested above)")
+    model = truss(prefix="al_none_")
+    with pytest.raises(RuntimeError, match="needs PETSc >= 3.23.*ArcLength"):
+        SNESArcLength(model.solver, model.load, model.external, 1.0)
+    model.solver.destroy()
+
+
+def test_both_drivers_follow_the_driver_protocol():
+    """ArcLength is a Driver: run(on_converged) with one record per increment (an
+    IncrementRecord, t the load parameter), failed/stopped of one type each."""
+    from dolfinx_granular.drivers import ASKED_TO_STOP, Driver, IncrementRecord
+
+    model = truss(prefix="al_proto_")
+    al = ArcLength(model.solver, model.load, model.external, 0.02, max_increments=3)
+    assert isinstance(al, Driver)
+    records = []
+    assert al.run(on_converged=lambda inc: records.append(inc) or len(records) < 2)
+    assert al.stopped == ASKED_TO_STOP and al.failed is None and len(records) == 2
+    assert all(isinstance(r, IncrementRecord) for r in records)
+    assert [r.t for r in records] == [r.lam for r in records] and records[-1].step == 2
+    assert al.run() and al.stopped == "3 increments" and len(al.path) == 5
+    model.solver.destroy()

@@ -12,19 +12,21 @@ of the last two stored displacement fields).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from dolfinx import fem
 
 from .. import _dolfinx as dfx
-from ..arclength import ASKED_TO_STOP, ArcLength, load_reaches, unloaded_to
-from ..solver import SolveResult
+from ..arclength import ArcLength, load_reaches, unloaded_to
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Mapping, Sequence
 
-    from .run import SlopeRun
+    from petsc4py import PETSc
+
+    from ..runwriter import NodeOrder
+    from .model import SlopeModel
 
 
 def _stop(load_factor, fraction):
@@ -36,102 +38,76 @@ def _stop(load_factor, fraction):
     return stop
 
 
-def follow_footing_path(
-    run: SlopeRun,
-    phase_index: int,
-    converged: Callable[[int, int, float, SolveResult], bool],
-    t0: float = 0.0,
+def footing_path(
+    model: SlopeModel,
+    options: Any,
+    say: Callable[[str], object],
     restart_state: dict | None = None,
-) -> bool:
-    """Drive the footing phase of ``run`` (a SlopeRun) by arc length from t0 (a converged state);
-    True unless the path failed (a stop that ``converged`` asked for sets ``run.stepper.stopped``).
-    ``converged(phase_index, step, t, result)`` records and writes an increment."""
-    m, o = run.model, run.options
-    m.set_footing(t0)  # the loads of the converged state: the weight and the footing at t0
+    du_prev: PETSc.Vec | None = None,
+) -> ArcLength:
+    """The arc-length driver of the footing phase of ``model`` from its converged state (the
+    footing load set), for ``options`` (a :class:`~dolfinx_granular.slope.run.SlopeOptions`);
+    ``restart_state`` and ``du_prev`` (:func:`last_increment`) continue a stored path."""
+    o = options
     al = ArcLength(
-        m.solver,
-        m.footing,
-        m.footing_pattern,
+        model.solver,
+        model.footing,
+        model.footing_pattern,
         dlam=o.load_factor / o.steps,
         direction=np.sign(o.load_factor) or 1.0,
         max_it=15,
         peak_refinement=16.0,
-        log=lambda line: run.say("  " + line),
+        log=lambda line: say("  " + line),
+        stop=_stop(o.load_factor, o.unload_fraction),
     )
     al.ds_max = al.ds  # the arc of the first (nominal) step at most: the softening branch bends
     if restart_state is not None:
-        al.resume(restart_state, _last_increment(run))
-    run.arclength = al
-
-    def on_increment(inc):
-        result = SolveResult(
-            converged=True,
-            reason=2,
-            reason_name="ARC_LENGTH",
-            iterations=inc.iterations,
-            history=list(inc.history),
-            residual_norm=inc.residual_norm,
-            stopped_by=inc.converged_by,
-        )
-        run.stepper.step += 1
-        return converged(phase_index, run.stepper.step, inc.lam / o.load_factor, result)
-
-    ok = al.run(
-        o.max_increments - len(al.path),
-        stop=_stop(o.load_factor, o.unload_fraction),
-        on_converged=on_increment,
-    )
-    if ok and al.stopped == ASKED_TO_STOP:
-        # stopped where asked, not at an end of the path: a stopped run, as the LoadStepper
-        # marks one under load control (status "stopped", the hint to continue with --resume)
-        run.stepper.stopped = True
-    if not ok:
-        run.stepper.failed = {
-            "phase": "footing",
-            "step": run.stepper.step + 1,
-            "t": al.lam / o.load_factor,
-            "reason": _why(run, al.failed),
-            "limit_load": None,
-        }
-    return ok
+        al.resume(restart_state, du_prev)
+    al.max_increments = o.max_increments - len(al.path)
+    return al
 
 
-def _why(run, failed):
-    """The path's failure, with what the RVEs under the footing have to say about it."""
-    open_points = run.model.open_points()
+def path_failure(model: SlopeModel, failed: dict) -> str:
+    """The reason of the path's failure (an ArcLength ``failed`` dict), with what the RVEs
+    under the footing have to say about it."""
+    open_points = model.open_points()
     if open_points:
         return (
-            f"{failed}; {open_points} RVEs have lost every contact (P = 0, a zero tangent): "
-            "no equilibrium path continues from here"
+            f"{failed['reason']}; {open_points} RVEs have lost every contact (P = 0, a zero "
+            "tangent): no equilibrium path continues from here"
         )
-    return failed
+    return failed["reason"]
 
 
-def _last_increment(run):
-    """Du of the last stored increment of the run's restart (None before the second stored
-    state), as a vector."""
-    u_history = run.restart["u_history"]
+def last_increment(
+    restart: Mapping[str, Any], nodes: NodeOrder, V: fem.FunctionSpace
+) -> PETSc.Vec | None:
+    """Du of the last stored increment of a restart (:func:`~dolfinx_granular.slope.run.
+    load_restart`), as a vector of V; None before the second stored state."""
+    u_history = restart["u_history"]
     if len(u_history) < 2:
         return None
-    du = fem.Function(run.model.V)
+    du = fem.Function(V)
     values = np.asarray(u_history[-1]) - np.asarray(u_history[-2])
-    run.nodes.scatter_function(values, run.restart["nodes"], du)
+    nodes.scatter_function(values, restart["nodes"], du)
     return dfx.petsc_vec(du).copy()
 
 
-def path_summary(run: SlopeRun) -> dict | None:
+def path_summary(
+    al: ArcLength | None, step_info: Sequence[Mapping[str, Any]], nominal_load: float
+) -> dict | None:
     """The path's record for summary.json: the peak (footing load in N/m, settlement in m,
-    step), the critical points crossed, how it stopped; None without path following."""
-    al = getattr(run, "arclength", None)
+    step), the critical points crossed, how it stopped; None without a path (``al`` None).
+    ``step_info``: the run's records of its steps; ``nominal_load``: the footing load (N/m)."""
     if al is None:
         return None
-    footing = [s for s in run.step_info if s["phase"] == "footing"]
+    footing = [s for s in step_info if s["phase"] == "footing"]
     peak = max(footing, key=lambda s: abs(s["footing_load"]), default=None)
     estimate = al.peak_estimate()
     return {
         "increments": len(al.path),
         "stopped": al.stopped,
-        "failed": al.failed,
+        "failed": al.failed["reason"] if al.failed else None,
         # the parabola through the sampled peak and its neighbours: the peak footing load
         # between the samples, in units of the nominal load (lam is the footing Constant)
         "peak_estimate": estimate,
@@ -141,7 +117,7 @@ def path_summary(run: SlopeRun) -> dict | None:
             "footing_load": peak["footing_load"],
             "settlement": peak["settlement"],
             "step": peak["step"],
-            "load_factor": peak["footing_load"] / run.options.geometry.footing_load,
+            "load_factor": peak["footing_load"] / nominal_load,
         },
         "critical_points": [c.as_dict() for c in al.critical],
         "path": [

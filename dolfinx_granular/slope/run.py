@@ -25,7 +25,7 @@ import numpy as np
 from mpi4py import MPI
 
 from .. import _dolfinx as dfx
-from ..arclength import ASKED_TO_STOP
+from ..drivers import ASKED_TO_STOP, failure
 from ..fields import cauchy_output
 from ..loading import Cutback, LoadStepper
 from ..packing import Packing
@@ -36,7 +36,7 @@ from ..validity import OVERLAP_THRESHOLD, OverlapMonitor
 from .geometry import SlopeGeometry
 from .interrupt import signal_name, write_line
 from .model import SlopeModel, granular_material, newton_solver
-from .path import follow_footing_path, path_summary
+from .path import footing_path, last_increment, path_failure, path_summary
 from .summary import draw_figure, draw_load_settlement, report_stop, summarise
 
 if TYPE_CHECKING:
@@ -44,9 +44,10 @@ if TYPE_CHECKING:
 
     from dolfinx.fem import Function
 
+    from ..drivers import Driver, IncrementRecord
     from ..friction import FrictionalRVE
     from ..quadrature import QuadratureMaterial
-    from ..solver import NewtonSolver, SolveResult
+    from ..solver import NewtonSolver
     from .interrupt import StopRequest
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
@@ -147,9 +148,11 @@ class SlopeOptions:
 
 
 def convergence_rows(
-    step: int, result: SolveResult
+    step: int, result: IncrementRecord
 ) -> list[tuple[int, int, float, float | str, str]]:
-    """The convergence.csv rows of one converged solve, one per Newton iterate."""
+    """The convergence.csv rows of one converged increment (an
+    :class:`~dolfinx_granular.drivers.IncrementRecord`, or a converged
+    :class:`~dolfinx_granular.solver.SolveResult`), one per Newton iterate."""
     h = result.history
     residuals = [r for _, r, _ in h] + [result.residual_norm]
     energies = [""] + [e for _, _, e in h]
@@ -160,7 +163,7 @@ def convergence_rows(
             i,
             float(residuals[i]),
             energies[i],  # "" on the first row: no Newton step led to the start
-            result.stopped_by if i == last else "",
+            result.converged_by if i == last else "",
         )
         for i in range(len(residuals))
     ]
@@ -228,6 +231,12 @@ class SlopeRun:
 
     Attributes:
         interrupted: the signal that stopped the run (0: none).
+        step: converged load steps so far (all phases, load control and path following).
+        failed: None, or the :func:`~dolfinx_granular.drivers.failure` dict of the phase that
+            failed (its ``t`` that of the phase: lam / load_factor on the path).
+        stopped: None, or :data:`~dolfinx_granular.drivers.ASKED_TO_STOP` (``stop_after``, a
+            signal).
+        arclength: the :class:`~dolfinx_granular.arclength.ArcLength` of path following, or None.
     """
 
     def __init__(
@@ -281,6 +290,7 @@ class SlopeRun:
             self.model.solver, max_cutbacks=o.max_cutbacks, log=lambda line: self.say("  " + line)
         )
         self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
+        self.step, self.failed, self.stopped = 0, None, None
         self.arclength = None  # the path of path_following
         # one ValidityWarning per run, when contact overlaps first pass the threshold
         self.validity = OverlapMonitor()
@@ -440,7 +450,7 @@ class SlopeRun:
         """Continue from a restart: records, stepper state, and the XDMF file rewritten from the
         stored displacements (valid whatever the partition was)."""
         state = restart["state"]
-        self.resumed_from = state["step"]
+        self.resumed_from = self.step = state["step"]
         self.rows = [tuple(r) for r in state["rows"]]
         self.iterations, self.step_info = list(state["iterations"]), list(state["step_info"])
         self.validity.warned = any(s.get("overlap_points_above") for s in self.step_info)
@@ -457,7 +467,7 @@ class SlopeRun:
             material = self.model.material
             stored = dict(restart["history"])
             points = stored.pop("points")
-            material.state = self.points.scatter_state(type(material.state), stored, points)
+            self.points.restore_material(material, stored, points)
             material.update(tangent=False)
             material.commit()
         phase, t, dt = state["phase"], state["t"], state["dt"]
@@ -485,7 +495,7 @@ class SlopeRun:
                 "iterations": result.iterations,
                 "converged": True,
                 "residual_norm": result.residual_norm,
-                "converged_by": result.stopped_by,
+                "converged_by": result.converged_by,
                 "reason": result.reason_name,
                 "open_points": m.open_points(),
                 "non_elliptic_points": m.non_elliptic_points(),
@@ -521,50 +531,62 @@ class SlopeRun:
 
     def run(self) -> bool:
         """Take the load phases from where the run stands; True if every phase completed."""
-        phases = self.options.phases
-        setters = (
-            self.model.set_gravity,
-            self.model.set_footing,
-            lambda t: self.model.set_footing(1.0 - t),
-        )[: len(phases)]
-        increments = (1.0, 1.0 / self.options.steps, 1.0 / self.options.steps)
         clock = [time.perf_counter()]
 
-        def converged(phase_index, step, t, result):
-            self._record(phase_index, step, t, result, time.perf_counter() - clock[0])
-            self._write_step(phase_index, step, t)
+        def converged(phase_index, t, inc):
+            self.step += 1
+            self._record(phase_index, self.step, t, inc, time.perf_counter() - clock[0])
+            self._write_step(phase_index, self.step, t)
             clock[0] = time.perf_counter()
             if self._stop_agreed():
                 return False
-            return not (self.stop_after is not None and step >= self.stop_after)
+            return not (self.stop_after is not None and self.step >= self.stop_after)
 
         if self._stop_agreed():  # (a signal during the set-up)
             return False
         start_phase, start_t, start_dt = self._start
-        for i in range(start_phase, len(phases)):
-            t0 = start_t if i == start_phase else 0.0
-            if i == 1 and self.options.path_following:
-                resumed = (
-                    self.restart["state"].get("arclength")
-                    if self.restart is not None and i == start_phase
-                    else None
-                )
-                if not follow_footing_path(self, i, converged, t0, resumed):
-                    return False
-                if self.stepper.stopped:  # (--stop-after) as under load control: not complete
-                    return False
-                continue
-            setters[i](t0)  # the loads of the converged state the phase starts from
-            if not self.stepper.run(
-                phases[i],
-                setters[i],
-                increments[i],
-                t=t0,
-                dt=start_dt if i == start_phase else None,
-                on_converged=lambda *a, i=i: converged(i, *a),
-            ):
+        for i in range(start_phase, len(self.options.phases)):
+            resumed = i == start_phase
+            driver, t_of = self._driver(
+                i, start_t if resumed else 0.0, start_dt if resumed else None
+            )
+            driver.run(on_converged=lambda inc, i=i, t_of=t_of: converged(i, t_of(inc), inc))
+            if driver.failed is not None:
+                self.failed = self._failure(i, driver)
+                return False
+            if driver.stopped == ASKED_TO_STOP:  # (--stop-after, a signal): not complete
+                self.stopped = ASKED_TO_STOP
                 return False
         return True
+
+    def _driver(self, i: int, t0: float, dt: float | None) -> tuple[Driver, Callable[[Any], float]]:
+        """The driver of phase i from the converged state at t0 (its loads set), and the map
+        from its increments to the phase's t."""
+        o, m = self.options, self.model
+        if i == 1 and o.path_following:
+            stored = None
+            if self.restart is not None and i == self._start[0]:
+                stored = self.restart["state"].get("arclength")
+            m.set_footing(t0)  # the loads of the converged state: the weight and the footing
+            self.arclength = footing_path(
+                m,
+                o,
+                self.say,
+                stored,
+                None if stored is None else last_increment(self.restart, self.nodes, m.V),
+            )
+            return self.arclength, lambda inc: inc.lam / o.load_factor
+        setter = (m.set_gravity, m.set_footing, lambda t: m.set_footing(1.0 - t))[i]
+        setter(t0)  # the loads of the converged state the phase starts from
+        increment = 1.0 if i == 0 else 1.0 / o.steps
+        return self.stepper.phase(o.phases[i], setter, increment, t0, dt), lambda inc: inc.t
+
+    def _failure(self, i, driver):
+        """The run's ``failed`` record of phase i's driver."""
+        if driver is not self.arclength:
+            return driver.failed
+        lam = self.arclength.lam / self.options.load_factor
+        return failure("footing", self.step + 1, lam, path_failure(self.model, driver.failed))
 
 
 def _overlap_note(info):
@@ -615,7 +637,7 @@ def run_slope(
     if run.stop_request is not None:
         run.stop_request.on_signal = None  # the load path is done: a signal now changes nothing
     figure = figure and not run.interrupted  # (asked to stop: no figure of a partial run)
-    path = path_summary(run)
+    path = path_summary(run.arclength, run.step_info, o.geometry.footing_load)
     report_stop(run, path)
     extremes = m.extremes()
     probes = m.probes(extremes[1][1])

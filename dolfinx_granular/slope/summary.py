@@ -3,6 +3,9 @@
 The summary holds the load path (iterations, cut-backs, per step the settlement, the RVEs
 without a loaded contact and those that lost strong ellipticity), the stop (converged, stopped,
 failed at a limit load), the stress extremes at the last converged state and the timings.
+
+``run`` is a :class:`~dolfinx_granular.slope.run.SlopeRun` throughout (not imported here: that
+module imports this one, and the slope's modules form no circle).
 """
 
 from __future__ import annotations
@@ -22,10 +25,8 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
     from os import PathLike
 
-    from .run import SlopeRun
 
-
-def limit_footing_load(failed: dict | None, run: SlopeRun) -> float | None:
+def limit_footing_load(failed: dict | None, run: Any) -> float | None:
     """The footing load (N/m) that a footing phase which failed at a limit load carried at its
     last converged state, or None (no failure, no limit load, another phase)."""
     if failed is None or failed["limit_load"] is None or failed["phase"] != "footing":
@@ -34,7 +35,7 @@ def limit_footing_load(failed: dict | None, run: SlopeRun) -> float | None:
     return o.load_factor * failed["limit_load"]["t_converged"] * o.geometry.footing_load
 
 
-def limit_message(failed: dict, run: SlopeRun) -> str | None:
+def limit_message(failed: dict, run: Any) -> str | None:
     """The log line of a failed footing phase that stopped at a limit load, or None."""
     footing_load = limit_footing_load(failed, run)
     if footing_load is None:
@@ -49,10 +50,10 @@ def limit_message(failed: dict, run: SlopeRun) -> str | None:
     )
 
 
-def report_stop(run: SlopeRun, path: dict | None) -> None:
+def report_stop(run: Any, path: dict | None) -> None:
     """Log how the run ended (failure, limit load, the end of a path, a requested stop);
     ``path``: :func:`~dolfinx_granular.slope.path.path_summary` of the run."""
-    failed, stepper = run.stepper.failed, run.stepper
+    failed = run.failed
     if path is not None and path["peak"] is not None:
         peak = path["peak"]
         run.say(
@@ -72,20 +73,20 @@ def report_stop(run: SlopeRun, path: dict | None) -> None:
     elif run.interrupted:
         name = signal.Signals(run.interrupted).name
         run.say(
-            f"slope: interrupted ({name}) after step {stepper.step}; continue with --resume "
+            f"slope: interrupted ({name}) after step {run.step}; continue with --resume "
             f"{run.writer.out}"
-            if stepper.step
+            if run.step
             else f"slope: interrupted ({name}) before the first load step; nothing to resume"
         )
-    elif stepper.stopped:
+    elif run.stopped:
         run.say(
-            f"slope: stopped after step {stepper.step} as asked (--stop-after); continue "
+            f"slope: stopped after step {run.step} as asked (--stop-after); continue "
             f"with --resume {run.writer.out}"
         )
 
 
 def summarise(
-    run: SlopeRun,
+    run: Any,
     extremes: tuple[np.ndarray, tuple[float, list[float]], tuple[float, list[float]]],
     probes: Sequence[tuple[str, np.ndarray | None, np.ndarray, str, Any]],
     figure_time: float = 0.0,
@@ -98,7 +99,7 @@ def summarise(
     :func:`~dolfinx_granular.slope.path.path_summary` (computed here if not given)."""
     m, comm, stepper = run.model, run.comm, run.stepper
     _, (vmax, xmax), (vmin, xmin) = extremes
-    failed = stepper.failed
+    failed = run.failed
     footing_load = limit_footing_load(failed, run)
     if footing_load is not None:  # the limit load's record with the load carried, in N/m
         failed = {**failed, "limit_load": {**failed["limit_load"], "footing_load": footing_load}}
@@ -109,7 +110,7 @@ def summarise(
     return {
         "ranks": comm.size,
         "steps": run.n_nominal,
-        "completed_steps": stepper.step,
+        "completed_steps": run.step,
         "status": status,
         "converged": status == "converged",
         "failed": failed,
@@ -159,18 +160,20 @@ def summarise(
         "figure_colour_range": colour_range,
         "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()} for label, xp, Fp, *_ in probes},
         # path following (SlopeOptions.path_following): the peak, the critical points, the path
-        "path_following": path_summary(run) if path is None else path,
+        "path_following": path_summary(run.arclength, info, run.options.geometry.footing_load)
+        if path is None
+        else path,
     }
 
 
-def run_status(run: SlopeRun) -> str:
+def run_status(run: Any) -> str:
     """``failed`` (a phase gave up), ``interrupted`` (SIGINT/SIGTERM), ``stopped``
     (``--stop-after``) or ``converged``."""
-    if run.stepper.failed:
+    if run.failed:
         return "failed"
     if run.interrupted:
         return "interrupted"
-    return "stopped" if run.stepper.stopped else "converged"
+    return "stopped" if run.stopped else "converged"
 
 
 def _overlap_validity(run):
@@ -192,7 +195,7 @@ def _permanent_settlement(run):
 
 
 def draw_figure(
-    run: SlopeRun,
+    run: Any,
     path: str | PathLike[str],
     data: tuple[np.ndarray, ...],
     extremes: tuple[np.ndarray, tuple[float, list[float]], tuple[float, list[float]]],
@@ -216,7 +219,7 @@ def draw_figure(
         markers,
         insets,
         value_range=(vmin, vmax),
-        title=f"step {run.stepper.step}: settlement {settlement:.3f} m, "
+        title=f"step {run.step}: settlement {settlement:.3f} m, "
         f"{run.packing.n_particles} particles, deformation x1{_overlap_title(run)}",
     )
     return time.perf_counter() - t0, colour_range
@@ -246,7 +249,7 @@ def load_settlement_curve(
     )
 
 
-def draw_load_settlement(run: SlopeRun, path: str | PathLike[str]) -> None:
+def draw_load_settlement(run: Any, path: str | PathLike[str]) -> None:
     """``load_settlement.png``: the footing's load-settlement path (with its hysteresis when the
     load came off again); rank 0."""
     settlement, load = load_settlement_curve(run.step_info)
