@@ -68,10 +68,15 @@ def stress_tangent(F, P, A, measure="cauchy"):
     d sigma_ij / d F_kl = (A_imkl F_jm + P_il delta_jk) / J - sigma_ij (F^-1)_lk."""
     if measure == "piola":
         return A
-    J, d = np.linalg.det(F), F.shape[0]
-    sigma = P @ F.T / J
-    t = np.einsum("imkl,jm->ijkl", A, F) + np.einsum("il,jk->ijkl", P, np.eye(d))
-    return t / J - np.einsum("ij,lk->ijkl", sigma, np.linalg.inv(F))
+    J = np.linalg.det(F)
+    sigma, Finv = P @ F.T / J, np.linalg.inv(F)
+    T = np.empty(A.shape)
+    # entry by entry, in the operation order of the hand-written confined-shear driver the
+    # friction study had: its published numbers stay bitwise the same
+    for i, j, k, m in np.ndindex(*A.shape):
+        push = A[i, :, k, m] @ F[j] + (P[i, m] if j == k else 0.0)
+        T[i, j, k, m] = push / J - sigma[i, j] * Finv[m, k]
+    return T
 
 
 def _check(F, stress, measure, scale):
@@ -121,11 +126,18 @@ def solve_point(
         :class:`PointResult`. Raises :class:`ControlError` (with the residual history) when not
         converged; nothing is committed then.
     """
-    F, keys, targets, scale = _check(F, stress, measure, stress_scale)
+    F0, keys, targets, scale = _check(F, stress, measure, stress_scale)
     idx = tuple(np.array(keys, dtype=int).T) if keys else None
+    one = np.eye(F0.shape[0])[idx] if keys else None
+    # the unknowns are the displacement gradient H_ij = F_ij - delta_ij: small numbers, and
+    # F_ij = delta_ij + H_ij as the friction study's hand-written driver built it (bitwise)
+    x = F0[idx] - one if keys else None
     lo, hi = -np.inf, np.inf  # one unknown: residual < 0 at lo, > 0 at hi
     residuals = []
     for it in range(max_iter + 1):
+        F = F0.copy()
+        if keys:
+            F[idx] = one + x
         W, P, A, new = _evaluate(law, F, state)
         sigma = P @ F.T / np.linalg.det(F)
         if idx is None:
@@ -135,14 +147,13 @@ def solve_point(
         if np.abs(r).max() <= rtol * scale:
             return PointResult(F, W, P, sigma, new, it, tuple(residuals))
         K = stress_tangent(F, P, A, measure)[idx][:, idx[0], idx[1]]  # (k, k)
-        x = F[idx]
         if r.size == 1:
             lo, hi = (x[0], hi) if r[0] < 0.0 else (lo, x[0])
-        F[idx] = x + _newton_step(K, r, max_increment)
-        if r.size == 1 and not lo < F[idx][0] < hi:
+        x = x + _newton_step(K, r, max_increment)
+        if r.size == 1 and not lo < x[0] < hi:
             # a step always heads for the root's side of x, so only the far bound can be
             # crossed, and that one is finite: bisect the bracket
-            F[idx] = 0.5 * (lo + hi)
+            x = np.array([0.5 * (lo + hi)])
     raise ControlError(
         f"material point: |s - target| = {abs(residuals[-1]):.3e} Pa > {rtol:.0e} x "
         f"{scale:.6g} Pa after {max_iter} iterations (residuals "
