@@ -85,6 +85,14 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
         "Steinmann & Kuhl): dead load, then an eccentric strip footing in load steps, a "
         "Taylor RVE at every Gauss point.",
     )
+    _add_packing_and_output(p)
+    _add_model(p)
+    _add_path_and_run(p)
+    return p
+
+
+def _add_packing_and_output(p: argparse.ArgumentParser) -> None:
+    """The packing's and the output's options."""
     p.add_argument(
         "--particles",
         type=_int_at_least(2),
@@ -111,6 +119,10 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
         help="replace the run in --out (removes the files a run writes there, no others)",
     )
     p.add_argument("--no-figure", action="store_true", help="skip slope.png")
+
+
+def _add_model(p: argparse.ArgumentParser) -> None:
+    """The options of the model: loads, law, solver."""
     p.add_argument(
         "--load-factor",
         type=_finite(),
@@ -151,6 +163,10 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
         help="accept a packing whose disks overlap by more than 5 %% of their radius sums "
         "(prestressed as it is; default: refused, relax it instead)",
     )
+
+
+def _add_path_and_run(p: argparse.ArgumentParser) -> None:
+    """The options of the load path, the mesh and the run (stop, resume)."""
     p.add_argument(
         "--unload",
         action="store_true",
@@ -189,7 +205,6 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
         "(of the options above only --no-figure and --stop-after apply)",
     )
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
-    return p
 
 
 def given_options(argv: Sequence[str], prog: str = "demos/slope.py") -> set[str]:

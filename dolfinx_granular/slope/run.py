@@ -15,7 +15,6 @@ the last row of each step, the test that ended it (``energy norm``, ``round-off`
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import time
@@ -31,11 +30,13 @@ from ..loading import Cutback, LoadStepper
 from ..packing import Packing
 from ..postprocess import cell_function, gather_mesh
 from ..runwriter import NodeOrder, PointOrder, RestartError, RunWriter, read_npz
-from ..rve import TaylorRVE
 from ..validity import OVERLAP_THRESHOLD, OverlapMonitor
-from .geometry import SlopeGeometry
+from .geometry import SlopeGeometry as SlopeGeometry  # (found here too, as before)
 from .interrupt import signal_name, write_line
 from .model import SlopeModel, granular_material, newton_solver
+from .options import K_N as K_N
+from .options import PHASES as PHASES
+from .options import SlopeOptions
 from .path import footing_path, last_increment, path_failure, path_summary
 from .summary import draw_figure, draw_load_settlement, report_stop, summarise
 
@@ -45,15 +46,13 @@ if TYPE_CHECKING:
     from dolfinx.fem import Function
 
     from ..drivers import Driver, IncrementRecord
-    from ..friction import FrictionalRVE
     from ..quadrature import QuadratureMaterial
     from ..solver import NewtonSolver
     from .interrupt import StopRequest
 
-K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
+
 RESTART_FORMAT = "dolfinx_granular.slope_restart"
 CONVERGENCE_HEADER = ["step", "iterate", "residual_norm", "energy_norm_rel", "converged_by"]
-PHASES = ("gravity", "footing")
 #: every file a slope run writes in its folder (``--force`` removes these, and nothing else)
 RUN_FILES = (
     "summary.json",
@@ -66,85 +65,6 @@ RUN_FILES = (
 )
 #: the figures, drawn at the end of a run (stale once a run continues)
 FIGURES = ("slope.png", "load_settlement.png")
-
-
-@dataclasses.dataclass
-class SlopeOptions:
-    """What defines a slope run (stored in its restart file).
-
-    Attributes:
-        steps: nominal footing load steps after the gravity step.
-        load_factor: multiplies the footing load (2: doubled, -0.25: uplift).
-        stabilise: stiffness where an RVE has no loaded contact, relative to its small-strain
-            modulus (0: off).
-        max_cutbacks: most halvings of one increment in a row.
-        petsc_options: SNES/KSP options of the solver (e.g. the line search).
-        normal_stiffness: k_n in N/m².
-        geometry: the slope's dimensions and loads.
-        friction: Coulomb coefficient mu of the contacts (0: frictionless, the paper's model).
-        tangential_stiffness: k_t in N/m² (None: k_n where friction > 0).
-        unload: after the footing phase, remove the footing load in as many steps.
-        path_following: take the footing phase by arc length (past a limit load): it stops
-            once the load has fallen to ``unload_fraction`` of its peak, once the full load is
-            carried, or after ``max_increments``; ``steps`` sets the first increment.
-        allow_overlaps: accept a packing whose disks overlap far (``allow_overlaps`` of
-            :class:`~dolfinx_granular.rve.TaylorRVE`), prestressed as it is.
-    """
-
-    steps: int = 20
-    load_factor: float = 1.0
-    stabilise: float = 0.0
-    max_cutbacks: int = 6
-    petsc_options: dict = dataclasses.field(default_factory=dict)
-    normal_stiffness: float = K_N
-    geometry: SlopeGeometry = dataclasses.field(default_factory=SlopeGeometry)
-    friction: float = 0.0
-    tangential_stiffness: float | None = None
-    unload: bool = False
-    path_following: bool = False
-    max_increments: int = 100
-    unload_fraction: float = 0.9
-    allow_overlaps: bool = False
-
-    def __post_init__(self):
-        if self.path_following and self.unload:
-            raise ValueError(
-                "path following ends past the limit load, where unloading has no "
-                "meaning: choose --path-following or --unload"
-            )
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    @property
-    def phases(self) -> tuple:
-        """The load phases: gravity, footing and (``unload``) unloading."""
-        return PHASES + (("unloading",) if self.unload else ())
-
-    def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
-        """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0."""
-        if self.friction > 0.0:
-            from ..friction import FrictionalRVE
-
-            kt = (
-                self.normal_stiffness
-                if self.tangential_stiffness is None
-                else self.tangential_stiffness
-            )
-            return FrictionalRVE(
-                packing,
-                normal_stiffness=self.normal_stiffness,
-                tangential_stiffness=kt,
-                friction=self.friction,
-                allow_overlaps=self.allow_overlaps,
-            )
-        return TaylorRVE(packing, self.normal_stiffness, allow_overlaps=self.allow_overlaps)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> SlopeOptions:
-        d = dict(d)
-        d["geometry"] = SlopeGeometry(**d["geometry"])
-        return cls(**d)
 
 
 def convergence_rows(
