@@ -96,11 +96,12 @@ def test_mpi_command_ignores_another_stacks_launcher_first_on_path(tmp_path):
         [sys.executable, "-c", ask], env=env, capture_output=True, text=True, check=True
     ).stdout.split()
     assert not cmd[0].startswith(str(tmp_path)), cmd
-    size = "from mpi4py import MPI; print(MPI.COMM_WORLD.size)"
+    # rank 0 alone prints what every rank saw (MPICH may interleave the ranks' output lines)
+    size = "from mpi4py import MPI; c = MPI.COMM_WORLD; s = c.gather(c.size); print(s or '')"
     out = subprocess.run(
         [*cmd, sys.executable, "-c", size], env=env, capture_output=True, text=True, timeout=120
     )
-    assert out.returncode == 0 and out.stdout.split() == ["2", "2"], out.stderr
+    assert out.returncode == 0 and out.stdout.split() == ["[2,", "2]"], out.stderr
 
 
 @pytest.mark.mpi
