@@ -51,6 +51,7 @@ if TYPE_CHECKING:
     import ufl
     from dolfinx import fem
 
+    from .problem import GranularProblem
     from .solver import NewtonSolver
 
 __all__ = [
@@ -68,8 +69,10 @@ class ArcLength:
     """Arc-length continuation on top of a :class:`~dolfinx_granular.solver.NewtonSolver`.
 
     Args:
-        solver: the Newton solver of R(u) - lam f (its forms, materials, boundary conditions and
-            LU solver are used; converged increments commit the materials' history).
+        solver: the Newton solver of R(u) - lam f (its problem, convergence thresholds and LU
+            solver are used; converged increments commit the materials' history), or a bare
+            :class:`~dolfinx_granular.problem.GranularProblem` (default thresholds, an LU
+            solver of its own).
         load: the Constant lam in the residual.
         external: the load pattern f (UFL linear form; the residual is ``... - lam * f``).
         ds: first arc length (m of |Du|, plus psi-weighted load); or None with ``dlam``: the
@@ -102,7 +105,7 @@ class ArcLength:
 
     def __init__(
         self,
-        solver: NewtonSolver,
+        solver: NewtonSolver | GranularProblem,
         load: fem.Constant,
         external: ufl.Form,
         ds: float | None = None,
@@ -122,7 +125,11 @@ class ArcLength:
         stop: Callable[[ArcLength], str | None] | None = None,
     ) -> None:
         self.solver, self.load = solver, load
-        self.problem, self.clock = solver.problem, solver.clock
+        # a NewtonSolver lends its problem, thresholds and LU solver; a bare problem gets its own
+        self.problem = getattr(solver, "problem", solver)
+        self.clock = self.problem.clock  # (a NewtonSolver's clock is its problem's)
+        self._thresholds = getattr(solver, "test", None) or ConvergenceTest(self.problem)
+        self.ksp = solver.snes.getKSP() if hasattr(solver, "snes") else _lu(self.problem.comm)
         self.max_increments, self.stop = int(max_increments), stop
         self.psi = float(psi)
         self.control = control
@@ -234,7 +241,7 @@ class ArcLength:
         give it). Raises RuntimeError if the factorisation fails."""
         with self.clock("callbacks"):  # (as SNES's Jacobian callback; the LU is not)
             A = self.problem.assemble_jacobian(x)
-        ksp = self.solver.snes.getKSP()
+        ksp = self.ksp
         ksp.setOperators(A)
         pc = ksp.getPC()
         mumps = pc.getFactorSolverType() == "mumps"
@@ -253,7 +260,7 @@ class ArcLength:
         return int(np.sign(pc.getFactorMatrix().getMumpsRinfog(12)))
 
     def _solve(self, rhs, out):
-        ksp = self.solver.snes.getKSP()
+        ksp = self.ksp
         ksp.solve(rhs, out)
         if ksp.getConvergedReason() < 0:
             ksp.getPC().reset()
@@ -352,7 +359,7 @@ class ArcLength:
 
     def _new_test(self):
         """The corrector's convergence test: the solver's thresholds, its corrector variant."""
-        t = self.solver.test
+        t = self._thresholds
         return ConvergenceTest(
             self.problem,
             energy_rtol=t.energy_rtol,
@@ -569,6 +576,18 @@ class ArcLength:
         for v in (self.f, self._du_prev):
             if v is not None:
                 v.destroy()
+        if not hasattr(self.solver, "snes"):  # (the LU solver of its own)
+            self.ksp.destroy()
+
+
+def _lu(comm):
+    """A KSP of its own: LU (MUMPS where PETSc has it), as a NewtonSolver's default."""
+    ksp = PETSc.KSP().create(comm)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    if PETSc.Sys.hasExternalPackage("mumps"):
+        ksp.getPC().setFactorSolverType("mumps")
+    return ksp
 
 
 class _Failed(Exception):

@@ -196,3 +196,17 @@ def test_both_drivers_follow_the_driver_protocol():
     assert [r.t for r in records] == [r.lam for r in records] and records[-1].step == 2
     assert al.run() and al.stopped == "3 increments" and len(al.path) == 5
     model.solver.destroy()
+
+
+def test_arc_length_on_the_bare_problem_is_the_path_on_the_solver():
+    """ArcLength acts on the GranularProblem: given the problem alone (default thresholds, an LU
+    solver of its own) it traces, increment for increment, the path it traces on the solver."""
+    on_solver, on_problem = truss(prefix="al_solver_"), truss(prefix="al_problem_")
+    _, s = trace(on_solver, ds=0.05, steps=8)
+    al = ArcLength(on_problem.solver.problem, on_problem.load, on_problem.external, 0.05)
+    states = []
+    al.run(8, on_converged=lambda inc: states.append((inc.lam, *deflections(on_problem))))
+    assert np.array_equal(np.array(states), s) and al.failed is None
+    al.destroy()
+    on_solver.solver.destroy()
+    on_problem.solver.destroy()
