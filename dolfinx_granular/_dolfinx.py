@@ -88,7 +88,7 @@ def function_space(
 def tensor_space(
     msh: Mesh, family: str, degree: int, shape: tuple[int, int] = (2, 2)
 ) -> fem.FunctionSpace:
-    """Space of ``shape``-tensor values (a DG0 (2, 2) space for cell-wise stresses):
+    """Space of ``shape``-tensor values (a DG0 (d, d) space for cell-wise stresses):
     ``fem.functionspace(msh, (family, degree, shape))`` (0.7+) or ``fem.TensorFunctionSpace``
     (0.5, 0.6). One block of ``prod(shape)`` values per dof, row-major."""
     if _NEW_SPACES:
@@ -103,7 +103,7 @@ def xdmf_cell_tensor(f: fem.Function) -> fem.Function:
     zeros (a reader then takes s10 for s_xz). There, the values are copied into a DG0 (3, 3)
     Function of the same name (last row and column 0). The writer changed with the arrival of
     ``fem.functionspace`` (0.7), which is the feature tested."""
-    if not _NEW_SPACES:
+    if not _NEW_SPACES or f.ufl_shape == (3, 3):  # a 3-D mesh's tensor: written as it is
         return f
     msh = f.function_space.mesh
     g = fem.Function(tensor_space(msh, "DG", 0, (3, 3)), name=f.name)

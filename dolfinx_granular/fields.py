@@ -4,7 +4,7 @@ A cell's value is the L2 projection of the quadrature data onto constants on tha
 quadrature of the material's measure: ``sum_q w_q |J_q| v_q / sum_q w_q |J_q|`` (w_q the reference
 weights, J_q the Jacobian determinant at point q). The integral of the DG0 field over any union of
 cells therefore equals the quadrature integral of the point values, ``∫ v dx`` with
-``material.dx``. :func:`cauchy_field` gives the Cauchy stress as a DG0 (2, 2) tensor Function that
+``material.dx``. :func:`cauchy_field` gives the Cauchy stress as a DG0 (d, d) tensor Function that
 ``XDMFFile.write_function`` writes as cell data (ParaView and pyvista show its components).
 """
 
@@ -25,8 +25,9 @@ if TYPE_CHECKING:
 
 
 def point_weights(material: QuadratureMaterial) -> np.ndarray:
-    """(n_points,) the integration weights ``w_q |J_q|`` (m²) of the material's points on this
-    rank, ordered like ``material.points``: ``∫ v dx = sum weights * v`` over the points."""
+    """(n_points,) the integration weights ``w_q |J_q|`` (m² in 2-D, m³ in 3-D) of the
+    material's points on this rank, ordered like ``material.points``: ``∫ v dx = sum weights *
+    v`` over the points."""
     w = dfx.quadrature_weights(material.mesh, material.quadrature_degree)
     detJ = dfx.expression(abs(ufl.JacobianDeterminant(material.mesh)), material.reference_points)
     J = dfx.evaluate(detJ, material.mesh, material.cells).reshape(
@@ -54,21 +55,23 @@ def cell_means(material: QuadratureMaterial, values: ArrayLike) -> np.ndarray:
 def cell_tensor_function(
     material: QuadratureMaterial, values: ArrayLike, name: str
 ) -> fem.Function:
-    """A DG0 (2, 2) Function named ``name`` holding the cell means of per-point tensors
-    ``values`` (n_points, 2, 2) on the material's cells, zero on the others (ghosts updated)."""
+    """A DG0 (d, d) Function named ``name`` holding the cell means of per-point tensors
+    ``values`` (n_points, d, d) on the material's cells, zero on the others (ghosts updated);
+    d is the mesh's dimension."""
+    d = material.mesh.geometry.dim
     means = cell_means(material, values)
-    if means.shape[1:] != (2, 2):
-        raise ValueError(f"values must have shape (n_points, 2, 2), got {np.shape(values)}")
-    V0 = dfx.tensor_space(material.mesh, "DG", 0, (2, 2))
+    if means.shape[1:] != (d, d):
+        raise ValueError(f"values must have shape (n_points, {d}, {d}), got {np.shape(values)}")
+    V0 = dfx.tensor_space(material.mesh, "DG", 0, (d, d))
     f = fem.Function(V0, name=name)
     dofs = dfx.cell_dofs(V0.dofmap)[material.cells, 0]
-    f.x.array.reshape(-1, 4)[dofs] = means.reshape(-1, 4)
+    f.x.array.reshape(-1, d * d)[dofs] = means.reshape(-1, d * d)
     f.x.scatter_forward()
     return f
 
 
 def cauchy_field(material: QuadratureMaterial, name: str = "cauchy") -> fem.Function:
-    """The Cauchy stress (Pa) of a GranularMaterial at its last update as a DG0 (2, 2) tensor
+    """The Cauchy stress (Pa) of a GranularMaterial at its last update as a DG0 (d, d) tensor
     Function of volume-weighted cell means (``material.cauchy()``: the stabiliser's fictitious
     stress left out), for ``XDMFFile.write_function``. Collective: call it on every rank."""
     return cell_tensor_function(material, material.cauchy(), name)

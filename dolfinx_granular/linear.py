@@ -1,6 +1,7 @@
 """Small-strain isotropic linear elasticity written in UFL: a sibling of the RVE material.
 
-``sigma = lam tr(eps) I + 2 mu eps`` with ``eps = sym(grad u)`` (plane strain). Nothing is
+``sigma = lam tr(eps) I + 2 mu eps`` with ``eps = sym(grad u)`` (plane strain on a 2-D mesh; the
+mesh's dimension d sets the shapes). Nothing is
 evaluated per quadrature point: the forms carry the whole law, :meth:`update` does nothing. Use it
 for the parts of a model that are not granular (a linear elastic base under a granular layer) or
 as a yardstick of cost (the same mesh and solver with the cheapest law).
@@ -37,7 +38,7 @@ class LinearElasticMaterial(QuadratureMaterial):
     """Isotropic linear elasticity in UFL on the material's cells (all, or ``cells=``).
 
     Args:
-        u: displacement Function (2-D vector Lagrange space), in m.
+        u: displacement Function (vector Lagrange space of a d-dimensional mesh), in m.
         lam, mu: Lamé constants in Pa (mu > 0, lam + mu > 0).
         quadrature_degree: degree of the "default" scheme of ``dx`` (an integer >= 1).
         cells: local indices of the cells the material occupies (None: all).
@@ -74,7 +75,7 @@ class LinearElasticMaterial(QuadratureMaterial):
     def sigma(self, w: Expr) -> Expr:
         """Stress of a displacement w (UFL), in Pa, on the whole mesh (no indicator)."""
         eps = ufl.sym(ufl.grad(w))
-        return self.lam * ufl.tr(eps) * ufl.Identity(2) + 2.0 * self.mu * eps
+        return self.lam * ufl.tr(eps) * ufl.Identity(self.dim) + 2.0 * self.mu * eps
 
     def stress(self) -> Expr:
         sigma = self.sigma(self.u)
@@ -85,10 +86,11 @@ class LinearElasticMaterial(QuadratureMaterial):
 
     @property
     def F(self) -> np.ndarray:
-        """F = I + grad u (n_points, 2, 2) at the points for the current u."""
+        """F = I + grad u (n_points, d, d) at the points for the current u."""
         return self.deformation_gradient()
 
     def cauchy(self) -> np.ndarray:
-        """Stress (n_points, 2, 2) in Pa at the points for the current u (linear theory does
+        """Stress (n_points, d, d) in Pa at the points for the current u (linear theory does
         not distinguish stress measures)."""
-        return dfx.evaluate(self._sigma_expr, self.mesh, self.cells).reshape(-1, 2, 2)
+        d = self.dim
+        return dfx.evaluate(self._sigma_expr, self.mesh, self.cells).reshape(-1, d, d)

@@ -8,9 +8,14 @@ the first Piola stress P and the tangent dP/dF into quadrature Functions, which 
 Ghost cells are skipped: cell integrals never read their quadrature values, so no RVE is evaluated
 twice across ranks.
 
-A law with history is always evaluated from the committed state; :meth:`GranularMaterial.commit`
-(called by :class:`~dolfinx_granular.solver.NewtonSolver` when a solve converges) makes the state
-of the last update the committed one. Flattening convention: see
+A law with history is always evaluated from the committed state (a
+:class:`~dolfinx_granular.law.HistoryState`); :meth:`GranularMaterial.commit` (called by
+:class:`~dolfinx_granular.solver.NewtonSolver` when a solve converges) makes the state of the last
+update the committed one. Restarts move the committed state through
+:meth:`~GranularMaterial.export_state` and :meth:`~GranularMaterial.restore_state` only.
+
+The dimension d (2 or 3) comes from the mesh; the law must take F of the same shape (d, d)
+(:func:`~dolfinx_granular.law.law_dimension`). Flattening convention: see
 :mod:`~dolfinx_granular.quadrature`.
 """
 
@@ -23,7 +28,7 @@ import ufl
 from dolfinx import fem
 
 from . import _dolfinx as dfx
-from .law import has_history
+from .law import check_state, has_history, law_dimension
 from .quadrature import QuadratureMaterial, flatten, unflatten
 from .rve import PRESTRESS_WARNING, UnsupportedDeformationError
 
@@ -39,9 +44,10 @@ class GranularMaterial(QuadratureMaterial):
     Args:
         rve: the material-point law (:class:`~dolfinx_granular.law.MaterialLaw` or
             :class:`~dolfinx_granular.law.HistoryLaw`).
-        u: displacement Function on a 2-D vector Lagrange space (Q1/P1 or higher), in m.
+        u: displacement Function on a vector Lagrange space (Q1/P1 or higher) of a d-dimensional
+            mesh, in m; d must be the law's dimension (ValueError otherwise).
         quadrature_degree: degree k of the "default" quadrature scheme (2: 2x2 Gauss points on
-            quadrilaterals, 3 points on triangles); an integer >= 1.
+            quadrilaterals, 3 points on triangles, 2x2x2 on hexahedra); an integer >= 1.
         stabilise: alpha >= 0. Where an RVE has lost all its load-carrying contacts (W = 0: every
             contact open, P = 0 and a zero tangent, so the global matrix can become singular), add
             the linear stress ``alpha C : (F - I)`` and tangent ``alpha C``, C the law's small-
@@ -52,11 +58,13 @@ class GranularMaterial(QuadratureMaterial):
             A are zero.
 
     Attributes:
-        P: quadrature Function (2, 2), first Piola stress in Pa (the material's owned cells).
-        A: quadrature Function (4, 4), dP/dF on flattened F, in Pa.
+        P: quadrature Function (d, d), first Piola stress in Pa (the material's owned cells).
+        A: quadrature Function (d*d, d*d), dP/dF on flattened F, in Pa.
         W: (n_points,) energy density in Pa at the points.
-        state: committed state of a law with history (None without history).
-        trial_state: state at the last ``update`` (committed by :meth:`commit`).
+        has_state: the law carries a state (a HistoryLaw); ``history`` is its older name.
+        state: committed state of a law with history (None without history); read-only: use
+            :meth:`restore_state`.
+        trial_state: state at the last ``update`` (committed by :meth:`commit`); read-only.
         n_open: points at the last ``update`` whose RVE had no loaded contact.
         P_stab: quadrature Function with the stabilising stress of the last ``update`` (None
             without a stabiliser).
@@ -72,12 +80,13 @@ class GranularMaterial(QuadratureMaterial):
         stabilise: float = 0.0,
         cells: ArrayLike | None = None,
     ) -> None:
-        self.history = has_history(rve)
+        self.has_state = has_history(rve)
         super().__init__(u, quadrature_degree, cells)
         self.rve = rve
-        msh, k, n = self.mesh, self.quadrature_degree, self.n_points
-        self.P = fem.Function(dfx.quadrature_space(msh, k, (2, 2)), name="P")
-        self.A = fem.Function(dfx.quadrature_space(msh, k, (4, 4)), name="A")
+        msh, k, n, d = self.mesh, self.quadrature_degree, self.n_points, self.dim
+        _check_law_dimension(rve, d)
+        self.P = fem.Function(dfx.quadrature_space(msh, k, (d, d)), name="P")
+        self.A = fem.Function(dfx.quadrature_space(msh, k, (d * d, d * d)), name="A")
         imap = msh.topology.index_map(msh.topology.dim)
         n_all = imap.size_local + imap.num_ghosts
         for f in (self.P, self.A):
@@ -93,14 +102,14 @@ class GranularMaterial(QuadratureMaterial):
         self._hold_as_data(self.P, self.A)
         self._slots = _point_slots(self.cells, self.n_qp, imap.size_local)
         self.W = np.zeros(n)
-        self.F = np.tile(np.eye(2), (n, 1, 1))
-        self._P_data = _PointData(self.P, self._slots, (2, 2))
-        self._A_data = _PointData(self.A, self._slots, (2, 2, 2, 2))
+        self.F = np.tile(np.eye(d), (n, 1, 1))
+        self._P_data = _PointData(self.P, self._slots, (d, d))
+        self._A_data = _PointData(self.A, self._slots, (d, d, d, d))
         self.n_updates = 0
         self.n_open = 0
         self._scalar = None
-        self.state = rve.initial_state(n) if self.history else None
-        self.trial_state = self.state
+        self._state = check_state(rve.initial_state(n)) if self.has_state else None
+        self._trial_state = self._state
         alpha = float(stabilise)
         if not (np.isfinite(alpha) and alpha >= 0.0):
             raise ValueError(f"stabilise must be a finite number >= 0, got {stabilise!r}")
@@ -109,11 +118,47 @@ class GranularMaterial(QuadratureMaterial):
         self.P_stab = None  # the stabilising part of P alone, to measure its effect
         if alpha > 0.0:
             self.P_stab = fem.Function(self.P.function_space, name="P_stab")
-            self._P_stab_data = _PointData(self.P_stab, self._slots, (2, 2))
+            self._P_stab_data = _PointData(self.P_stab, self._slots, (d, d))
+
+    @property
+    def state(self):
+        """The committed :class:`~dolfinx_granular.law.HistoryState` (None without history)."""
+        return self._state
+
+    @property
+    def trial_state(self):
+        """The state at the last ``update`` (becomes :attr:`state` on :meth:`commit`)."""
+        return self._trial_state
+
+    def export_state(self):
+        """The committed state of this rank's points, ordered like :attr:`points` (a
+        :class:`~dolfinx_granular.law.HistoryState`; None for a law without history). States
+        are immutable: the object may be kept, gathered or saved as it is."""
+        return self._state
+
+    def restore_state(self, state) -> None:
+        """Make ``state`` (a HistoryState of this rank's ``n_points`` points, ordered like
+        :attr:`points`, e.g. from :meth:`export_state` or a restart file) the committed and the
+        trial state; the next :meth:`update` evaluates from it."""
+        if not self.has_state:
+            if state is None:
+                return
+            raise ValueError(
+                f"restore_state: {type(self.rve).__name__} has no history; pass None (or "
+                "nothing to restore)"
+            )
+        state = check_state(state)
+        if state.n_points != self.n_points or not isinstance(state, type(self._state)):
+            raise ValueError(
+                f"restore_state needs a {type(self._state).__name__} of {self.n_points} points "
+                f"(this rank's), got a {type(state).__name__} of {state.n_points}; restore the "
+                "state exported by a material on the same cells"
+            )
+        self._state = self._trial_state = state
 
     @property
     def tangent(self) -> np.ndarray:
-        """(n_points, 2, 2, 2, 2) dP/dF in Pa at the last ``update(tangent=True)``,
+        """(n_points, d, d, d, d) dP/dF in Pa at the last ``update(tangent=True)``,
         ``[q, a, b, c, d] = dP_ab / dF_cd`` (stabiliser included)."""
         return self._A_data.values
 
@@ -150,11 +195,11 @@ class GranularMaterial(QuadratureMaterial):
 
     def _evaluate(self, F, tangent):
         P, A = self._P_data.values, self._A_data.values
-        if self.history:
+        if self.has_state:
             if tangent:
-                *_, self.trial_state = self.rve.evaluate(F, self.state, out=(self.W, P, A))
+                *_, self._trial_state = self.rve.evaluate(F, self._state, out=(self.W, P, A))
             else:
-                *_, self.trial_state = self.rve.stress(F, self.state, out=(self.W, P, None))
+                *_, self._trial_state = self.rve.stress(F, self._state, out=(self.W, P, None))
         elif tangent:
             self.rve.evaluate(F, out=(self.W, P, A))
         else:
@@ -164,7 +209,7 @@ class GranularMaterial(QuadratureMaterial):
         P_stab = self._P_stab_data.values
         P_stab[...] = 0.0
         if opened.size:
-            E = F[opened] - np.eye(2)
+            E = F[opened] - np.eye(self.dim)
             P_stab[opened] = np.einsum("abcd,qcd->qab", self._C_stab, E)
             self._P_data.values[opened] += P_stab[opened]
             if tangent:
@@ -184,13 +229,13 @@ class GranularMaterial(QuadratureMaterial):
     def dissipated_energy(self) -> float:
         """Energy dissipated so far in the committed state, ∫ D dx in J per unit thickness (0 for
         a law without dissipation)."""
-        D = getattr(self.state, "dissipation", None)
+        D = getattr(self._state, "dissipation", None)
         return self.integrate(D) if D is not None else 0.0
 
     def commit(self) -> None:
         """Make the state of the last ``update`` the committed one (no-op without history)."""
-        if self.history:
-            self.state = self.trial_state
+        if self.has_state:
+            self._state = self._trial_state
 
     def stress(self) -> fem.Function:
         return self.P
@@ -205,9 +250,9 @@ class GranularMaterial(QuadratureMaterial):
         return ufl.inner(ufl.dot(self.A, flatten(ufl.grad(du))), flatten(ufl.grad(v))) * self.dx
 
     def reference_stress(self) -> np.ndarray:
-        """The law's P(I) (2, 2) in Pa, from the initial state of a law with history."""
-        I = np.eye(2)[None]
-        if self.history:
+        """The law's P(I) (d, d) in Pa, from the initial state of a law with history."""
+        I = np.eye(self.dim)[None]
+        if self.has_state:
             return self.rve.stress(I, self.rve.initial_state(1))[1][0]
         return self.rve.stress(I)[1][0]
 
@@ -225,10 +270,20 @@ class GranularMaterial(QuadratureMaterial):
         return ufl.inner(stress, ufl.grad(v)) * self.dx
 
     def cauchy(self) -> np.ndarray:
-        """Cauchy stress sigma (n_points, 2, 2) in Pa at the F of the last ``update``."""
-        if self.history:
-            return self.rve.cauchy(self.F, self.state)
+        """Cauchy stress sigma (n_points, d, d) in Pa at the F of the last ``update``."""
+        if self.has_state:
+            return self.rve.cauchy(self.F, self._state)
         return self.rve.cauchy(self.F)
+
+
+def _check_law_dimension(law, d):
+    """ValueError unless the law takes F of shape (n, d, d), d the mesh's dimension."""
+    d_law = law_dimension(law)
+    if d_law != d:
+        raise ValueError(
+            f"GranularMaterial: {type(law).__name__} is a {d_law}-D law (F of shape (n, {d_law}, "
+            f"{d_law})) and the mesh is {d}-D; give a {d}-D law or a {d_law}-D mesh"
+        )
 
 
 def _point_slots(cells, n_qp, n_owned):

@@ -1,14 +1,17 @@
 """What every quadrature-point material shares: points, F, forms, the consistent Jacobian.
 
-A quadrature material lives on the Gauss points of the owned cells of a 2-D mesh (or of a subset
-of them, ``cells=``) and provides the UFL terms of its internal virtual work. Subclasses are
+A quadrature material lives on the Gauss points of the owned cells of a d-dimensional mesh (d = 2 or
+3; or of a subset of them, ``cells=``) and provides the UFL terms of its internal virtual work.
+Subclasses are
 :class:`~dolfinx_granular.material.GranularMaterial` (a material-point law evaluated pointwise into
 quadrature Functions) and :class:`~dolfinx_granular.linear.LinearElasticMaterial` (a law written
 in UFL). :func:`derivative` gives the consistent Jacobian of any residual built from them.
 
-Flattening convention (DOLFINx 0.5 cannot hold rank-4 quadrature tensors; one layout on every
-release): F, P and grad v are flattened row-major, ``[F00, F01, F10, F11]``, and a tangent is the
-(4, 4) matrix ``A[2a+b, 2c+d] = dP_ab / dF_cd``.
+Flattening convention, one rule for any dimension d (DOLFINx 0.5 cannot hold rank-4 quadrature
+tensors; one layout on every release): F, P and grad v are flattened row-major to d*d values,
+``T[a, b] -> t[d*a + b]`` (``[F00, F01, F10, F11]`` in 2-D), and a tangent is the (d*d, d*d) matrix
+``A[d*a + b, d*c + e] = dP_ab / dF_ce``. P itself is held as a (d, d) quadrature tensor (d*d values
+per point, the same row-major layout).
 
 A material on a subdomain (``cells=``) contributes nothing on the other cells: its stress and
 tangent are zero there (quadrature data, or a cell indicator for UFL laws), so several materials
@@ -17,6 +20,7 @@ add up in one residual with the one measure ``dx`` and no subdomain data.
 
 from __future__ import annotations
 
+import math
 import numbers
 import weakref
 from typing import TYPE_CHECKING
@@ -46,13 +50,18 @@ def data_owner(f: object) -> QuadratureMaterial | None:
 
 
 def flatten(T: Expr) -> Expr:
-    """Row-major flattening of a 2x2 UFL tensor to a 4-vector ``[T00, T01, T10, T11]``."""
-    return ufl.as_vector([T[0, 0], T[0, 1], T[1, 0], T[1, 1]])
+    """Row-major flattening of a (d, d) UFL tensor to a (d*d,) vector, ``t[d*a + b] = T[a, b]``
+    (``[T00, T01, T10, T11]`` in 2-D)."""
+    d = T.ufl_shape[0]
+    return ufl.as_vector([T[a, b] for a in range(d) for b in range(d)])
 
 
 def unflatten(t: Expr) -> Expr:
-    """The 2x2 UFL tensor of a row-major 4-vector (inverse of :func:`flatten`)."""
-    return ufl.as_matrix([[t[0], t[1]], [t[2], t[3]]])
+    """The (d, d) UFL tensor of a row-major (d*d,) vector (inverse of :func:`flatten`)."""
+    d = math.isqrt(t.ufl_shape[0])
+    if d * d != t.ufl_shape[0]:
+        raise ValueError(f"unflatten needs a vector of d*d values, got shape {t.ufl_shape}")
+    return ufl.as_matrix([[t[d * a + b] for b in range(d)] for a in range(d)])
 
 
 def check_quadrature_degree(value: float) -> int:
@@ -97,20 +106,22 @@ class QuadratureMaterial:
     """Base of the materials on the quadrature points of the owned cells.
 
     Args:
-        u: displacement Function on a 2-D vector Lagrange space (Q1/P1 or higher), in m.
+        u: displacement Function on a vector Lagrange space (Q1/P1 or higher) of a mesh of
+            dimension d (geometric = topological dimension, e.g. 2 or 3), with d components, in m.
         quadrature_degree: degree k of the "default" scheme (2: 2x2 Gauss points on
-            quadrilaterals, 3 points on triangles); an integer >= 1.
+            quadrilaterals, 3 points on triangles, 2x2x2 on hexahedra); an integer >= 1.
         cells: local indices of the cells the material occupies (ghosts allowed, ignored for
             evaluation); None: every cell.
 
     Attributes:
         u, mesh, quadrature_degree: as given.
+        dim: d, the dimension of the mesh (F, P are (d, d) at every point).
         dx: cell measure with the quadrature metadata; use it for every form that reads the
             material's quadrature data.
         cells: (n_cells,) the owned cells the material evaluates.
         n_qp: quadrature points per cell.
-        reference_points: (n_qp, 2) the quadrature points on the reference cell.
-        F: (n_points, 2, 2) deformation gradient at the last ``update`` (point ``cell*n_qp+q``
+        reference_points: (n_qp, d) the quadrature points on the reference cell.
+        F: (n_points, d, d) deformation gradient at the last ``update`` (point ``cell*n_qp+q``
             of ``cells``), set by the subclasses.
         clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"F"`` (evaluating grad u) and
             ``"rve"`` (the law); ``timings`` is its wall-time table.
@@ -119,25 +130,19 @@ class QuadratureMaterial:
     def __init__(
         self, u: fem.Function, quadrature_degree: int = 2, cells: ArrayLike | None = None
     ) -> None:
-        V = u.function_space
-        msh = V.mesh
-        if msh.geometry.dim != 2 or u.ufl_shape != (2,):
-            raise ValueError(
-                f"{type(self).__name__} needs a 2-D mesh and a vector displacement with 2 "
-                f"components; got geometric dimension {msh.geometry.dim} and value shape "
-                f"{u.ufl_shape}"
-            )
+        msh = u.function_space.mesh
+        self.dim = d = _mesh_dimension(type(self).__name__, msh, u)
         self.u = u
         self.mesh = msh
         self.quadrature_degree = k = check_quadrature_degree(quadrature_degree)
         self.dx = ufl.Measure(
             "dx", domain=msh, metadata={"quadrature_degree": k, "quadrature_scheme": "default"}
         )
-        # the reference quadrature points (n_qp, 2): expressions of subclasses use them too
+        # the reference quadrature points (n_qp, d): expressions of subclasses use them too
         self.reference_points = X = dfx.quadrature_points(msh, k)
         self.n_qp = X.shape[0]
         self.cells, self.indicator = _material_cells(msh, cells)
-        self._F_expr = dfx.expression(ufl.Identity(2) + ufl.grad(u), X)
+        self._F_expr = dfx.expression(ufl.Identity(d) + ufl.grad(u), X)
         self._x_expr = dfx.expression(ufl.SpatialCoordinate(msh), X)
         self.clock = Stopwatch()
 
@@ -150,9 +155,10 @@ class QuadratureMaterial:
 
     @property
     def points(self) -> np.ndarray:
-        """(n_points, 2) reference coordinates of the points (m), ordered like F."""
+        """(n_points, d) reference coordinates of the points (m), ordered like F."""
         if not hasattr(self, "_points"):
-            self._points = dfx.evaluate(self._x_expr, self.mesh, self.cells).reshape(-1, 2)
+            values = dfx.evaluate(self._x_expr, self.mesh, self.cells)
+            self._points = values.reshape(-1, self.dim)
         return self._points
 
     @property
@@ -161,9 +167,10 @@ class QuadratureMaterial:
         return {"F": self.clock.wall["F"], "rve": self.clock.wall["rve"]}
 
     def deformation_gradient(self) -> np.ndarray:
-        """F = I + grad u (n_points, 2, 2) at the points for the current u."""
+        """F = I + grad u (n_points, d, d) at the points for the current u."""
+        d = self.dim
         with self.clock("F"):
-            return dfx.evaluate(self._F_expr, self.mesh, self.cells).reshape(-1, 2, 2)
+            return dfx.evaluate(self._F_expr, self.mesh, self.cells).reshape(-1, d, d)
 
     def cell_average(self, values: ArrayLike) -> np.ndarray:
         """Mean of a per-point array (n_points, ...) over each cell's quadrature points
@@ -191,6 +198,23 @@ class QuadratureMaterial:
 
     # -- state (no history here; see GranularMaterial) -----------------------------------------
 
+    #: the law carries a state (a HistoryState) that export_state/restore_state move
+    has_state: bool = False
+
+    @property
+    def history(self) -> bool:
+        """The older name of :attr:`has_state` (kept for existing callers)."""
+        return self.has_state
+
+    def export_state(self):
+        """The committed law state of this rank's points (None: a law without history)."""
+        return None
+
+    def restore_state(self, state) -> None:
+        """Make ``state`` (from :meth:`export_state`) the committed one; None here."""
+        if state is not None:
+            raise ValueError(f"{type(self).__name__} has no history state; pass None")
+
     def update(self, tangent: bool = True) -> None:
         """Evaluate the law at the current u (and the tangent if ``tangent``)."""
         raise NotImplementedError
@@ -205,7 +229,7 @@ class QuadratureMaterial:
     # -- forms ---------------------------------------------------------------------------------
 
     def stress(self) -> Expr:
-        """P as UFL (2x2): the quadrature Function, or the UFL law."""
+        """P as UFL (d x d): the quadrature Function, or the UFL law."""
         raise NotImplementedError
 
     def residual_form(self, v: ufl.Argument) -> ufl.Form:
@@ -228,6 +252,20 @@ class QuadratureMaterial:
         return derivative(residual, u, du, [self])
 
 
+def _mesh_dimension(name: str, msh, u) -> int:
+    """d of a mesh whose cells span its space (geometric = topological dimension) and whose
+    displacement u has d components; ValueError naming the mismatch otherwise."""
+    d, tdim = msh.geometry.dim, msh.topology.dim
+    if d != tdim or u.ufl_shape != (d,):
+        raise ValueError(
+            f"{name} needs a mesh of cells that fill its space (2-D or 3-D) and a vector "
+            f"displacement with one component per dimension; got geometric dimension {d}, "
+            f"topological dimension {tdim} and value shape {u.ufl_shape} (use "
+            "vector_space(mesh) on a triangle/quadrilateral or tetrahedron/hexahedron mesh)"
+        )
+    return d
+
+
 def _material_cells(msh, cells):
     """The owned cells of the material (int32, ascending) and, on a subdomain, a DG0 indicator
     Function of its cells (1 on them, 0 elsewhere; None for the whole mesh)."""
@@ -240,7 +278,7 @@ def _material_cells(msh, cells):
     if cells.ndim != 1 or not np.issubdtype(cells.dtype, np.integer) and cells.size:
         raise ValueError(
             "cells must be a 1-D array of local cell indices (e.g. from "
-            "dolfinx.mesh.locate_entities(mesh, 2, marker))"
+            f"dolfinx.mesh.locate_entities(mesh, {tdim}, marker))"
         )
     cells = np.unique(cells.astype(np.int32))
     if cells.size and (cells[0] < 0 or cells[-1] >= n_all):

@@ -19,11 +19,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from mpi4py import MPI
 
+from .law import check_state
+
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
 
     from dolfinx.fem import Function, FunctionSpace
     from numpy.typing import ArrayLike
+
+    from .law import HistoryState
 
 
 class RestartError(ValueError):
@@ -153,21 +157,38 @@ class NodeOrder(_CoordinateOrder):
 
 class PointOrder(_CoordinateOrder):
     """Per-point data of a quadrature material's points (reference coordinates ``points``),
-    partition-independent: arrays, or a history state with ``take``, ``concatenate``,
-    ``to_arrays`` and ``from_arrays`` (e.g. a FrictionState)."""
+    partition-independent: arrays, or a law's state (a
+    :class:`~dolfinx_granular.law.HistoryState`, e.g. a FrictionState). A material's state
+    moves only through its ``export_state`` / ``restore_state``: :meth:`gather_material` and
+    :meth:`restore_material`."""
 
     def local_rows(self, X_stored: ArrayLike) -> np.ndarray:
         """Indices into the stored (ordered) points of this rank's points, in local order."""
         return self.match(X_stored, self.X_local)
 
-    def gather_state(self, state: Any) -> Any:
+    def gather_state(self, state: HistoryState) -> HistoryState | None:
         """Rank 0: the state of every rank's points in coordinate order (other ranks: None)."""
-        parts = self.comm.gather(state.to_arrays(), root=0)
+        parts = self.comm.gather(check_state(state).to_arrays(), root=0)
         if self.comm.rank != 0:
             return None
         cls = type(state)
         return cls.concatenate([cls.from_arrays(p) for p in parts]).take(self.order)
 
-    def scatter_state(self, cls: type, arrays: Mapping[str, ArrayLike], X_stored: ArrayLike) -> Any:
+    def scatter_state(
+        self, cls: type, arrays: Mapping[str, ArrayLike], X_stored: ArrayLike
+    ) -> HistoryState:
         """This rank's part of a state stored (``to_arrays`` of a gathered one) at ``X_stored``."""
         return cls.from_arrays(arrays).take(self.local_rows(X_stored))
+
+    def gather_material(self, material: Any) -> HistoryState | None:
+        """Rank 0: the committed state of a material (``export_state``) over every rank, in
+        coordinate order; other ranks: None."""
+        return self.gather_state(material.export_state())
+
+    def restore_material(
+        self, material: Any, arrays: Mapping[str, ArrayLike], X_stored: ArrayLike
+    ) -> None:
+        """Give a material (``restore_state``) this rank's part of a state stored (``to_arrays``
+        of :meth:`gather_material`) at ``X_stored``, on any partition."""
+        cls = type(material.export_state())
+        material.restore_state(self.scatter_state(cls, arrays, X_stored))

@@ -184,7 +184,7 @@ class SlopeModel:
         the step, then :meth:`extremes`), each time an RVE evaluation at every point. A material
         without an update count (``n_updates``) is evaluated at every call."""
         material = self.material
-        updates, state = getattr(material, "n_updates", None), getattr(material, "state", None)
+        updates, state = getattr(material, "n_updates", None), material.export_state()
         kept = self._von_mises
         if updates is not None and kept is not None and kept[0] == updates and kept[1] is state:
             return kept[2]
@@ -231,12 +231,17 @@ class SlopeModel:
             rank, i, xp = nearest_point(self.comm, self.material.points, spot)
             mine = self.comm.rank == rank
             F = self.comm.bcast(np.array(self.material.F[i]) if mine else None, root=rank)
-            state = None
-            if getattr(self.material, "history", False):
-                arrays = self.material.state.take([i]).to_arrays() if mine else None
-                state = type(self.material.state).from_arrays(self.comm.bcast(arrays, root=rank))
-            probes.append((label, xp, F, text, state))
+            probes.append((label, xp, F, text, self._point_state(rank, i)))
         return probes
+
+    def _point_state(self, rank: int, i: int) -> Any:
+        """The committed law state of point i of ``rank`` (a one-point HistoryState), on every
+        rank; None for a law without history."""
+        committed = self.material.export_state()
+        if committed is None:
+            return None
+        arrays = committed.take([i]).to_arrays() if self.comm.rank == rank else None
+        return type(committed).from_arrays(self.comm.bcast(arrays, root=rank))
 
     def min_singular_value(self) -> float:
         F = self.material.F
