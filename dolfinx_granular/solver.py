@@ -29,6 +29,7 @@ that a load stepper (:mod:`dolfinx_granular.loading`) can cut the step back.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -310,18 +311,29 @@ class NewtonSolver:
             return True
         return not self.test.relative(self._step_energy(x)) <= self.energy_rtol
 
+    @contextmanager
+    def _callback(self):
+        """Time a SNES callback and keep any exception it raises (a bug: not a
+        LawEvaluationError), which petsc4py >= 3.20 would turn into a PETSc error."""
+        try:
+            with self.clock("callbacks"):
+                yield
+        except BaseException as err:
+            self._raised = self._raised or err
+            raise
+
     def _residual(self, snes, x, b):
-        with self.clock("callbacks"):
+        with self._callback():
             error = self.problem.residual(x, b, self._tangent_needed(x))
             if error:
                 self._error = error
 
     def _jacobian(self, snes, x, A, P):
-        with self.clock("callbacks"):
+        with self._callback():
             self.problem.assemble_jacobian(x, A)
 
     def _converged(self, snes, it, norms):
-        with self.clock("callbacks"):
+        with self._callback():
             self._verdict = int(self._test(snes, it, norms[2]))
         return self._verdict
 
@@ -354,7 +366,7 @@ class NewtonSolver:
         the result says why.
         """
         self.test.reset()
-        self._error, self._stagnated, self._verdict = None, False, 0
+        self._error, self._stagnated, self._verdict, self._raised = None, False, 0, None
         self.problem.external = float("nan")
         self.problem.invalidate()
         start = self.u.x.array.copy()
@@ -363,6 +375,8 @@ class NewtonSolver:
         u_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         u_vec.copy(self.x)
         petsc_error = self._run_snes()
+        if self._raised is not None:  # a bug in a callback reaches the user with its traceback
+            raise self._raised
         with self.clock("after"):
             self._error = self._error or self._final_evaluation()
         reason, name = self._outcome(petsc_error)
