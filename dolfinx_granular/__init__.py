@@ -60,6 +60,10 @@ SUPPORTED_DOLFINX = (">=0.5.2", "<0.12")
 _LAZY = {
     "GranularMaterial": "material",
     "NewtonSolver": "solver",
+    "GranularProblem": "problem",
+    "ConvergenceTest": "convergence",
+    "LoadPhase": "loading",
+    "SNESArcLength": "snes_al",
     "SolveResult": "solver",
     "LoadStepper": "loading",
     "ArcLength": "arclength",
