@@ -48,3 +48,15 @@ def test_readme_is_short_and_points_to_the_docs():
     assert len(text.splitlines()) <= 200
     for name in DOCS[1:]:
         assert f"({name})" in text, f"the README does not link {name}"
+
+
+def test_the_material_point_snippet_runs():
+    """docs/laws.md's MaterialPoint snippet, as printed: confined, then sheared under p."""
+    with open(os.path.join(ROOT, "docs", "laws.md"), encoding="utf-8") as f:
+        section = f.read().split("## One material point", 1)[1].split("\n## ", 1)[0]
+    (code,) = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    namespace = {}
+    exec(compile(code, "docs/laws.md", "exec"), namespace)
+    point = namespace["point"]
+    assert point.F[0, 1] == 0.01 and point.F[1, 1] < 1.0  # sheared, compressed
+    assert abs(point.last.sigma[1, 1] + 1e5) <= 1e-10 * 1e5
