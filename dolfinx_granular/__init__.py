@@ -18,7 +18,7 @@ from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor
 from .friction import FrictionalRVE, FrictionState
 from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
 from .gsd import SieveCurve, cen_standard_sand
-from .law import LawEvaluationError
+from .law import HistoryLaw, HistoryState, LawEvaluationError, MaterialLaw, law_dimension
 from .levels import AdaptiveRVE, SmallStrainRVE
 from .packing import Packing, PackingFileError
 from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
@@ -34,6 +34,10 @@ __all__ = [
     "ContactCandidates",
     "UnsupportedDeformationError",
     "LawEvaluationError",
+    "MaterialLaw",
+    "HistoryLaw",
+    "HistoryState",
+    "law_dimension",
     "SieveCurve",
     "cen_standard_sand",
     "generate_packing",
@@ -61,6 +65,10 @@ _LAZY = {
     "GranularMaterial": "material",
     "NewtonSolver": "solver",
     "GranularProblem": "problem",
+    "MaterialPoint": "material_point",
+    "solve_point": "material_point",
+    "PointResult": "material_point",
+    "ControlError": "material_point",
     "ConvergenceTest": "convergence",
     "LoadPhase": "loading",
     "SNESArcLength": "snes_al",

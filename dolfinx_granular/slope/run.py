@@ -203,7 +203,7 @@ class SlopeRun:
         # the quadrature points' coordinates
         self.points = (
             PointOrder(comm, self.model.material.points, 1e-9 * o.geometry.width)
-            if getattr(self.model.material, "history", False)
+            if self.model.material.has_state
             else None
         )
         self.stepper = LoadStepper(
@@ -286,7 +286,7 @@ class SlopeRun:
         state = self._state(phase_index, step, t)
         history = {}
         if self.points is not None:
-            gathered = self.points.gather_state(self.model.material.state)
+            gathered = self.points.gather_material(self.model.material)
             if self.comm.rank == 0:
                 history = {f"history_{k}": v for k, v in gathered.to_arrays().items()}
                 history["history_points"] = self.points.X
