@@ -52,13 +52,12 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-from numba import njit
 
 from . import kernel
+from .fire import candidates, minimise, virial_pressure
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
 from .packing import Packing
+from .stress_free import StressFreeError, rattlers, stress_free
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -67,13 +66,6 @@ if TYPE_CHECKING:
 
     from .gsd import SieveCurve
 
-# FIRE parameters of Bitzek et al. (2006).
-_N_MIN = 5
-_F_INC = 1.1
-_F_DEC = 0.5
-_ALPHA0 = 0.1
-_F_ALPHA = 0.99
-
 # Above this many disks the initial centres are numbered along the cells: FIRE's arrays (~140 B
 # per disk with the neighbour list) outgrow a core's L2 cache (~1 MiB) from ~8000 disks, and
 # with random numbering a step then waits on memory (measured here: 66 against 48 ns per disk
@@ -81,181 +73,8 @@ _F_ALPHA = 0.99
 # their centres are drawn, and so the packings that their seeds have always given.
 CELL_ORDER_ABOVE = 8192
 
-# Progress: the shortest time between two intermediate progress lines (s), and the wall time
-# one chunk of FIRE steps aims at between two looks at the clock (s).
+# the shortest time between two intermediate progress lines (s)
 PROGRESS_INTERVAL = 1.0
-_CHUNK_SECONDS = 0.1
-
-
-# -- neighbour search ------------------------------------------------------------------------------
-
-
-@njit(cache=True)
-def _wrap(x, box):
-    """Wrap the centres x (N, 2) into the cell [0, box) in place."""
-    for i in range(x.shape[0]):
-        for a in range(2):
-            x[i, a] -= np.floor(x[i, a] / box[a]) * box[a]
-            if x[i, a] >= box[a]:
-                x[i, a] -= box[a]
-
-
-@njit(cache=True)
-def _neighbour_list(x, r, box, skin):
-    """Wrap the centres x (N, 2) into the cell (in place) and list the pairs within ``skin``
-    of contact: ``(m, pi, pj, ps)`` of :func:`dolfinx_granular.kernel.find_pairs` (compiled, as
-    FIRE's inner loop rebuilds the list through it)."""
-    _wrap(x, box)
-    return kernel.find_pairs(x, r, box, 1.0, skin, False)
-
-
-def _candidates(centers, radii, box, max_ratio):
-    """Pairs with |L| <= max_ratio (r_i + r_j) and their overlap at F = I, in linear time: those
-    of :func:`dolfinx_granular.kernel.candidate_pairs`, so that eps = R - |L| decides "active"
-    exactly as the Taylor RVE does.
-
-    Returns:
-        ``(ij, shift, eps)``: ij (M, 2) int64 disk indices, shift (M, 2) int64 image offsets in
-        cells, eps (M,) overlaps in mm (negative: a gap).
-    """
-    L, R, _, ij, shift = kernel.candidate_pairs(centers, radii, box, max_ratio)
-    return ij, shift, R - np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
-
-
-# -- FIRE ------------------------------------------------------------------------------------------
-
-
-@njit(cache=True)
-def _forces(x, r, box, m, pi, pj, ps, f):
-    """Harmonic overlap forces (k = 1) of the first m listed pairs into f (N, 2).
-
-    Returns the virial sum over the contacts of overlap * distance (mm²).
-    """
-    f[:, :] = 0.0
-    vir = 0.0
-    for c in range(m):
-        i = pi[c]
-        j = pj[c]
-        dx = x[j, 0] + ps[c, 0] * box[0] - x[i, 0]
-        dy = x[j, 1] + ps[c, 1] * box[1] - x[i, 1]
-        d2 = dx * dx + dy * dy
-        rs = r[i] + r[j]
-        if d2 < rs * rs:
-            d = np.sqrt(d2)
-            ov = rs - d
-            vir += ov * d
-            fx = ov * dx / d
-            fy = ov * dy / d
-            f[i, 0] -= fx
-            f[i, 1] -= fy
-            f[j, 0] += fx
-            f[j, 1] += fy
-    return vir
-
-
-@njit(cache=True)
-def _fire_sums(f, v):
-    """FIRE's reductions over the disks, in index order: (max |f|², |f|², |v|², f · v)."""
-    fmax = 0.0
-    fn2 = 0.0
-    vn2 = 0.0
-    power = 0.0
-    for i in range(f.shape[0]):
-        fi2 = f[i, 0] * f[i, 0] + f[i, 1] * f[i, 1]
-        if fi2 > fmax:
-            fmax = fi2
-        fn2 += fi2
-        vn2 += v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
-        power += f[i, 0] * v[i, 0] + f[i, 1] * v[i, 1]
-    return fmax, fn2, vn2, power
-
-
-@njit(cache=True)
-def _euler_step(x, v, f, x_ref, dt):
-    """Semi-implicit Euler step of v and x (N, 2), in place; returns the largest squared
-    displacement from x_ref (N, 2)."""
-    moved2 = 0.0
-    for i in range(x.shape[0]):
-        v[i, 0] += dt * f[i, 0]
-        v[i, 1] += dt * f[i, 1]
-        x[i, 0] += dt * v[i, 0]
-        x[i, 1] += dt * v[i, 1]
-        dxr = x[i, 0] - x_ref[i, 0]
-        dyr = x[i, 1] - x_ref[i, 1]
-        moved2 = max(moved2, dxr * dxr + dyr * dyr)
-    return moved2
-
-
-@njit(cache=True)
-def _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl):
-    """FIRE steps on the centres x (N, 2), in place, until max |f| < ftol or step ``stop``.
-
-    Unit masses and stiffness. The state lives in the arguments, so that a minimisation can run
-    in chunks with the same trajectory as in one go: velocities v and forces f (N, 2), the
-    centres x_ref (N, 2) at the last neighbour-list build, the list nl = (m, pi, pj, ps) and
-    st = [dt, alpha, n_pos, step, virial, max |f|] (float64 (6,), updated).
-
-    Returns:
-        ``(nl, converged)``: the (possibly rebuilt) neighbour list and whether max |f| < ftol.
-    """
-    m, pi, pj, ps = nl
-    dt, alpha, n_pos, step = st[0], st[1], int(st[2]), int(st[3])
-    converged = False
-    while step < stop:
-        fmax2, fn2, vn2, power = _fire_sums(f, v)
-        st[5] = np.sqrt(fmax2)
-        if st[5] < ftol:
-            converged = True
-            break
-        if power > 0.0:
-            scale = alpha * np.sqrt(vn2 / fn2)
-            for i in range(v.shape[0]):
-                v[i, 0] = (1.0 - alpha) * v[i, 0] + scale * f[i, 0]
-                v[i, 1] = (1.0 - alpha) * v[i, 1] + scale * f[i, 1]
-            if n_pos > _N_MIN:
-                dt = min(dt * _F_INC, dt_max)
-                alpha *= _F_ALPHA
-            n_pos += 1
-        else:
-            n_pos = 0
-            dt *= _F_DEC
-            alpha = _ALPHA0
-            v[:, :] = 0.0
-        if _euler_step(x, v, f, x_ref, dt) > (0.5 * skin) ** 2:
-            m, pi, pj, ps = _neighbour_list(x, r, box, skin)
-            x_ref[:, :] = x
-        st[4] = _forces(x, r, box, m, pi, pj, ps, f)
-        step += 1
-    st[0], st[1], st[2], st[3] = dt, alpha, n_pos, step
-    return (m, pi, pj, ps), converged
-
-
-def _minimise(x, r, box, skin, ftol, dt0, dt_max, max_steps, beat):
-    """Minimise the overlap energy over the centres x (N, 2) (in place) with FIRE.
-
-    Stops when the largest force is below ``ftol`` or after ``max_steps`` steps. Runs the Numba
-    kernel in chunks of ~0.1 s and calls ``beat(step, max_force)`` after each unfinished chunk.
-
-    Returns:
-        ``(steps, virial)``: virial = sum of overlap * distance over the contacts (mm²).
-    """
-    n = r.shape[0]
-    nl = _neighbour_list(x, r, box, skin)
-    v = np.zeros((n, 2))
-    f = np.empty((n, 2))
-    x_ref = x.copy()
-    st = np.array([dt0, _ALPHA0, 0.0, 0.0, 0.0, np.inf])
-    st[4] = _forces(x, r, box, *nl, f)
-    chunk = 16
-    while True:
-        t0 = time.perf_counter()
-        stop = min(int(st[3]) + chunk, max_steps)
-        nl, converged = _fire_steps(x, r, box, skin, ftol, dt_max, stop, st, v, f, x_ref, nl)
-        if converged or int(st[3]) >= max_steps:
-            return int(st[3]), st[4]
-        beat(int(st[3]), st[5])
-        elapsed = max(time.perf_counter() - t0, 1e-6)
-        chunk = int(min(max(chunk * _CHUNK_SECONDS / elapsed, 16), 8 * chunk))
 
 
 # -- progress --------------------------------------------------------------------------------------
@@ -360,11 +179,11 @@ def network_stats(packing: Packing) -> NetworkStats:
     The contacts are those of ``TaylorRVE(packing, k).contacts(np.eye(2))`` (same pairs, same
     arithmetic), found in O(N) time.
     """
-    ij, _, eps = _candidates(packing.centers, packing.radii, packing.box, 1.0 / 0.99)
+    ij, _, eps = candidates(packing.centers, packing.radii, packing.box, 1.0 / 0.99)
     on = eps >= 0.0
     pairs, overlap = ij[on], eps[on]
     n = packing.n_particles
-    rattler = _rattlers(pairs, n)
+    rattler = rattlers(pairs, n)
     keep = ~(rattler[pairs[:, 0]] | rattler[pairs[:, 1]])
     counts = np.bincount(pairs[keep].ravel(), minlength=n)[~rattler]
     d_mean = 2.0 * packing.radii.mean()
@@ -434,40 +253,12 @@ def generate_packing(
     )
     say = _Reporter(progress)
     rng = np.random.default_rng(_seed(seed))
-    diam = curve.sample_diameters(n, rng, d_min=d_min)
-    rng.shuffle(diam)
-    r0 = 0.5 * diam
-    d_mean = float(diam.mean())
-    # Cell sized for phi ~ 0.84 at the sampled radii; stage 2 scales the radii, stage 3 scales back.
-    area = np.pi * np.sum(r0**2) / 0.84
-    box = np.array([np.sqrt(area / aspect), np.sqrt(area * aspect)])
-    if 2.0 * r0.max() >= 0.8 * box.min():
-        raise ValueError(
-            f"{n} disks are too few for this size span: the largest grain "
-            f"({2 * r0.max():.3g} mm) would span 80 % of the cell; use more particles or a "
-            "narrower grading (larger d_min)"
-        )
+    r0, box = _radii_and_cell(curve, n, rng, d_min, aspect)
+    delta = contact_overlap * float(2.0 * r0.mean())
     best = None
     for attempt in range(max_attempts):
         say.new_attempt()
-        x = rng.random((n, 2)) * box
-        if n > CELL_ORDER_ABOVE:
-            # the random centres numbered along the cells (the radii keep their random order:
-            # the same distribution), so that FIRE's force loop finds neighbours near in memory
-            x = x[kernel.cell_list(x, box, 2.0 * r0.max())[3]]
-        x, scale, p = _jam(x, r0, box, pressure, d_mean, say)
-        say(
-            "jamming",
-            1.0,
-            f"jammed at phi = {np.pi * np.sum((scale * r0) ** 2) / box.prod():.4f}"
-            f", p/k = {p:.2e} ({say.elapsed():.1f} s)",
-        )
-        centers, radii, cell = _stress_free(
-            x / scale, r0.copy(), box / scale, contact_overlap * d_mean, say
-        )
-        packing = Packing(centers, radii, cell)
-        say("checking", 0.0, f"checking the contact network ({say.elapsed():.1f} s)", True)
-        stats = network_stats(packing)
+        packing, stats = _attempt(rng, r0, box, pressure, delta, say)
         if best is None or stats.rattler_fraction < best[1].rattler_fraction:
             best = (packing, stats)
         if stats.rattler_fraction <= max_rattlers and stats.coordination >= 3.8:
@@ -486,6 +277,45 @@ def generate_packing(
         f"{100 * stats.rattler_fraction:.1f} % rattlers ({say.elapsed():.1f} s)",
     )
     return packing
+
+
+def _radii_and_cell(curve, n, rng, d_min, aspect):
+    """Stage 1: the radii r0 (n,) in mm, sampled from the curve in a random order, and a cell
+    (2,) in mm sized for phi ~ 0.84 at them (stage 2 scales the radii, stage 3 scales back)."""
+    diam = curve.sample_diameters(n, rng, d_min=d_min)
+    rng.shuffle(diam)
+    r0 = 0.5 * diam
+    area = np.pi * np.sum(r0**2) / 0.84
+    box = np.array([np.sqrt(area / aspect), np.sqrt(area * aspect)])
+    if 2.0 * r0.max() >= 0.8 * box.min():
+        raise ValueError(
+            f"{n} disks are too few for this size span: the largest grain "
+            f"({2 * r0.max():.3g} mm) would span 80 % of the cell; use more particles or a "
+            "narrower grading (larger d_min)"
+        )
+    return r0, box
+
+
+def _attempt(rng, r0, box, pressure, delta, say):
+    """Stages 2 and 3 from new random centres: the stress-free packing and its
+    :class:`NetworkStats`; ``delta`` is the contact overlap in mm."""
+    n = r0.size
+    x = rng.random((n, 2)) * box
+    if n > CELL_ORDER_ABOVE:
+        # the random centres numbered along the cells (the radii keep their random order:
+        # the same distribution), so that FIRE's force loop finds neighbours near in memory
+        x = x[kernel.cell_list(x, box, 2.0 * r0.max())[3]]
+    x, scale, p = _jam(x, r0, box, pressure, float(2.0 * r0.mean()), say)
+    say(
+        "jamming",
+        1.0,
+        f"jammed at phi = {np.pi * np.sum((scale * r0) ** 2) / box.prod():.4f}"
+        f", p/k = {p:.2e} ({say.elapsed():.1f} s)",
+    )
+    centers, radii, cell = stress_free(x / scale, r0.copy(), box / scale, delta, say)
+    packing = Packing(centers, radii, cell)
+    say("checking", 0.0, f"checking the contact network ({say.elapsed():.1f} s)", True)
+    return packing, network_stats(packing)
 
 
 def relax_overlaps(
@@ -521,13 +351,13 @@ def relax_overlaps(
     say = _Reporter(progress)
     x, r, box = packing.centers.copy(), packing.radii.copy(), packing.box.copy()
     try:
-        return Packing(*_stress_free(x, r, box, delta, say))
-    except _StressFreeError:
+        return Packing(*stress_free(x, r, box, delta, say))
+    except StressFreeError:
         pass
     say("stress-free", 0.0, "the overlaps are too large for small moves: jamming afresh")
     try:
         x, scale, _ = _jam(packing.centers.copy(), r, box, 1e-4, 2.0 * float(r.mean()), say)
-        return Packing(*_stress_free(x, scale * r, box, scale * delta, say))
+        return Packing(*stress_free(x, scale * r, box, scale * delta, say))
     except RuntimeError as err:  # the jamming search or the correction failed
         raise ValueError(
             f"relax_overlaps found no stress-free state next to this packing ({err}); "
@@ -622,7 +452,7 @@ def _jam(x, r0, box, p_target, d_mean, say):
             # p jumps across the target (small N): accept the jammed state at the upper bound
             scale = np.sqrt(hi / phi0)
             _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, hi, it)
-            return x, scale, _pressure(x, scale * r0, box)
+            return x, scale, virial_pressure(x, scale * r0, box)
         phi = _next_phi(phi, jammed, lo, hi, p_target)
     raise RuntimeError(f"jamming did not reach p/k = {p_target:g} (last p/k = {p:.3g})")
 
@@ -647,7 +477,7 @@ def _minimise_reporting(x, r, box, skin, ftol, d_mean, say, phi, it):
             heartbeat=True,
         )
 
-    steps, vir = _minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
+    steps, vir = minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
     return steps, vir / (2.0 * box.prod())
 
 
@@ -674,135 +504,4 @@ def _next_phi(phi, jammed, lo, hi, p_target):
     return new
 
 
-def _pressure(x, r, box):
-    """Virial pressure p / k of the centres x (N, 2) (wrapped in place) at radii r (N,)."""
-    m, pi, pj, ps = _neighbour_list(x, r, box, 0.0)
-    return _forces(x, r, box, m, pi, pj, ps, np.empty_like(x)) / (2.0 * box.prod())
-
-
 # -- stage 3: stress-free reference ----------------------------------------------------------------
-
-
-class _StressFreeError(RuntimeError):
-    """The minimum-norm correction of stage 3 found no stress-free state."""
-
-
-def _rattlers(pairs, n):
-    """Boolean (n,) mask of disks with fewer than 3 contacts, removed recursively."""
-    rattler = np.zeros(n, bool)
-    while True:
-        keep = ~(rattler[pairs[:, 0]] | rattler[pairs[:, 1]])
-        counts = np.bincount(pairs[keep].ravel(), minlength=n)
-        new = (counts < 3) & ~rattler
-        if not new.any():
-            return rattler
-        rattler |= new
-
-
-def _pair_keys(ij, shift, n):
-    """One int64 key per pair (i, j, shift) (M, 2) + (M, 2) of an N-disk packing."""
-    s = shift + 64  # |shift| <= 2 here: a disk spans less than 80 % of the cell
-    return ((ij[:, 0] * n + ij[:, 1]) * 129 + s[:, 0]) * 129 + s[:, 1]
-
-
-def _stress_free(x, r, box, delta, say):
-    """Move centres and radii minimally so that contacts overlap by exactly ``delta``.
-
-    Contacts between non-rattlers get eps = delta, contacts of rattlers a gap 1e5 * delta.
-
-    Args:
-        x: (N, 2) jammed centres (mm); r: (N,) radii (mm); box: (2,) (mm); delta: overlap (mm);
-        say: the :class:`_Reporter`.
-
-    Returns:
-        Wrapped ``(centers (N, 2), radii (N,), box (2,))``.
-    """
-    n = r.size
-    gap = 1e5 * delta
-    centers = Packing(x, r, box).centers
-    net_keys = np.empty(0, np.int64)  # the network's pairs, in the order they joined it
-    net_eps = np.empty(0)  # and their target overlaps
-    # cells by which each disk has been wrapped since the start: a pair is keyed by its image
-    # shift between the unwrapped centres, which a disk crossing the cell boundary keeps
-    wraps = np.zeros((n, 2), np.int64)
-    for rnd in range(10):
-        ij, shift, eps = _candidates(centers, r, box, 1.02)
-        keys = _pair_keys(ij, shift + wraps[ij[:, 0]] - wraps[ij[:, 1]], n)
-        if net_keys.size == 0:
-            new = eps > 0.0
-            rattler = _rattlers(ij[new], n)
-        else:
-            # pairs that closed during the last correction join the network
-            new = (eps > -0.5 * gap) & ~np.isin(keys, net_keys)
-        bad = rattler[ij[new, 0]] | rattler[ij[new, 1]]
-        net_keys = np.concatenate([net_keys, keys[new]])
-        net_eps = np.concatenate([net_eps, np.where(bad, -gap, delta)])
-        sorted_keys = np.argsort(keys)
-        at = np.minimum(np.searchsorted(keys, net_keys, sorter=sorted_keys), keys.size - 1)
-        found = keys[sorted_keys[at]] == net_keys
-        sel, tgt = sorted_keys[at[found]], net_eps[found]
-        free = np.ones(keys.size, bool)
-        free[sel] = False
-        ok_free = not np.any(eps[free] > -0.5 * gap)
-        if ok_free and found.all() and np.all(np.abs(eps[sel] - tgt) <= 0.1 * delta):
-            return centers, r, box
-        say(
-            "stress-free",
-            rnd / (rnd + 2.0),
-            f"stress-free correction, round {rnd + 1}: {sel.size} contacts ({say.elapsed():.1f} s)",
-            heartbeat=True,
-        )
-        try:
-            moved, r = _newton(centers, r, box, ij[sel], shift[sel], tgt, delta)
-            centers = Packing(moved, r, box).centers
-        except (ValueError, RuntimeError):  # diverged: singular equations, a radius <= 0, ...
-            break
-        wraps += np.rint((moved - centers) / box).astype(np.int64)
-    raise _StressFreeError(
-        "the stress-free correction of the contact network did not converge; try another seed "
-        "or a lower pressure"
-    )
-
-
-def _newton(x, r, box, ij, shift, target, delta):
-    """Minimum-norm Newton steps on (x, r) for eps_c(x, r) = target_c over the given pairs.
-
-    Args:
-        x: (N, 2) centres (mm); r: (N,) radii (mm); box: (2,) (mm); ij, shift: (M, 2) pairs
-        and image shifts (cells); target: (M,) overlaps (mm); delta: the tolerance scale (mm):
-        stops when every |eps - target| <= 0.01 delta, or after 8 steps.
-
-    Returns:
-        The corrected ``(x, r)``.
-    """
-    x = x.copy()
-    r = r.copy()
-    i, j = ij[:, 0], ij[:, 1]
-    m = i.size
-    n = r.size
-    S = shift * box
-    rows = np.repeat(np.arange(m), 6)
-    for _ in range(8):
-        L = x[j] + S - x[i]
-        d = np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
-        if not np.all(d > 0.0):  # also NaN: the steps diverged
-            raise ValueError("two disks of the contact network reached the same centre")
-        g = r[i] + r[j] - d - target
-        if np.all(np.abs(g) <= 0.01 * delta):
-            break
-        nv = L / d[:, None]
-        # unknowns: x (2n, interleaved) then r (n); deps/dx_i = n, deps/dx_j = -n, deps/dr = 1
-        cols = np.stack([2 * i, 2 * i + 1, 2 * j, 2 * j + 1, 2 * n + i, 2 * n + j], axis=1)
-        vals = np.stack([nv[:, 0], nv[:, 1], -nv[:, 0], -nv[:, 1], np.ones(m), np.ones(m)], axis=1)
-        J = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, 3 * n))
-        JJt = (J @ J.T).tocsc()
-        JJt = JJt + sp.identity(m, format="csc") * 1e-12 * JJt.diagonal().mean()
-        # J J^T is symmetric positive definite: a symmetric fill-reducing order without pivoting
-        # fills in far less than the default column order (O(M^1.2) instead of O(M^1.6) here)
-        lu = spla.splu(
-            JJt, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
-        )
-        dz = J.T @ lu.solve(-g)
-        x += dz[: 2 * n].reshape(n, 2)
-        r += dz[2 * n :]
-    return x, r

@@ -1,6 +1,14 @@
 """generate_packing: jammed, stress-free, rigid, periodic, deterministic; bad input."""
 
-from dolfinx_granular import Packing, TaylorRVE, generate_packing, generation, kernel, network_stats
+from dolfinx_granular import (
+    Packing,
+    TaylorRVE,
+    fire,
+    generate_packing,
+    generation,
+    kernel,
+    network_stats,
+)
 from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
 
 import numpy as np
@@ -260,7 +268,7 @@ def test_linear_candidates_equal_the_brute_force_scan(packings, case):
         for a, b in zip(got, brute_force_candidates(p.centers, p.radii, p.box, ratio)):
             np.testing.assert_array_equal(a, b)  # same pairs, same order, same values
         L, R = got[0], got[1]
-        ij2, shift2, eps2 = generation._candidates(p.centers, p.radii, p.box, ratio)
+        ij2, shift2, eps2 = fire.candidates(p.centers, p.radii, p.box, ratio)
         np.testing.assert_array_equal(eps2, R - np.sqrt(L[:, 0] ** 2 + L[:, 1] ** 2))
     # network_stats sees the contacts of the Taylor RVE
     cs = TaylorRVE(p, 1.0, min_stretch=0.99).contacts(np.eye(2))
@@ -279,14 +287,14 @@ def test_fire_in_chunks_follows_the_same_trajectory():
     ends = []
     for chunk in (10**9, 1, 37):
         x = x0.copy()
-        generation._wrap(x, box)
+        fire.wrap(x, box)
         nl = kernel.find_pairs(x, r, box, 1.0, skin, False)
         v, f, x_ref = np.zeros((n, 2)), np.empty((n, 2)), x.copy()
         st = np.array([dt0, 0.1, 0.0, 0.0, 0.0, np.inf])
-        st[4] = generation._forces(x, r, box, *nl, f)
+        st[4] = fire.forces(x, r, box, *nl, f)
         done = False
         while not done and st[3] < 100_000:
-            nl, done = generation._fire_steps(
+            nl, done = fire.fire_steps(
                 x, r, box, skin, ftol, dt_max, int(st[3]) + chunk, st, v, f, x_ref, nl
             )
         assert done
