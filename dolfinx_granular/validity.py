@@ -33,9 +33,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 from numba import njit
 
+from .gathers import global_extremum
 from .kernel import FASTMATH, OK, check_F
 from .lawtools import as_batch, unsupported_deformation
-from .postprocess import global_extremum
 
 if TYPE_CHECKING:
     from mpi4py.MPI import Comm

@@ -17,8 +17,9 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from .. import _dolfinx as dfx
+from ..gathers import global_extremum, nearest_point
 from ..material import GranularMaterial
-from ..postprocess import global_extremum, min_acoustic_eigenvalue, nearest_point, von_mises
+from ..postprocess import min_acoustic_eigenvalue, von_mises
 from ..solver import NewtonSolver
 from ..validity import OVERLAP_THRESHOLD, OverlapSummary, validity_summary
 from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
