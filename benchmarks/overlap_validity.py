@@ -14,7 +14,6 @@ figure 7 (:func:`~dolfinx_granular.probing.probe` at the model's four spots) and
 import argparse
 import json
 import tempfile
-import time
 
 from dolfinx_granular import generate_packing
 from dolfinx_granular.probing import probe
@@ -24,14 +23,7 @@ from dolfinx_granular.validity import overlap_ratios
 import numpy as np
 from mpi4py import MPI
 
-
-def best_time(fn, repeats=5):
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+from friction_kernel import best_time  # benchmarks/friction_kernel.py
 
 
 def measure(model, comm):
@@ -42,8 +34,8 @@ def measure(model, comm):
     law, F = model.material.rve, model.material.F
     F4 = np.concatenate([F] * 4)
     law.overlap_statistics(F[:1])  # compiled before timing
-    times = [best_time(lambda G=G: law.overlap_statistics(G)) for G in (F, F4)]
-    stress = best_time(lambda: law.stress(F))
+    times = [best_time(lambda G=G: law.overlap_statistics(G), 5) for G in (F, F4)]
+    stress = best_time(lambda: law.stress(F), 5)
     spots = model.probes(model.extremes()[1][1])
     found = probe(model.material, [s[1] for s in spots])
     lines = [
