@@ -1,16 +1,11 @@
 """The problem and its drivers: the one convergence test (SNES Newton's rule and the arc-length
 corrector's, a parameter of it), load control as a driver of the protocol, the problem's public
-methods, and no import circle among the drivers and the slope."""
-
-import ast
-import pathlib
+methods (no import circle anywhere in the package: tests/test_imports.py)."""
 
 from dolfinx_granular.convergence import CONVERGED, ITERATING, STAGNATION, ConvergenceTest
 
 import numpy as np
 import pytest
-
-PACKAGE = pathlib.Path(__file__).resolve().parent.parent / "dolfinx_granular"
 
 
 class _Forces:
@@ -55,51 +50,6 @@ def test_one_test_energy_norm_and_round_off_in_both_variants():
     snes, corrector = ConvergenceTest(_Forces()), ConvergenceTest(_Forces(), corrector=True)
     assert snes.check(0, 0.0, None) == CONVERGED and snes.stopped_by == "residual_atol"
     assert corrector.check(0, 0.0, None) == CONVERGED and corrector.stopped_by == "round-off"
-
-
-def _imports(path):
-    """The package modules a module imports (relative imports, TYPE_CHECKING ones included)."""
-    module = path.relative_to(PACKAGE.parent).with_suffix("").parts
-    package = module[:-1] if path.name != "__init__.py" else module
-    found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.level > 0:
-            base = package[: len(package) - node.level + 1]
-            target = base + tuple((node.module or "").split(".")) if node.module else base
-            names = [target + (a.name,) for a in node.names] if not node.module else [target]
-            for name in names:
-                candidate = PACKAGE.parent.joinpath(*name)
-                if candidate.with_suffix(".py").exists() or candidate.is_dir():
-                    found.add(".".join(name))
-    return found
-
-
-def test_no_import_circle_through_the_drivers_and_the_slope():
-    """No module of the problem, its drivers or the slope imports one that imports it back,
-    directly or through others (imports under TYPE_CHECKING count)."""
-    graph = {}
-    for path in PACKAGE.rglob("*.py"):
-        name = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
-        graph[name.removesuffix(".__init__")] = _imports(path)
-    ours = [
-        f"dolfinx_granular.{m}"
-        for m in "problem convergence drivers solver loading arclength pathrecords snes_al".split()
-    ] + [f"dolfinx_granular.slope.{m}" for m in "run path summary options cli".split()]
-
-    def reaches(start, goal):
-        seen, todo = set(), list(graph.get(start, ()))
-        while todo:
-            m = todo.pop()
-            if m == goal:
-                return True
-            if m not in seen:
-                seen.add(m)
-                todo.extend(graph.get(m, ()))
-        return False
-
-    assert all(m in graph for m in ours)
-    circles = [m for m in ours if reaches(m, m)]
-    assert not circles, circles
 
 
 dolfinx = pytest.importorskip("dolfinx")
