@@ -10,6 +10,7 @@ loads its MPI library there; ``import dolfinx`` fails without it: ``libmpi.so.12
 
 from __future__ import annotations
 
+import functools
 import inspect
 import logging
 import os
@@ -279,8 +280,10 @@ def _launcher_candidates() -> list[str]:
     return list(unique)
 
 
+@functools.cache
 def _is_open_mpi_launcher(launcher: str) -> bool:
-    """True for Open MPI's launcher (``mpirun (Open MPI) 4.1.4``), False for MPICH's (HYDRA)."""
+    """True for Open MPI's launcher (``mpirun (Open MPI) 4.1.4``), False for MPICH's (HYDRA);
+    asked once per launcher and process (every MPI run of the tests calls mpi_command)."""
     import subprocess
 
     try:
