@@ -8,7 +8,7 @@ min_stretch (|F L| >= s_min(F) |L|). They are sorted by rho, so that a point wit
 singular value s_min(F) needs only the prefix rho <= 1 / s_min(F) (the kernels' loop range).
 
 The arrays are laid out for any dimension d (shape (m, d) per vector); the candidate search of
-:meth:`ContactCandidates.from_packing` is the 2-D one of :func:`~dolfinx_granular.kernel.
+:meth:`ContactCandidates.from_packing` is the 2-D one of :func:`~dolfinx_granular.neighbours.
 candidate_pairs`. Lengths are in the packing's units.
 """
 
@@ -19,7 +19,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import kernel
+from . import neighbours
 from .packing import Packing
 
 
@@ -79,7 +79,7 @@ class ContactCandidates:
         s = float(min_stretch)
         if not (0.0 < s <= 1.0):
             raise ValueError(f"min_stretch must lie in (0, 1], got {min_stretch!r}")
-        L, R, rho, ij, shift = kernel.candidate_pairs(
+        L, R, rho, ij, shift = neighbours.candidate_pairs(
             packing.centers, packing.radii, packing.box, 1.0 / s
         )
         r = packing.radii

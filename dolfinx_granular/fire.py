@@ -16,7 +16,7 @@ import time
 import numpy as np
 from numba import njit
 
-from . import kernel
+from . import neighbours
 
 # the wall time one chunk of FIRE steps aims at between two looks at the clock (s)
 _CHUNK_SECONDS = 0.1
@@ -45,22 +45,22 @@ def wrap(x, box):
 @njit(cache=True)
 def neighbour_list(x, r, box, skin):
     """Wrap the centres x (N, 2) into the cell (in place) and list the pairs within ``skin``
-    of contact: ``(m, pi, pj, ps)`` of :func:`dolfinx_granular.kernel.find_pairs` (compiled, as
+    of contact: ``(m, pi, pj, ps)`` of :func:`dolfinx_granular.neighbours.find_pairs` (compiled, as
     FIRE's inner loop rebuilds the list through it)."""
     wrap(x, box)
-    return kernel.find_pairs(x, r, box, 1.0, skin, False)
+    return neighbours.find_pairs(x, r, box, 1.0, skin, False)
 
 
 def candidates(centers, radii, box, max_ratio):
     """Pairs with |L| <= max_ratio (r_i + r_j) and their overlap at F = I, in linear time: those
-    of :func:`dolfinx_granular.kernel.candidate_pairs`, so that eps = R - |L| decides "active"
+    of :func:`dolfinx_granular.neighbours.candidate_pairs`, so that eps = R - |L| decides "active"
     exactly as the Taylor RVE does.
 
     Returns:
         ``(ij, shift, eps)``: ij (M, 2) int64 disk indices, shift (M, 2) int64 image offsets in
         cells, eps (M,) overlaps in mm (negative: a gap).
     """
-    L, R, _, ij, shift = kernel.candidate_pairs(centers, radii, box, max_ratio)
+    L, R, _, ij, shift = neighbours.candidate_pairs(centers, radii, box, max_ratio)
     return ij, shift, R - np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
 
 

@@ -462,7 +462,7 @@ def evaluate_batch(
 
     Args:
         F: (n, 2, 2) deformation gradients.
-        X, Y, R, rho: (M,) candidate arrays of :func:`kernel.candidate_pairs` (L = (X, Y)).
+        X, Y, R, rho: (M,) candidate arrays of :func:`neighbours.candidate_pairs` (L = (X, Y)).
         lmax2: max |L|² over the candidates (scales the angle computation).
         kn, kt, mu: normal and tangential stiffness (N/m²), friction coefficient.
         inv_area: 1 / V_rve.

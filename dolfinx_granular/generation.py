@@ -28,7 +28,7 @@ Algorithm (:func:`generate_packing`):
    coordination of the non-rattlers below 3.8 is rejected and the same disks are jammed again
    from new random centres (a few percent of 70-disk cells need this).
 
-Cost. Every neighbour search is a cell list (:func:`dolfinx_granular.kernel.find_pairs`), so one
+Cost. Every neighbour search is a cell list (:func:`dolfinx_granular.neighbours.find_pairs`), so one
 FIRE step, one stress-free round and :func:`network_stats` cost O(N); the sparse normal equations of
 the Newton correction are factorised with a symmetric fill-reducing order. What stays super-linear
 is the number of FIRE steps a minimisation needs, which grows like N^0.4 to N^0.6 (seed 0: 46 000
@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import kernel
+from . import neighbours
 from .fire import candidates, minimise, virial_pressure
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
 from .packing import Packing
@@ -304,7 +304,7 @@ def _attempt(rng, r0, box, pressure, delta, say):
     if n > CELL_ORDER_ABOVE:
         # the random centres numbered along the cells (the radii keep their random order:
         # the same distribution), so that FIRE's force loop finds neighbours near in memory
-        x = x[kernel.cell_list(x, box, 2.0 * r0.max())[3]]
+        x = x[neighbours.cell_list(x, box, 2.0 * r0.max())[3]]
     x, scale, p = _jam(x, r0, box, pressure, float(2.0 * r0.mean()), say)
     say(
         "jamming",

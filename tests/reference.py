@@ -75,7 +75,7 @@ def central_differences(model, F, h):
 
 
 def brute_force_candidates(centers, radii, box, max_ratio):
-    """kernel.candidate_pairs the slow way: every pair i <= j and every image within reach,
+    """neighbours.candidate_pairs the slow way: every pair i <= j and every image within reach,
     scanned in (i, j, sx, sy) order, kept where |L| <= max_ratio (r_i + r_j), then sorted stably
     by |L| / (r_i + r_j). Returns ``(L, R, rho, ij, shift)``."""
     n = len(radii)

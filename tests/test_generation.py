@@ -6,7 +6,7 @@ from dolfinx_granular import (
     fire,
     generate_packing,
     generation,
-    kernel,
+    neighbours,
     network_stats,
 )
 from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
@@ -249,7 +249,7 @@ def test_cell_list_finds_exactly_the_brute_force_pairs(n, aspect, cells, skin, w
         reach = 2.0 * r.max() + skin
         box = cells * reach * np.array([1.0, aspect])  # `cells` cells on the short side
         x = rng.random((n, 2)) * box
-        m, pi, pj, ps = kernel.find_pairs(x, r, box, 1.0, skin, with_self)
+        m, pi, pj, ps = neighbours.find_pairs(x, r, box, 1.0, skin, with_self)
         found = list(zip(pi[:m].tolist(), pj[:m].tolist(), *ps[:m].T.tolist()))
         assert len(found) == len(set(found)), "a pair listed twice"
         assert set(found) == brute_force_pairs(x, r, box, 1.0, skin, with_self)
@@ -257,14 +257,14 @@ def test_cell_list_finds_exactly_the_brute_force_pairs(n, aspect, cells, skin, w
 
 @pytest.mark.parametrize("case", [(70, 2), (700, 3)])
 def test_linear_candidates_equal_the_brute_force_scan(packings, case):
-    """kernel.candidate_pairs (a cell list) lists the pairs of the O(N^2) scan, in its order and
+    """neighbours.candidate_pairs (a cell list) lists the pairs of the O(N^2) scan, in its order and
     with its arithmetic (so the active contacts are the same), and the generator's overlaps
     are those of the Taylor RVE."""
     from reference import brute_force_candidates
 
     p = packings[case]
     for ratio in (1.02, 2.0) if case[0] > 100 else (1.02, 1.0 / 0.99, 1.3, 2.0):
-        got = kernel.candidate_pairs(p.centers, p.radii, p.box, ratio)
+        got = neighbours.candidate_pairs(p.centers, p.radii, p.box, ratio)
         for a, b in zip(got, brute_force_candidates(p.centers, p.radii, p.box, ratio)):
             np.testing.assert_array_equal(a, b)  # same pairs, same order, same values
         L, R = got[0], got[1]
@@ -288,7 +288,7 @@ def test_fire_in_chunks_follows_the_same_trajectory():
     for chunk in (10**9, 1, 37):
         x = x0.copy()
         fire.wrap(x, box)
-        nl = kernel.find_pairs(x, r, box, 1.0, skin, False)
+        nl = neighbours.find_pairs(x, r, box, 1.0, skin, False)
         v, f, x_ref = np.zeros((n, 2)), np.empty((n, 2)), x.copy()
         st = np.array([dt0, 0.1, 0.0, 0.0, 0.0, np.inf])
         st[4] = fire.forces(x, r, box, *nl, f)
