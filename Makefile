@@ -8,7 +8,7 @@ export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 # Each stack's own MPI launcher, whatever PATH says (an activated .venv-current puts MPICH's first)
-MPIRUN = $(shell $(PY) -c 'from dolfinx_granular._dolfinx import mpi_command; print(" ".join(mpi_command($(NP))))')
+MPIRUN = $(shell $(PY) -c 'from dolfinx_granular.fem.compat import mpi_command; print(" ".join(mpi_command($(NP))))')
 CURRENT := .venv-current
 PYC := $(CURRENT)/bin/python
 MPIEXEC_C := $(CURRENT)/bin/mpiexec -n $(NP)

@@ -40,7 +40,7 @@ _PHASES = """
 import json, sys, time
 import dolfinx_granular
 from mpi4py import MPI
-from dolfinx_granular.generation import generate_packing
+from dolfinx_granular.packings.generation import generate_packing
 from dolfinx_granular.slope import SlopeOptions
 from dolfinx_granular.slope.model import SlopeModel
 t, out = [time.perf_counter()], {}

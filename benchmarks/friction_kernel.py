@@ -29,9 +29,10 @@ import platform
 import re
 import time
 
-from dolfinx_granular import TaylorRVE, generate_packing, kernel
-from dolfinx_granular import friction_kernel as fk
-from dolfinx_granular.friction import FrictionalRVE
+from dolfinx_granular import TaylorRVE, generate_packing
+from dolfinx_granular.laws import friction_kernel as fk
+from dolfinx_granular.laws import taylor_kernel as kernel
+from dolfinx_granular.laws.friction import FrictionalRVE
 
 import numba
 import numpy as np

@@ -16,7 +16,7 @@ import argparse
 import platform
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.lawtools import singular_values_2x2
+from dolfinx_granular.laws.tools import singular_values_2x2
 from dolfinx_granular.timing import time_per_point
 
 import numba

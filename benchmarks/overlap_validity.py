@@ -6,7 +6,7 @@ Run: ``.venv/bin/python benchmarks/overlap_validity.py [--particles 700] [--seed
 Runs the slope (:class:`~dolfinx_granular.slope.run.SlopeRun`, output in a temporary folder) and,
 at its final state, prints ``SlopeModel.overlap_validity()`` (largest overlap over the smaller
 disk radius, where, the points beyond 10 %), the points beyond 5, 10, 20 and 50 %, the probes of
-figure 7 (:func:`~dolfinx_granular.probing.probe` at the model's four spots) and the wall time of
+figure 7 (:func:`~dolfinx_granular.probe` at the model's four spots) and the wall time of
 ``overlap_statistics`` at the material's points and at four times as many (the 6080 points of
 ``--refine 2``), best of 5, beside the law's ``stress`` at the same points.
 """
@@ -16,9 +16,9 @@ import json
 import tempfile
 
 from dolfinx_granular import generate_packing
-from dolfinx_granular.probing import probe
+from dolfinx_granular.fem.probing import probe
+from dolfinx_granular.laws.validity import overlap_ratios
 from dolfinx_granular.slope.run import SlopeOptions, SlopeRun
-from dolfinx_granular.validity import overlap_ratios
 
 import numpy as np
 from mpi4py import MPI

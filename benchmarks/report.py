@@ -17,7 +17,7 @@ over. Sections:
    the eq. 15 modulus), same mesh and solver;
 3. scaling: 1 vs 2 MPI ranks, and mesh refinement 380 -> 1520 -> 6080 cells;
 4. speed against error: settlement and max von Mises against particle count (several seeds) and
-   against model level (``dolfinx_granular.levels``), error relative to the largest RVE;
+   against model level (``dolfinx_granular.laws.levels``), error relative to the largest RVE;
 5. paying only for what is used: stress-only residuals and post-processing, force networks only
    where a figure shows them.
 
@@ -40,9 +40,9 @@ import tempfile
 import time
 
 import dolfinx_granular  # noqa: F401  (first: loads the MPI library of DOLFINx's PyPI wheel)
-from dolfinx_granular._dolfinx import mpi_command
-from dolfinx_granular.cache import PackingCache
-from dolfinx_granular.levels import isotropic_lame
+from dolfinx_granular.fem.compat import mpi_command
+from dolfinx_granular.laws.levels import isotropic_lame
+from dolfinx_granular.packings.cache import PackingCache
 
 import flops  # benchmarks/flops.py: the machine's FMA peak
 import report_figures

@@ -165,9 +165,9 @@ def iteration_section(res, paths) -> str:
         _iteration_intro(res),
         "The yardstick *UFL linear* is the same slope, mesh and `NewtonSolver` with sigma = "
         "lam tr(eps) I + 2 mu eps written in UFL, eps = sym(grad u) "
-        "(`dolfinx_granular.linear.LinearElasticMaterial.isotropic_part`); lam and mu are "
+        "(`dolfinx_granular.fem.linear.LinearElasticMaterial.isotropic_part`); lam and mu are "
         "the isotropic projection of the eq. 15 modulus of the same packing "
-        "(`dolfinx_granular.levels.isotropic_lame`: keeps C_iikk = 4 lam + 4 mu and "
+        "(`dolfinx_granular.laws.levels.isotropic_lame`: keeps C_iikk = 4 lam + 4 mu and "
         "C_ikik = 2 lam + 6 mu; the central-force modulus satisfies the Cauchy relation, so "
         f"lam = mu = C_iikk / 8 = {lam / 1e6:.3f} MPa here). It is linear: "
         f"{lin['run']['iterations'] / max(lin['run']['calls']['solves'], 1):.2g} Newton "
@@ -327,7 +327,7 @@ def speed_error_section(res, paths) -> str:
         gen.setdefault(r["particles"], []).append(r["generation_time"])
     lines.append(
         "\nPacking generation (s, mean over seeds, once per packing, "
-        "`dolfinx_granular.cache.PackingCache`): "
+        "`dolfinx_granular.packings.cache.PackingCache`): "
         + ", ".join(f"{n}: {np.mean(g):.2f}" for n, g in sorted(gen.items()))
         + ".\n"
     )

@@ -27,8 +27,9 @@ import time
 
 import dolfinx_granular  # noqa: F401  (first: loads the MPI library of DOLFINx's PyPI wheel)
 from dolfinx_granular import AdaptiveRVE, Packing, SmallStrainRVE, TaylorRVE
-from dolfinx_granular._dolfinx import mpi_command
-from dolfinx_granular.linear import LinearElasticMaterial
+from dolfinx_granular.drivers.newton import NewtonSolver
+from dolfinx_granular.fem.compat import mpi_command
+from dolfinx_granular.fem.linear import LinearElasticMaterial
 from dolfinx_granular.slope import (
     SlopeGeometry,
     SlopeOptions,
@@ -37,7 +38,6 @@ from dolfinx_granular.slope import (
     newton_solver,
 )
 from dolfinx_granular.slope.summary import summarise
-from dolfinx_granular.solver import NewtonSolver
 
 import numpy as np
 from mpi4py import MPI

@@ -61,7 +61,7 @@ import json, platform
 import dolfinx_granular
 import dolfinx, numba, numpy, mpi4py
 from petsc4py import PETSc
-from dolfinx_granular._dolfinx import mpi_command
+from dolfinx_granular.fem.compat import mpi_command
 print(json.dumps({"versions": {"dolfinx": dolfinx.__version__.split(".post")[0],
     "python": platform.python_version(), "petsc": ".".join(map(str, PETSc.Sys.getVersion())),
     "numba": numba.__version__, "numpy": numpy.__version__, "mpi4py": mpi4py.__version__},

@@ -24,7 +24,8 @@
 ``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests; under ``mpirun`` rank 0 runs
 the (serial) study and the other ranks exit.
 
-* packing: ``generate_packing(n, seed)`` through :class:`~dolfinx_granular.cache.PackingCache`
+* packing: ``generate_packing(n, seed)`` through
+  :class:`~dolfinx_granular.packings.cache.PackingCache`
   (350 particles, seeds 0-4 for monotonic shear, seed 0 for the cycles; ``--small``: 70, seed 0);
 * contacts: k_n = 2.8e7 N/m² (table 1 of the paper), k_t = k_n (a common DEM choice), Coulomb μ;
 * every test starts from F = I, is compressed to σ22 = −p (p = 100 kPa, in 10 pressure steps at
@@ -55,10 +56,8 @@ import sys
 import time
 from dataclasses import dataclass
 
-from dolfinx_granular.cache import PackingCache
-from dolfinx_granular.friction import FrictionalRVE, FrictionState
-from dolfinx_granular.material_point import ControlError, solve_point
-from dolfinx_granular.shear_figures import (
+from dolfinx_granular.drivers.material_point import ControlError, solve_point
+from dolfinx_granular.io.shear_figures import (
     dissipation_figure,
     hysteresis_figure,
     qp_gamma_figure,
@@ -66,6 +65,8 @@ from dolfinx_granular.shear_figures import (
     save_figure,
     stress_ratios,
 )
+from dolfinx_granular.laws.friction import FrictionalRVE, FrictionState
+from dolfinx_granular.packings.cache import PackingCache
 
 import numpy as np
 
@@ -92,8 +93,8 @@ SMALL = dict(particles=70, seeds=(0,), quarter_steps=20, cycles=2, monotonic_ste
 # ## The mixed-control driver
 #
 # F11 = 1, F12 = γ and F21 = 0 are prescribed, F22 = 1 + e22 is unknown and σ22 = −p is the
-# equation: the package's material-point driver (`dolfinx_granular.material_point.solve_point`)
-# with `stress={(1, 1): -p}`. Newton on the scalar e22 uses the consistent tangent dσ22/dF22
+# equation: the package's material-point driver (`dolfinx_granular.solve_point`) with
+# `stress={(1, 1): -p}`. Newton on the scalar e22 uses the consistent tangent dσ22/dF22
 # (chain rule of σ = P Fᵀ / J with A = dP/dF); a bracket on e22 and bisection catch the rare
 # iterate that leaves it (stick/slip switches make σ22(e22) only piecewise smooth). Every iterate
 # starts from the committed state; the caller commits the returned state only after convergence.

@@ -40,9 +40,9 @@ from dolfinx_granular import (
     probe,
     vector_space,
 )
-from dolfinx_granular._dolfinx import repair_xdmf
-from dolfinx_granular.fields import cauchy_output
-from dolfinx_granular.material_point import MaterialPoint
+from dolfinx_granular.drivers.material_point import MaterialPoint
+from dolfinx_granular.fem.compat import repair_xdmf
+from dolfinx_granular.fem.fields import cauchy_output
 
 import numpy as np
 import ufl

@@ -43,12 +43,18 @@ import os
 import sys
 import time
 
-from dolfinx_granular import TaylorRVE, cen_standard_sand, plotting
-from dolfinx_granular.cache import PackingCache
-from dolfinx_granular.fabric import anisotropy, contact_angles, density_deviation, fabric_tensor
-from dolfinx_granular.generation import network_stats
-from dolfinx_granular.gsd import DEFAULT_D_MIN
-from dolfinx_granular.material_point import MaterialPoint
+from dolfinx_granular import TaylorRVE, cen_standard_sand
+from dolfinx_granular.drivers.material_point import MaterialPoint
+from dolfinx_granular.io import plotting
+from dolfinx_granular.packings.cache import PackingCache
+from dolfinx_granular.packings.fabric import (
+    anisotropy,
+    contact_angles,
+    density_deviation,
+    fabric_tensor,
+)
+from dolfinx_granular.packings.generation import network_stats
+from dolfinx_granular.packings.gsd import DEFAULT_D_MIN
 from dolfinx_granular.timing import time_per_point
 
 import numpy as np

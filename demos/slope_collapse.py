@@ -31,7 +31,7 @@ import sys
 import time
 
 from dolfinx_granular import generate_packing
-from dolfinx_granular.runwriter import RunWriter
+from dolfinx_granular.io.runwriter import RunWriter
 from dolfinx_granular.slope import SlopeGeometry, SlopeOptions, run_slope
 from dolfinx_granular.slope.run import clear_run
 

@@ -1,9 +1,11 @@
 """dolfinx_granular: Taylor-RVE granular material for DOLFINx (Meier, Steinmann & Kuhl).
 
-The microscale lives in :mod:`~dolfinx_granular.packing` (disk packings) and
-:mod:`~dolfinx_granular.rve` (stress and tangents, Numba kernels in
-:mod:`~dolfinx_granular.kernel`). DOLFINx is imported only by the modules that need it; with
-the PyPI wheel of DOLFINx, importing the package loads the wheel's MPI library (below).
+The microscale lives in :mod:`~dolfinx_granular.packings.packing` (disk packings) and
+:mod:`~dolfinx_granular.laws.taylor` (stress and tangents, Numba kernels in
+:mod:`~dolfinx_granular.laws.taylor_kernel`). The subpackages hold the layers: ``packings``,
+``laws``, ``fem`` (the DOLFINx glue), ``drivers``, ``io`` and ``slope``; every public name is
+imported from the package itself. DOLFINx is imported only by the modules that need it; with the
+PyPI wheel of DOLFINx, importing the package loads the wheel's MPI library (below).
 """
 
 import importlib.util as _importlib_util
@@ -13,16 +15,22 @@ import importlib.util as _importlib_util
 if _importlib_util.find_spec("dolfinx_solver") is not None:
     import dolfinx_solver  # noqa: F401
 
-from .contacts import ContactCandidates
-from .fabric import anisotropy, contact_angles, density_deviation, fabric_tensor, normal_density
-from .friction import FrictionalRVE, FrictionState
-from .generation import NetworkStats, generate_packing, network_stats, relax_overlaps
-from .gsd import SieveCurve, cen_standard_sand
-from .law import HistoryLaw, HistoryState, LawEvaluationError, MaterialLaw, law_dimension
-from .levels import AdaptiveRVE, SmallStrainRVE
-from .packing import Packing, PackingFileError
-from .rve import ContactSet, TaylorRVE, UnsupportedDeformationError
-from .validity import OVERLAP_THRESHOLD, OverlapMonitor, OverlapSummary, ValidityWarning
+from .laws.contacts import ContactCandidates
+from .laws.friction import FrictionalRVE, FrictionState
+from .laws.levels import AdaptiveRVE, SmallStrainRVE
+from .laws.protocol import HistoryLaw, HistoryState, LawEvaluationError, MaterialLaw, law_dimension
+from .laws.taylor import ContactSet, TaylorRVE, UnsupportedDeformationError
+from .laws.validity import OVERLAP_THRESHOLD, OverlapMonitor, OverlapSummary, ValidityWarning
+from .packings.fabric import (
+    anisotropy,
+    contact_angles,
+    density_deviation,
+    fabric_tensor,
+    normal_density,
+)
+from .packings.generation import NetworkStats, generate_packing, network_stats, relax_overlaps
+from .packings.gsd import SieveCurve, cen_standard_sand
+from .packings.packing import Packing, PackingFileError
 
 __all__ = [
     "Packing",
@@ -56,35 +64,35 @@ __all__ = [
     "OverlapMonitor",
     "ValidityWarning",
 ]
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 #: the DOLFINx releases this version supports and tests (Debian bookworm, trixie, PyPI wheel)
 SUPPORTED_DOLFINX = (">=0.5.2", "<0.12")
 
 # DOLFINx-side names, imported on first use so that `import dolfinx_granular` stays DOLFINx-free.
 _LAZY = {
-    "GranularMaterial": "material",
-    "NewtonSolver": "solver",
-    "GranularProblem": "problem",
-    "MaterialPoint": "material_point",
-    "solve_point": "material_point",
-    "PointResult": "material_point",
-    "ControlError": "material_point",
-    "ConvergenceTest": "convergence",
-    "LoadPhase": "loading",
-    "SNESArcLength": "snes_al",
-    "SolveResult": "solver",
-    "LoadStepper": "loading",
-    "ArcLength": "arclength",
-    "QuadratureMaterial": "quadrature",
-    "RunWriter": "runwriter",
-    "LinearElasticMaterial": "linear",
-    "derivative": "quadrature",
-    "von_mises": "postprocess",
-    "vector_space": "_dolfinx",
-    "probe": "probing",
-    "point_values": "probing",
-    "cauchy_field": "fields",
-    "validity_summary": "validity",
+    "GranularMaterial": "fem.material",
+    "NewtonSolver": "drivers.newton",
+    "GranularProblem": "drivers.problem",
+    "MaterialPoint": "drivers.material_point",
+    "solve_point": "drivers.material_point",
+    "PointResult": "drivers.material_point",
+    "ControlError": "drivers.material_point",
+    "ConvergenceTest": "drivers.convergence",
+    "LoadPhase": "drivers.loading",
+    "SNESArcLength": "drivers.snes_al",
+    "SolveResult": "drivers.newton",
+    "LoadStepper": "drivers.loading",
+    "ArcLength": "drivers.arclength",
+    "QuadratureMaterial": "fem.quadrature",
+    "RunWriter": "io.runwriter",
+    "LinearElasticMaterial": "fem.linear",
+    "derivative": "fem.quadrature",
+    "von_mises": "io.postprocess",
+    "vector_space": "fem.compat",
+    "probe": "fem.probing",
+    "point_values": "fem.probing",
+    "cauchy_field": "fem.fields",
+    "validity_summary": "laws.validity",
 }
 __all__ += list(_LAZY)
 

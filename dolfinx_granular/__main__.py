@@ -3,11 +3,11 @@
 Commands:
     generate N [--seed S] [-o packing.npz] [--force] [--d-min MM] [--sieve-curve CSV] [--aspect A]
         Write a jammed, stress-free periodic packing of N disks (see
-        :func:`dolfinx_granular.generation.generate_packing`); an existing file is kept unless
+        :func:`dolfinx_granular.generate_packing`); an existing file is kept unless
         ``--force``. The arguments are checked before the output file.
     relax PACKING -o OUT.npz [--force]
         Make an overlapping packing stress-free (see
-        :func:`dolfinx_granular.generation.relax_overlaps`): minimal moves of the disks, or, for
+        :func:`dolfinx_granular.relax_overlaps`): minimal moves of the disks, or, for
         overlaps too large for that, the disks jammed afresh in the same cell.
 
 A user error (bad argument, bad sieve curve, unwritable file) prints one line ``error: ...`` to
@@ -122,8 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_generate(args) -> int:
-    from .generation import _check_sizes, _seed, generate_packing, network_stats
-    from .gsd import DEFAULT_D_MIN, SieveCurve
+    from .packings.generation import _check_sizes, _seed, generate_packing, network_stats
+    from .packings.gsd import DEFAULT_D_MIN, SieveCurve
 
     gsd = SieveCurve.from_csv(args.sieve_curve) if args.sieve_curve else None
     d_min = args.d_min
@@ -173,9 +173,9 @@ def _check_output(args):
 
 
 def _cmd_relax(args) -> int:
-    from .generation import relax_overlaps
-    from .packing import Packing
-    from .rve import TaylorRVE
+    from .laws.taylor import TaylorRVE
+    from .packings.generation import relax_overlaps
+    from .packings.packing import Packing
 
     _check_output(args)
     before = Packing.load(args.packing)

@@ -11,8 +11,8 @@
   friction, figure included: the material's kernel specialisations on DOLFINx quadrature data,
   and the slope's forms, elements and expressions (FFCx).
 
-Two caches keep what it compiles. Numba's (``cache=True``) lives in ``dolfinx_granular/__pycache__``
-(or ``$NUMBA_CACHE_DIR``) and is keyed to each source file's modification time and to the CPU: a
+Two caches keep what it compiles. Numba's (``cache=True``) lives in the ``__pycache__`` folder
+beside each kernel's source (or in ``$NUMBA_CACHE_DIR``) and is keyed to each source file's modification time and to the CPU: a
 source edited later recompiles on its first use (correct, just slower; the next set-up warms it
 again). FFCx's lives in ``~/.cache/fenics`` (``$XDG_CACHE_HOME/fenics``) and is keyed to the form.
 
@@ -42,10 +42,10 @@ _PACKAGE = Path(__file__).resolve().parent
 def warm_api(particles: int = PARTICLES) -> None:
     """Run the public material-point API once on a tiny generated packing (every Numba kernel
     specialisation that plain-array calls use)."""
-    from .friction import FrictionalRVE
-    from .generation import generate_packing, relax_overlaps
-    from .packing import Packing
-    from .rve import TaylorRVE
+    from .laws.friction import FrictionalRVE
+    from .laws.taylor import TaylorRVE
+    from .packings.generation import generate_packing, relax_overlaps
+    from .packings.packing import Packing
 
     packing = generate_packing(particles, seed=0)
     # the overlapping copy that relax_overlaps exists for (radii x 1.02, as in the README)
@@ -69,7 +69,7 @@ def warm_slope(particles: int = PARTICLES) -> None:
     serially into a temporary folder (its kernels on quadrature data, its FFCx forms)."""
     from mpi4py import MPI
 
-    from .generation import generate_packing
+    from .packings.generation import generate_packing
     from .slope import SlopeOptions, run_slope
 
     packing = generate_packing(particles, seed=0)

@@ -42,7 +42,7 @@ def slope_command(*args, ranks=1):
     launcher of this Python's MPI; the test fails without one)."""
     cmd = [sys.executable, SLOPE, *map(str, args)]
     if ranks > 1:
-        from dolfinx_granular._dolfinx import mpi_command
+        from dolfinx_granular.fem.compat import mpi_command
 
         launcher = mpi_command(ranks)
         assert launcher is not None, "no MPI launcher (mpiexec/mpirun) found"
@@ -147,9 +147,9 @@ def granular_column(
     solution non-homogeneous). ``material_class`` defaults to GranularMaterial. Returns
     ``Column(solver, material, u, p)``."""
     # DOLFINx only here: the packings and scripts above serve tests that run without it
-    from dolfinx_granular._dolfinx import vector_space
-    from dolfinx_granular.material import GranularMaterial
-    from dolfinx_granular.solver import NewtonSolver
+    from dolfinx_granular.drivers.newton import NewtonSolver
+    from dolfinx_granular.fem.compat import vector_space
+    from dolfinx_granular.fem.material import GranularMaterial
 
     import ufl
     from dolfinx import fem, mesh
@@ -194,7 +194,7 @@ def taylor_remainders(L, a, u, direction, update, h0, halvings=5):
     for h = h0, h0 / 2, ... (``halvings`` values) and their convergence rates
     log2(r(h) / r(h / 2)): r1 falls as O(h), r2 as O(h^2) for the consistent Jacobian.
     u is restored on return. Returns ``(rate1, rate2, r1, r2)`` (arrays)."""
-    from dolfinx_granular._dolfinx import petsc_vec
+    from dolfinx_granular.fem.compat import petsc_vec
 
     from dolfinx.fem.petsc import assemble_matrix, assemble_vector
     from petsc4py import PETSc
@@ -240,7 +240,7 @@ def demo_command(name, *args, ranks=1):
     processes if ranks > 1 (the test fails without one)."""
     cmd = [sys.executable, os.path.join(ROOT, "demos", f"{name}.py"), *map(str, args)]
     if ranks > 1:
-        from dolfinx_granular._dolfinx import mpi_command
+        from dolfinx_granular.fem.compat import mpi_command
 
         launcher = mpi_command(ranks)
         assert launcher is not None, "no MPI launcher (mpiexec/mpirun) found"

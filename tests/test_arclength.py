@@ -1,9 +1,9 @@
-"""Arc-length path following (dolfinx_granular.arclength) on the von Mises truss with a soft
+"""Arc-length path following (dolfinx_granular.drivers.arclength) on the von Mises truss with a soft
 spring (tests/truss.py): the traced path lies on the exact equilibrium path through both load
 limit points and the snap-back, the limit points are found by the sign of det K, and failed
 increments leave the converged state as it was."""
 
-from dolfinx_granular.arclength import ArcLength, control_reaches, load_reaches, unloaded_to
+from dolfinx_granular.drivers.arclength import ArcLength, control_reaches, load_reaches, unloaded_to
 
 import numpy as np
 import pytest
@@ -135,7 +135,7 @@ def test_serial_path_is_reproduced_on_every_rank_count():
 def snes_newtonal_final_state(model, target, step_size):
     """PETSc's own arc length (SNESNEWTONAL, in recent PETSc) through the package's driver on the
     same problem: lam from 0 to 1 of the load ``target``, through every limit point; (w, v)."""
-    from dolfinx_granular.snes_al import SNESArcLength
+    from dolfinx_granular.drivers.snes_al import SNESArcLength
 
     driver = SNESArcLength(
         model.solver, model.load, model.external, target, step_size=step_size, prefix="t_al_"
@@ -151,7 +151,7 @@ def snes_newtonal_final_state(model, target, step_size):
 def test_same_far_branch_as_petsc_snes_newtonal():
     """Where PETSc has SNESNEWTONAL: 1.5 x the peak load is carried only on the far branch, past
     both limit points; PETSc's arc length and this package's reach the same state there."""
-    from dolfinx_granular.snes_al import has_newtonal
+    from dolfinx_granular.drivers.snes_al import has_newtonal
 
     if not has_newtonal():
         pytest.skip("this PETSc has no SNESNEWTONAL (PETSc < 3.23): nothing to compare with")
@@ -171,7 +171,7 @@ def test_same_far_branch_as_petsc_snes_newtonal():
 def test_snes_newtonal_driver_refused_without_it():
     """Where PETSc lacks SNESNEWTONAL (Debian's 0.5.2: PETSc 3.18) the driver says so and
     names the alternative, in one line."""
-    from dolfinx_granular.snes_al import SNESArcLength, has_newtonal
+    from dolfinx_granular.drivers.snes_al import SNESArcLength, has_newtonal
 
     if has_newtonal():
         pytest.skip("this PETSc has SNESNEWTONAL (tested above)")
@@ -184,7 +184,7 @@ def test_snes_newtonal_driver_refused_without_it():
 def test_both_drivers_follow_the_driver_protocol():
     """ArcLength is a Driver: run(on_converged) with one record per increment (an
     IncrementRecord, t the load parameter), failed/stopped of one type each."""
-    from dolfinx_granular.drivers import ASKED_TO_STOP, Driver, IncrementRecord
+    from dolfinx_granular.drivers.protocol import ASKED_TO_STOP, Driver, IncrementRecord
 
     model = truss(prefix="al_proto_")
     al = ArcLength(model.solver, model.load, model.external, 0.02, max_increments=3)

@@ -3,7 +3,7 @@ status 2, no traceback (unless ``--debug``), also under ``mpirun -n 2``; a gmsh 
 required physical groups."""
 
 from dolfinx_granular import Packing
-from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
+from dolfinx_granular.packings.packing import FORMAT_NAME, FORMAT_VERSION
 
 import numpy as np
 import pytest

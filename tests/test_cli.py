@@ -119,7 +119,7 @@ def test_existing_output_is_kept_unless_forced(tmp_path, monkeypatch, capsys):
 
 def test_progress_prints_every_stage_event_and_spaces_the_heartbeats(tmp_path, monkeypatch, capsys):
     from dolfinx_granular import __main__ as cli
-    from dolfinx_granular import generation
+    from dolfinx_granular.packings import generation
 
     lines = []
     generate_packing(350, seed=1, progress=lines.append)

@@ -1,4 +1,4 @@
-"""The DOLFINx compatibility layer (dolfinx_granular._dolfinx): one behaviour on every release.
+"""The DOLFINx compatibility layer (dolfinx_granular.fem.compat): one behaviour on every release.
 
 Each helper is checked against what the rest of the package relies on (shapes, layouts, the
 launcher), and the package's own DOLFINx calls raise no DeprecationWarning of DOLFINx, UFL, basix
@@ -10,7 +10,7 @@ import subprocess
 import sys
 import warnings
 
-from dolfinx_granular import _dolfinx as dfx
+from dolfinx_granular.fem import compat as dfx
 from dolfinx_granular.slope import SlopeOptions, run_slope
 
 import numpy as np
@@ -91,7 +91,7 @@ def test_mpi_command_ignores_another_stacks_launcher_first_on_path(tmp_path):
         fake.write_text(f"#!/bin/sh\necho '{other}'\nexit 0\n")
         fake.chmod(0o755)
     env = {**os.environ, "PATH": f"{tmp_path}{os.pathsep}{os.environ.get('PATH', '')}"}
-    ask = "from dolfinx_granular._dolfinx import mpi_command; print(' '.join(mpi_command(2)))"
+    ask = "from dolfinx_granular.fem.compat import mpi_command; print(' '.join(mpi_command(2)))"
     cmd = subprocess.run(
         [sys.executable, "-c", ask], env=env, capture_output=True, text=True, check=True
     ).stdout.split()

@@ -6,10 +6,10 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import vector_space  # noqa: E402
-from dolfinx_granular.linear import LinearElasticMaterial, lame_from_young  # noqa: E402
-from dolfinx_granular.material import GranularMaterial  # noqa: E402
-from dolfinx_granular.solver import NewtonSolver  # noqa: E402
+from dolfinx_granular.drivers.newton import NewtonSolver  # noqa: E402
+from dolfinx_granular.fem.compat import vector_space  # noqa: E402
+from dolfinx_granular.fem.linear import LinearElasticMaterial, lame_from_young  # noqa: E402
+from dolfinx_granular.fem.material import GranularMaterial  # noqa: E402
 
 import ufl  # noqa: E402
 from dolfinx import fem, mesh  # noqa: E402

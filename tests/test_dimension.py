@@ -4,11 +4,11 @@ matches the same law written in UFL; a law of another dimension than the mesh is
 flattening rule for any d."""
 
 from dolfinx_granular import GranularMaterial, NewtonSolver, TaylorRVE, generate_packing
-from dolfinx_granular import _dolfinx as dfx
-from dolfinx_granular.fields import cauchy_field, cell_means
-from dolfinx_granular.law import MaterialLaw, law_dimension
-from dolfinx_granular.probing import probe
-from dolfinx_granular.quadrature import QuadratureMaterial, flatten, unflatten
+from dolfinx_granular.fem import compat as dfx
+from dolfinx_granular.fem.fields import cauchy_field, cell_means
+from dolfinx_granular.fem.probing import probe
+from dolfinx_granular.fem.quadrature import QuadratureMaterial, flatten, unflatten
+from dolfinx_granular.laws.protocol import MaterialLaw, law_dimension
 
 import numpy as np
 import pytest

@@ -2,7 +2,7 @@
 corrector's, a parameter of it), load control as a driver of the protocol, the problem's public
 methods (no import circle anywhere in the package: tests/test_imports.py)."""
 
-from dolfinx_granular.convergence import CONVERGED, ITERATING, STAGNATION, ConvergenceTest
+from dolfinx_granular.drivers.convergence import CONVERGED, ITERATING, STAGNATION, ConvergenceTest
 
 import numpy as np
 import pytest
@@ -60,8 +60,8 @@ def test_load_phase_is_a_driver_with_one_record_per_increment():
     """LoadStepper.phase: run(on_converged) with a LoadIncrement per converged increment; a stop
     asked for is ``stopped`` (a str, as ArcLength's), run returns True unless it failed."""
     from dolfinx_granular import TaylorRVE, generate_packing
-    from dolfinx_granular.drivers import ASKED_TO_STOP, Driver, IncrementRecord
-    from dolfinx_granular.loading import LoadIncrement, LoadStepper
+    from dolfinx_granular.drivers.loading import LoadIncrement, LoadStepper
+    from dolfinx_granular.drivers.protocol import ASKED_TO_STOP, Driver, IncrementRecord
 
     from helpers import granular_column
 
@@ -86,7 +86,7 @@ def test_problem_evaluates_assembles_commits_and_restores():
     """GranularProblem's public methods: R and K at a state, the force scale, a restore to a
     saved state (u and the materials' stress), all without SNES."""
     from dolfinx_granular import TaylorRVE, generate_packing
-    from dolfinx_granular.problem import GranularProblem
+    from dolfinx_granular.drivers.problem import GranularProblem
 
     from helpers import granular_column
 

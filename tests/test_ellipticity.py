@@ -1,7 +1,7 @@
 """The acoustic-tensor test of strong ellipticity: analytic cases and the Taylor RVE."""
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.postprocess import min_acoustic_eigenvalue
+from dolfinx_granular.io.postprocess import min_acoustic_eigenvalue
 
 import numpy as np
 import pytest

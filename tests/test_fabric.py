@@ -1,7 +1,7 @@
 """Contact-normal density (angle of influence), fabric tensor and anisotropy."""
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.fabric import (
+from dolfinx_granular.packings.fabric import (
     anisotropy,
     contact_angles,
     density_deviation,

@@ -6,14 +6,14 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import evaluate, expression, repair_xdmf, vector_space  # noqa: E402
-from dolfinx_granular.fields import (  # noqa: E402
+from dolfinx_granular.fem.compat import evaluate, expression, repair_xdmf, vector_space  # noqa: E402
+from dolfinx_granular.fem.fields import (  # noqa: E402
     cauchy_field,
     cauchy_output,
     cell_means,
     point_weights,
 )
-from dolfinx_granular.material import GranularMaterial  # noqa: E402
+from dolfinx_granular.fem.material import GranularMaterial  # noqa: E402
 
 import ufl  # noqa: E402
 from dolfinx import fem, io, mesh  # noqa: E402

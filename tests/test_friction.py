@@ -6,9 +6,9 @@ import platform
 import types
 
 from dolfinx_granular import Packing, TaylorRVE, UnsupportedDeformationError, generate_packing
-from dolfinx_granular import friction_kernel as fk
-from dolfinx_granular.friction import FrictionalRVE, FrictionContactSet, FrictionState
-from dolfinx_granular.rve import PrestressWarning
+from dolfinx_granular.laws import friction_kernel as fk
+from dolfinx_granular.laws.friction import FrictionalRVE, FrictionContactSet, FrictionState
+from dolfinx_granular.laws.taylor import PrestressWarning
 
 import numpy as np
 import pytest

@@ -5,8 +5,8 @@ the history, and serial = MPI."""
 import json
 
 from dolfinx_granular import generate_packing
-from dolfinx_granular.friction import FrictionalRVE
-from dolfinx_granular.loading import LoadStepper
+from dolfinx_granular.drivers.loading import LoadStepper
+from dolfinx_granular.laws.friction import FrictionalRVE
 
 import numpy as np
 import pytest
@@ -115,7 +115,7 @@ def test_resume_carries_the_history(tmp_path, friction_run):
 
 
 def test_frictionless_default_is_the_taylor_rve():
-    from dolfinx_granular.rve import TaylorRVE
+    from dolfinx_granular.laws.taylor import TaylorRVE
     from dolfinx_granular.slope import SlopeOptions
 
     packing = generate_packing(20, seed=1)

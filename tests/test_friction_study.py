@@ -5,7 +5,7 @@ import csv
 import types
 
 from dolfinx_granular import Packing
-from dolfinx_granular.friction import FrictionalRVE
+from dolfinx_granular.laws.friction import FrictionalRVE
 
 import numpy as np
 import pytest

@@ -1,15 +1,8 @@
 """generate_packing: jammed, stress-free, rigid, periodic, deterministic; bad input."""
 
-from dolfinx_granular import (
-    Packing,
-    TaylorRVE,
-    fire,
-    generate_packing,
-    generation,
-    neighbours,
-    network_stats,
-)
-from dolfinx_granular.gsd import SieveCurve, cen_standard_sand
+from dolfinx_granular import Packing, TaylorRVE, generate_packing, network_stats
+from dolfinx_granular.packings import fire, generation, neighbours
+from dolfinx_granular.packings.gsd import SieveCurve, cen_standard_sand
 
 import numpy as np
 import pytest
@@ -330,7 +323,8 @@ def test_progress_heartbeats_respect_the_interval(monkeypatch):
 
 
 def test_generation_benchmark_runs(capsys):
-    import generation as benchmark  # benchmarks/generation.py (not dolfinx_granular.generation)
+    # benchmarks/generation.py, not dolfinx_granular.packings.generation
+    import generation as benchmark
 
     sizes = ["70", "140"]
     benchmark.main(["--sizes", *sizes])
@@ -354,7 +348,7 @@ def test_relax_overlaps_makes_a_prestressed_packing_stress_free():
     import warnings
 
     from dolfinx_granular import relax_overlaps
-    from dolfinx_granular.rve import PrestressWarning
+    from dolfinx_granular.laws.taylor import PrestressWarning
 
     p = generate_packing(70, seed=1)
     swollen = Packing(p.centers, 1.02 * p.radii, p.box)

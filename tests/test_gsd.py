@@ -1,6 +1,11 @@
 """Sieve curves: the shipped CEN sand, validation, interpolation and diameter sampling."""
 
-from dolfinx_granular.gsd import DEFAULT_D_MIN, SieveCurve, as_sieve_curve, cen_standard_sand
+from dolfinx_granular.packings.gsd import (
+    DEFAULT_D_MIN,
+    SieveCurve,
+    as_sieve_curve,
+    cen_standard_sand,
+)
 
 import numpy as np
 import pytest

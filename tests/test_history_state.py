@@ -3,8 +3,8 @@ material's committed state moves only through export_state / restore_state, whic
 (PointOrder.gather_material / restore_material) on any partition."""
 
 from dolfinx_granular import FrictionState, generate_packing
-from dolfinx_granular.friction import FrictionalRVE
-from dolfinx_granular.law import HistoryState, check_state
+from dolfinx_granular.laws.friction import FrictionalRVE
+from dolfinx_granular.laws.protocol import HistoryState, check_state
 
 import numpy as np
 import pytest
@@ -64,7 +64,7 @@ def test_export_and_restore_move_the_committed_state():
 def test_point_order_restores_a_material_state_on_another_material():
     """gather_material on rank 0, to_arrays, restore_material into a fresh material of the same
     mesh: the same state at every point, whatever the partition."""
-    from dolfinx_granular.runwriter import PointOrder
+    from dolfinx_granular.io.runwriter import PointOrder
 
     solver, material, u, p = granular_column(frictional_rve(), "gather_state_", n=3)
     p.value = 2e5

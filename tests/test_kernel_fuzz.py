@@ -1,6 +1,7 @@
 """Thousands of random, hostile F through the kernel: a finite answer or a clean error, no NaN."""
 
-from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, kernel
+from dolfinx_granular import TaylorRVE, UnsupportedDeformationError
+from dolfinx_granular.laws import taylor_kernel as kernel
 
 import numpy as np
 import pytest
@@ -8,7 +9,7 @@ import pytest
 from helpers import random_packing
 
 # these tests use prestressed (overlapping) packings on purpose
-pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.laws.taylor.PrestressWarning")
 
 
 def hostile_F(rng, n):

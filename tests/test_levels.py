@@ -1,8 +1,13 @@
 """Model levels: the small-strain model of eq. 15 and the adaptive linear/Taylor choice."""
 
 from dolfinx_granular import TaylorRVE, UnsupportedDeformationError, generate_packing
-from dolfinx_granular.law import MaterialLaw
-from dolfinx_granular.levels import AdaptiveRVE, SmallStrainRVE, isotropic_lame, singular_values_2x2
+from dolfinx_granular.laws.levels import (
+    AdaptiveRVE,
+    SmallStrainRVE,
+    isotropic_lame,
+    singular_values_2x2,
+)
+from dolfinx_granular.laws.protocol import MaterialLaw
 
 import numpy as np
 import pytest
@@ -11,7 +16,7 @@ from helpers import random_packing
 from reference import all_branch_vectors, central_differences
 
 # these tests use prestressed (overlapping) packings on purpose
-pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.laws.taylor.PrestressWarning")
 
 K_N = 2.8e7
 

@@ -6,10 +6,10 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import vector_space  # noqa: E402
-from dolfinx_granular.loading import LoadStepper  # noqa: E402
-from dolfinx_granular.material import GranularMaterial  # noqa: E402
-from dolfinx_granular.solver import STAGNATION, NewtonSolver  # noqa: E402
+from dolfinx_granular.drivers.loading import LoadStepper  # noqa: E402
+from dolfinx_granular.drivers.newton import STAGNATION, NewtonSolver  # noqa: E402
+from dolfinx_granular.fem.compat import vector_space  # noqa: E402
+from dolfinx_granular.fem.material import GranularMaterial  # noqa: E402
 
 import ufl  # noqa: E402
 from dolfinx import fem, mesh  # noqa: E402
@@ -230,7 +230,7 @@ def smooth_limit_path(n, t_top=1.0, scale=3.0):
 
 
 def test_limit_point_is_recognised_and_located():
-    from dolfinx_granular.loading import limit_point
+    from dolfinx_granular.drivers.loading import limit_point
 
     path = smooth_limit_path(8, t_top=0.8)
     t_last = path[-1]["t"]
@@ -247,7 +247,7 @@ def test_limit_point_is_recognised_and_located():
 
 
 def test_limit_point_rejects_other_failures():
-    from dolfinx_granular.loading import limit_point
+    from dolfinx_granular.drivers.loading import limit_point
 
     linear = [{"phase": "p", "t": 0.1 * k, "dt": 0.1, "increment_norm": 0.02} for k in range(1, 6)]
     assert limit_point(linear, 0.55) is None  # stiff path: the failure is not a limit point
@@ -262,7 +262,7 @@ def test_limit_point_rejects_other_failures():
 def test_limit_point_inside_the_failed_increment_needs_a_smaller_drop():
     """S at 35 % of its first value: no limit for a failure well before the extrapolated maximum,
     a limit when the maximum lies inside the increment that failed; S that has not halved: never."""
-    from dolfinx_granular.loading import limit_point
+    from dolfinx_granular.drivers.loading import limit_point
 
     path = smooth_limit_path(4, t_top=1.0)
     S = [p["dt"] / p["increment_norm"] for p in path]
@@ -285,7 +285,7 @@ class SevenIterationSolver:
         self.u, self.materials, self.calls = u, (), 0
 
     def solve(self):
-        from dolfinx_granular.solver import SolveResult
+        from dolfinx_granular.drivers.newton import SolveResult
 
         self.calls += 1
         ok = self.calls > 1

@@ -8,9 +8,9 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import function_space, vector_space  # noqa: E402
-from dolfinx_granular.material import GranularMaterial  # noqa: E402
-from dolfinx_granular.solver import NewtonSolver  # noqa: E402
+from dolfinx_granular.drivers.newton import NewtonSolver  # noqa: E402
+from dolfinx_granular.fem.compat import function_space, vector_space  # noqa: E402
+from dolfinx_granular.fem.material import GranularMaterial  # noqa: E402
 
 import ufl  # noqa: E402
 from dolfinx import fem, mesh  # noqa: E402
@@ -158,7 +158,7 @@ def test_stress_floor_is_the_reference_stress_of_a_stress_free_law():
     of the material at u = 0, on a subdomain too; an exactly stress-free lattice and a
     prestressed packing (a real stress to balance) have none. A law with history: the same."""
     from dolfinx_granular import FrictionalRVE
-    from dolfinx_granular.rve import PrestressWarning
+    from dolfinx_granular.laws.taylor import PrestressWarning
 
     from helpers import random_packing, square_lattice
 

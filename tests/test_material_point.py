@@ -1,9 +1,9 @@
-"""The material-point driver (dolfinx_granular.material_point): mixed control against the
+"""The material-point driver (dolfinx_granular.drivers.material_point): mixed control against the
 hand-written confined-shear driver, pure stress control against a linear law's closed form,
 biaxial compression, and a stress-controlled cycle of a hyperelastic law."""
 
 from dolfinx_granular import FrictionalRVE, TaylorRVE, generate_packing
-from dolfinx_granular.material_point import (
+from dolfinx_granular.drivers.material_point import (
     ControlError,
     MaterialPoint,
     solve_point,

@@ -3,7 +3,7 @@
 import zipfile
 
 from dolfinx_granular import Packing, PackingFileError
-from dolfinx_granular.packing import FORMAT_NAME, FORMAT_VERSION
+from dolfinx_granular.packings.packing import FORMAT_NAME, FORMAT_VERSION
 
 import numpy as np
 import pytest

@@ -10,15 +10,15 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import FrictionalRVE, TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import vector_space  # noqa: E402
-from dolfinx_granular.material import GranularMaterial  # noqa: E402
-from dolfinx_granular.probing import (  # noqa: E402
+from dolfinx_granular.fem.compat import vector_space  # noqa: E402
+from dolfinx_granular.fem.material import GranularMaterial  # noqa: E402
+from dolfinx_granular.fem.probing import (  # noqa: E402
     _local_nearest,
     _winners,
     point_values,
     probe,
 )
-from dolfinx_granular.validity import validity_summary  # noqa: E402
+from dolfinx_granular.laws.validity import validity_summary  # noqa: E402
 
 from dolfinx import fem, mesh  # noqa: E402
 from mpi4py import MPI  # noqa: E402

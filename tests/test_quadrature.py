@@ -2,12 +2,12 @@
 it, materials on subdomains add up, and a granular layer on a linear elastic base solves."""
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular._dolfinx import vector_space
-from dolfinx_granular.linear import LinearElasticMaterial, lame_from_young
-from dolfinx_granular.loading import LoadStepper
-from dolfinx_granular.material import GranularMaterial
-from dolfinx_granular.quadrature import check_quadrature_degree, derivative
-from dolfinx_granular.solver import NewtonSolver
+from dolfinx_granular.drivers.loading import LoadStepper
+from dolfinx_granular.drivers.newton import NewtonSolver
+from dolfinx_granular.fem.compat import vector_space
+from dolfinx_granular.fem.linear import LinearElasticMaterial, lame_from_young
+from dolfinx_granular.fem.material import GranularMaterial
+from dolfinx_granular.fem.quadrature import check_quadrature_degree, derivative
 
 import numpy as np
 import pytest

@@ -1,8 +1,13 @@
 """The shipped default packing of the slope: what it claims to be, on every stack."""
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.generation import network_stats
-from dolfinx_granular.reference_packing import MADE_WITH, PARTICLES, SEED, reference_packing
+from dolfinx_granular.packings.generation import network_stats
+from dolfinx_granular.packings.reference_packing import (
+    MADE_WITH,
+    PARTICLES,
+    SEED,
+    reference_packing,
+)
 
 import numba
 import numpy as np

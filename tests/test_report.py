@@ -54,15 +54,15 @@ def test_each_script_replaces_only_its_own_section(tmp_path):
 
 @pytest.mark.slow
 def test_tiny_report(tmp_path):
-    import dolfinx_granular.solver
+    import dolfinx_granular.drivers.newton
 
     import report
 
-    solver_class = dolfinx_granular.solver.NewtonSolver
+    solver_class = dolfinx_granular.drivers.newton.NewtonSolver
     raw = tmp_path / "raw.json"
     (tmp_path / "performance.md").write_text("# an older report\n\n" + STACKS_BLOCK + "\n")
     assert report.main(["--tiny", "--out", str(tmp_path), "--json", str(raw), "--quiet"]) == 0
-    assert dolfinx_granular.solver.NewtonSolver is solver_class  # nothing patched
+    assert dolfinx_granular.drivers.newton.NewtonSolver is solver_class  # nothing patched
     md = (tmp_path / "performance.md").read_text()
     assert md.rstrip("\n").endswith(STACKS_BLOCK) and "an older report" not in md
     for heading in (

@@ -9,7 +9,7 @@ from helpers import hex_lattice, random_packing, square_lattice
 from reference import central_differences, reference, reference_modulus
 
 # these tests use prestressed (overlapping) packings on purpose
-pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.rve.PrestressWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::dolfinx_granular.laws.taylor.PrestressWarning")
 
 K_N = 2.8e7
 
@@ -261,7 +261,7 @@ def test_reference_state_is_explicit():
     import warnings
 
     from dolfinx_granular import generate_packing
-    from dolfinx_granular.rve import PrestressWarning
+    from dolfinx_granular.laws.taylor import PrestressWarning
 
     packing = generate_packing(40, seed=2)
     with warnings.catch_warnings():

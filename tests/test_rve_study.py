@@ -6,7 +6,7 @@ import os
 import shutil
 
 from dolfinx_granular import Packing, TaylorRVE
-from dolfinx_granular.cache import PackingCache
+from dolfinx_granular.packings.cache import PackingCache
 
 import numpy as np
 import pytest

@@ -166,7 +166,7 @@ def test_tangential_stiffness_without_friction_is_the_frictionless_run(tmp_path,
 def test_prestressed_packing_is_reported(tmp_path):
     """Radii x 1.02: the run warns, logs P(I) and records it in summary.json."""
     from dolfinx_granular import Packing, TaylorRVE, generate_packing
-    from dolfinx_granular.rve import PrestressWarning
+    from dolfinx_granular.laws.taylor import PrestressWarning
     from dolfinx_granular.slope import SlopeOptions
 
     p = generate_packing(70, seed=1)

@@ -5,7 +5,7 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular.linear import LinearElasticMaterial, lame_from_young  # noqa: E402
+from dolfinx_granular.fem.linear import LinearElasticMaterial, lame_from_young  # noqa: E402
 from dolfinx_granular.slope.model import SlopeModel  # noqa: E402
 
 from mpi4py import MPI  # noqa: E402

@@ -8,7 +8,7 @@ import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
-from dolfinx_granular._dolfinx import SNES_NAN_REASON  # noqa: E402
+from dolfinx_granular.fem.compat import SNES_NAN_REASON  # noqa: E402
 from dolfinx_granular.slope import SlopeOptions, run_slope  # noqa: E402
 
 from mpi4py import MPI  # noqa: E402

@@ -18,7 +18,7 @@ from dolfinx_granular import (
     ValidityWarning,
     generate_packing,
 )
-from dolfinx_granular.validity import summarise
+from dolfinx_granular.laws.validity import summarise
 
 import numpy as np
 import pytest

@@ -103,7 +103,12 @@ def test_the_record_is_current_until_a_source_changes(tmp_path):
 
 def test_the_record_covers_every_kernel_module_and_the_caches():
     record = warmup.fingerprint()
-    for source in ("kernel.py", "friction_kernel.py", "generation.py", "warmup.py"):
+    for source in (
+        "laws/taylor_kernel.py",
+        "laws/friction_kernel.py",
+        "packings/generation.py",
+        "warmup.py",
+    ):
         assert source in record["sources"]
     assert record["python"] == sys.executable
     assert record["numba_cache_dir"] == os.getenv("NUMBA_CACHE_DIR", "")

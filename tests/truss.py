@@ -20,8 +20,8 @@ limit point the truss softens faster than the spring (EA h^2 / L0^3 > EA_s / Ls)
 
 from collections import namedtuple
 
-from dolfinx_granular._dolfinx import create_mesh, function_space, vector_space
-from dolfinx_granular.solver import NewtonSolver
+from dolfinx_granular.drivers.newton import NewtonSolver
+from dolfinx_granular.fem.compat import create_mesh, function_space, vector_space
 
 import numpy as np
 import ufl

@@ -22,9 +22,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from mpi4py import MPI
 
-from .._dolfinx import show_warnings
-from ..packing import Packing, PackingFileError
-from ..runwriter import RestartError
+from ..fem.compat import show_warnings
+from ..io.runwriter import RestartError
+from ..packings.packing import Packing, PackingFileError
 from .geometry import SlopeGeometry
 from .interrupt import RunInterrupted, StopRequest, exit_status
 from .run import SlopeOptions, clear_run, is_complete, load_restart, run_files, run_slope
@@ -262,11 +262,11 @@ def make_packing(
     last bits); else ``generate_packing``."""
     if packing_file:
         return Packing.load(packing_file)
-    from .. import reference_packing as shipped
+    from ..packings import reference_packing as shipped
 
     if (particles, seed) == (shipped.PARTICLES, shipped.SEED):
         return shipped.reference_packing()
-    from ..generation import generate_packing
+    from ..packings.generation import generate_packing
 
     return generate_packing(particles, seed=seed)
 

@@ -209,7 +209,7 @@ def model_to_mesh(comm: Comm) -> tuple[Mesh, Any, Any]:
     # the tags: dolfinx.mesh.MeshTagsMetaClass (0.5) / MeshTags (0.9+)
     import gmsh
 
-    from .._dolfinx import gmsh_model_to_mesh
+    from ..fem.compat import gmsh_model_to_mesh
 
     check_physical_groups(comm)
     msh, cell_tags, facet_tags = gmsh_model_to_mesh(gmsh.model, comm, 0, gdim=2)

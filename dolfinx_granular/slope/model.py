@@ -16,12 +16,12 @@ from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .. import _dolfinx as dfx
+from ..drivers.newton import NewtonSolver
+from ..fem import compat as dfx
+from ..fem.material import GranularMaterial
 from ..gathers import global_extremum, nearest_point
-from ..material import GranularMaterial
-from ..postprocess import min_acoustic_eigenvalue, von_mises
-from ..solver import NewtonSolver
-from ..validity import OVERLAP_THRESHOLD, OverlapSummary, validity_summary
+from ..io.postprocess import min_acoustic_eigenvalue, von_mises
+from ..laws.validity import OVERLAP_THRESHOLD, OverlapSummary, validity_summary
 from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
 
 if TYPE_CHECKING:
@@ -29,8 +29,8 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike
 
-    from ..law import HistoryLaw, MaterialLaw
-    from ..quadrature import QuadratureMaterial
+    from ..fem.quadrature import QuadratureMaterial
+    from ..laws.protocol import HistoryLaw, MaterialLaw
 
 
 def granular_material(

@@ -6,14 +6,14 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any
 
-from ..rve import TaylorRVE
+from ..laws.taylor import TaylorRVE
 from .geometry import SlopeGeometry
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-    from ..friction import FrictionalRVE
-    from ..packing import Packing
+    from ..laws.friction import FrictionalRVE
+    from ..packings.packing import Packing
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 PHASES = ("gravity", "footing")
@@ -39,7 +39,7 @@ class SlopeOptions:
             once the load has fallen to ``unload_fraction`` of its peak, once the full load is
             carried, or after ``max_increments``; ``steps`` sets the first increment.
         allow_overlaps: accept a packing whose disks overlap far (``allow_overlaps`` of
-            :class:`~dolfinx_granular.rve.TaylorRVE`), prestressed as it is.
+            :class:`~dolfinx_granular.TaylorRVE`), prestressed as it is.
     """
 
     steps: int = 20
@@ -75,7 +75,7 @@ class SlopeOptions:
     def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
         """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0."""
         if self.friction > 0.0:
-            from ..friction import FrictionalRVE
+            from ..laws.friction import FrictionalRVE
 
             kt = (
                 self.normal_stiffness

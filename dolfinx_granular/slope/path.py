@@ -1,7 +1,7 @@
 """The footing phase by path following: past the slope's limit load and down its softening branch.
 
 With ``SlopeOptions.path_following`` the footing load is an unknown of arc-length continuation
-(:class:`~dolfinx_granular.arclength.ArcLength`) instead of a prescribed sequence: the load
+(:class:`~dolfinx_granular.ArcLength`) instead of a prescribed sequence: the load
 parameter lam is the footing Constant (lam = ``load_factor`` is the nominal load times the load
 factor), the load pattern the footing pressure. The path stops once the load has fallen to
 ``unload_fraction`` of its peak after a limit point, or once the full load (lam = load_factor) is
@@ -17,15 +17,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from dolfinx import fem
 
-from .. import _dolfinx as dfx
-from ..arclength import ArcLength, load_reaches, unloaded_to
+from ..drivers.arclength import ArcLength, load_reaches, unloaded_to
+from ..fem import compat as dfx
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
     from petsc4py import PETSc
 
-    from ..runwriter import NodeOrder
+    from ..io.runwriter import NodeOrder
     from .model import SlopeModel
 
 

@@ -1,9 +1,9 @@
 """The slope benchmark's load path: gravity, then the footing in steps, every step on disk.
 
 :class:`SlopeRun` drives a :class:`~dolfinx_granular.slope.model.SlopeModel` through its load
-phases with a :class:`~dolfinx_granular.loading.LoadStepper` (cut-backs, limit loads), records
+phases with a :class:`~dolfinx_granular.LoadStepper` (cut-backs, limit loads), records
 every converged step (Newton history, settlement, diagnostics) and writes through a
-:class:`~dolfinx_granular.runwriter.RunWriter` after each of them: ``slope.xdmf`` (+ ``.h5``:
+:class:`~dolfinx_granular.RunWriter` after each of them: ``slope.xdmf`` (+ ``.h5``:
 displacement and cell-mean von Mises per step, appended), ``convergence.csv``, ``summary.json``
 and ``restart.npz``, so that a killed run loses nothing and :func:`load_restart` continues it on
 any number of ranks with the same answer.
@@ -23,14 +23,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from mpi4py import MPI
 
-from .. import _dolfinx as dfx
-from ..drivers import ASKED_TO_STOP, failure
-from ..fields import cauchy_output
-from ..loading import Cutback, LoadStepper
-from ..packing import Packing
-from ..postprocess import cell_function, gather_mesh
-from ..runwriter import NodeOrder, PointOrder, RestartError, RunWriter, read_npz
-from ..validity import OVERLAP_THRESHOLD, OverlapMonitor
+from ..drivers.loading import Cutback, LoadStepper
+from ..drivers.protocol import ASKED_TO_STOP, failure
+from ..fem import compat as dfx
+from ..fem.fields import cauchy_output
+from ..io.postprocess import cell_function, gather_mesh
+from ..io.runwriter import NodeOrder, PointOrder, RestartError, RunWriter, read_npz
+from ..laws.validity import OVERLAP_THRESHOLD, OverlapMonitor
+from ..packings.packing import Packing
 from .geometry import SlopeGeometry as SlopeGeometry  # (found here too, as before)
 from .interrupt import signal_name, write_line
 from .model import SlopeModel, granular_material, newton_solver
@@ -45,9 +45,9 @@ if TYPE_CHECKING:
 
     from dolfinx.fem import Function
 
-    from ..drivers import Driver, IncrementRecord
-    from ..quadrature import QuadratureMaterial
-    from ..solver import NewtonSolver
+    from ..drivers.newton import NewtonSolver
+    from ..drivers.protocol import Driver, IncrementRecord
+    from ..fem.quadrature import QuadratureMaterial
     from .interrupt import StopRequest
 
 
@@ -71,8 +71,8 @@ def convergence_rows(
     step: int, result: IncrementRecord
 ) -> list[tuple[int, int, float, float | str, str]]:
     """The convergence.csv rows of one converged increment (an
-    :class:`~dolfinx_granular.drivers.IncrementRecord`, or a converged
-    :class:`~dolfinx_granular.solver.SolveResult`), one per Newton iterate."""
+    :class:`~dolfinx_granular.drivers.protocol.IncrementRecord`, or a converged
+    :class:`~dolfinx_granular.SolveResult`), one per Newton iterate."""
     h = result.history
     residuals = [r for _, r, _ in h] + [result.residual_norm]
     energies = [""] + [e for _, _, e in h]
@@ -112,7 +112,7 @@ def clear_run(folder: str | os.PathLike[str], names: tuple[str, ...] | None = No
 def load_restart(folder: str | os.PathLike[str]) -> dict:
     """``folder/restart.npz`` as a dict: ``options`` (SlopeOptions), ``state`` (dict),
     ``packing``, ``nodes`` (n, 2), ``u_history`` (steps, n, 2), ``path``; raises
-    :class:`~dolfinx_granular.runwriter.RestartError` if unusable."""
+    :class:`~dolfinx_granular.io.runwriter.RestartError` if unusable."""
     path = os.path.join(folder, "restart.npz")
     f = read_npz(path, RESTART_FORMAT)
     try:
@@ -152,11 +152,11 @@ class SlopeRun:
     Attributes:
         interrupted: the signal that stopped the run (0: none).
         step: converged load steps so far (all phases, load control and path following).
-        failed: None, or the :func:`~dolfinx_granular.drivers.failure` dict of the phase that
-            failed (its ``t`` that of the phase: lam / load_factor on the path).
-        stopped: None, or :data:`~dolfinx_granular.drivers.ASKED_TO_STOP` (``stop_after``, a
-            signal).
-        arclength: the :class:`~dolfinx_granular.arclength.ArcLength` of path following, or None.
+        failed: None, or the :func:`~dolfinx_granular.drivers.protocol.failure` dict of the
+            phase that failed (its ``t`` that of the phase: lam / load_factor on the path).
+        stopped: None, or :data:`~dolfinx_granular.drivers.protocol.ASKED_TO_STOP` (``stop_after``,
+            a signal).
+        arclength: the :class:`~dolfinx_granular.ArcLength` of path following, or None.
     """
 
     def __init__(

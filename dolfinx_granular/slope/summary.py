@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from mpi4py import MPI
 
-from ..postprocess import plot_load_settlement, plot_slope
-from ..validity import OVERLAP_THRESHOLD
+from ..io.postprocess import plot_load_settlement, plot_slope
+from ..laws.validity import OVERLAP_THRESHOLD
 from .path import path_summary
 
 if TYPE_CHECKING:

@@ -1,0 +1,220 @@
+"""A material-point driver: strain, stress or mixed control of one point of any law.
+
+Every component F_ij of the deformation gradient is either prescribed or unknown; each unknown
+F_ij is solved so that the matching stress component (Cauchy sigma_ij or first Piola P_ij) takes
+a prescribed value. Newton's method uses the law's consistent tangent A = dP/dF (pushed forward
+for the Cauchy stress); steps are capped, and with one unknown an iterate that leaves the bracket
+of the root found so far is replaced by bisection (stick/slip switches make the stress only
+piecewise smooth). Works for :class:`~dolfinx_granular.MaterialLaw` (no history) and
+:class:`~dolfinx_granular.HistoryLaw` (a committed 1-point state), in any dimension d.
+
+    point = MaterialPoint(FrictionalRVE(packing, 2.8e7, friction=0.5))
+    point.step(F=[[1, 0], [0, 1]], stress={(1, 1): -1e5})            # confine: sigma_22 = -p
+    point.step(F=[[1, 0.01], [0, point.F[1, 1]]], stress={(1, 1): -1e5})  # shear under p
+
+Serial, pure NumPy around the law's own ``evaluate``: a step costs a few law evaluations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: default tolerance: |s_ij - target_ij| <= RTOL * stress scale at every stress-controlled ij
+RTOL = 1e-10
+MEASURES = ("cauchy", "piola")
+
+
+class ControlError(RuntimeError):
+    """The mixed-control iteration did not reach the stress targets; nothing was committed."""
+
+
+@dataclass(frozen=True)
+class PointResult:
+    """A converged material-point step.
+
+    Attributes:
+        F: (d, d) deformation gradient.  W: stored energy density (Pa).
+        P: (d, d) first Piola stress (Pa).  sigma: (d, d) Cauchy stress (Pa).
+        state: the law's trial state at F from the committed one (None without history).
+        iterations: Newton iterations (0: the guess was converged).
+        residuals: per iterate, the stress residual of largest magnitude (signed, Pa).
+    """
+
+    F: np.ndarray
+    W: float
+    P: np.ndarray
+    sigma: np.ndarray
+    state: Any
+    iterations: int
+    residuals: tuple
+
+
+def _evaluate(law, F, state):
+    """(W, P (d, d), A (d, d, d, d), trial state) of one point."""
+    if state is None:
+        W, P, A = law.evaluate(F)[:3]
+        new = None
+    else:
+        W, P, A, new = law.evaluate(F, state)
+    d = F.shape[0]
+    return float(np.ravel(W)[0]), np.reshape(P, (d, d)), np.reshape(A, (d, d, d, d)), new
+
+
+def stress_tangent(F, P, A, measure="cauchy"):
+    """d s_ij / d F_kl (d, d, d, d) of s = P (``"piola"``) or sigma = P F^T / J (``"cauchy"``):
+    d sigma_ij / d F_kl = (A_imkl F_jm + P_il delta_jk) / J - sigma_ij (F^-1)_lk."""
+    if measure == "piola":
+        return A
+    J = np.linalg.det(F)
+    sigma, Finv = P @ F.T / J, np.linalg.inv(F)
+    T = np.empty(A.shape)
+    # entry by entry, in the operation order of the hand-written confined-shear driver the
+    # friction study had: its published numbers stay bitwise the same
+    for i, j, k, m in np.ndindex(*A.shape):
+        push = A[i, :, k, m] @ F[j] + (P[i, m] if j == k else 0.0)
+        T[i, j, k, m] = push / J - sigma[i, j] * Finv[m, k]
+    return T
+
+
+def _check(F, stress, measure, scale):
+    """Validated (F (d, d), unknown indices [(i, j)], targets (k,), tolerance scale)."""
+    F = np.array(F, dtype=float)
+    if F.ndim != 2 or F.shape[0] != F.shape[1]:
+        raise ValueError(f"F must be a (d, d) array, got shape {F.shape}")
+    if measure not in MEASURES:
+        raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
+    keys = [tuple(int(i) for i in k) for k in (stress or {})]
+    if any(len(k) != 2 or not all(0 <= i < F.shape[0] for i in k) for k in keys):
+        raise ValueError(f"stress keys must be index pairs (i, j) into F {F.shape}, got {keys}")
+    targets = np.array([float(v) for v in (stress or {}).values()])
+    if scale is None:
+        scale = float(np.abs(targets).max()) if targets.size else 1.0
+    if not scale > 0.0:
+        raise ValueError("every stress target is 0: give stress_scale (Pa) for the tolerance")
+    return F, keys, targets, scale
+
+
+def solve_point(
+    law,
+    F,
+    stress=None,
+    state=None,
+    measure="cauchy",
+    rtol=RTOL,
+    stress_scale=None,
+    max_iter=50,
+    max_increment=0.02,
+):
+    """Solve the unknown components of F so that the stress meets its targets, from ``state``.
+
+    Args:
+        law: a MaterialLaw (``state`` None) or a HistoryLaw (``state`` its committed 1-point
+            state, never modified: every iterate starts from it).
+        F: (d, d) prescribed components, and the initial guess of the unknown ones.
+        stress: ``{(i, j): target}`` in Pa: F_ij is unknown and s_ij = target (None or {}:
+            pure strain control, one evaluation).
+        measure: ``"cauchy"`` (sigma = P F^T / J) or ``"piola"`` (P).
+        rtol, stress_scale: converged when every |s_ij - target| <= rtol * stress_scale
+            (default scale: the largest |target|).
+        max_iter: Newton iterations allowed.  max_increment: largest change of an unknown F_ij
+            per iteration.
+
+    Returns:
+        :class:`PointResult`. Raises :class:`ControlError` (with the residual history) when not
+        converged; nothing is committed then.
+    """
+    F0, keys, targets, scale = _check(F, stress, measure, stress_scale)
+    idx = tuple(np.array(keys, dtype=int).T) if keys else None
+    one = np.eye(F0.shape[0])[idx] if keys else None
+    # the unknowns are the displacement gradient H_ij = F_ij - delta_ij: small numbers, and
+    # F_ij = delta_ij + H_ij as the friction study's hand-written driver built it (bitwise)
+    x = F0[idx] - one if keys else None
+    lo, hi = -np.inf, np.inf  # one unknown: residual < 0 at lo, > 0 at hi
+    residuals = []
+    for it in range(max_iter + 1):
+        F = F0.copy()
+        if keys:
+            F[idx] = one + x
+        W, P, A, new = _evaluate(law, F, state)
+        sigma = P @ F.T / np.linalg.det(F)
+        if idx is None:
+            return PointResult(F, W, P, sigma, new, 0, ())
+        r = (sigma if measure == "cauchy" else P)[idx] - targets
+        residuals.append(float(r[np.argmax(np.abs(r))]))
+        if np.abs(r).max() <= rtol * scale:
+            return PointResult(F, W, P, sigma, new, it, tuple(residuals))
+        K = stress_tangent(F, P, A, measure)[idx][:, idx[0], idx[1]]  # (k, k)
+        if r.size == 1:
+            lo, hi = (x[0], hi) if r[0] < 0.0 else (lo, x[0])
+        x = x + _newton_step(K, r, max_increment)
+        if r.size == 1 and not lo < x[0] < hi:
+            # a step always heads for the root's side of x, so only the far bound can be
+            # crossed, and that one is finite: bisect the bracket
+            x = np.array([0.5 * (lo + hi)])
+    raise ControlError(
+        f"material point: |s - target| = {abs(residuals[-1]):.3e} Pa > {rtol:.0e} x "
+        f"{scale:.6g} Pa after {max_iter} iterations (residuals "
+        f"{', '.join(f'{x:.2e}' for x in residuals[-5:])}); state not committed"
+    )
+
+
+def _newton_step(K, r, max_increment):
+    """Newton's increment -K^-1 r scaled to |dx|_max <= max_increment; without stiffness (no
+    contact yet, or a singular K) a step of max_increment against the residual's sign."""
+    if r.size == 1:
+        step = -r / K[0, 0] if K[0, 0] > 0.0 else -np.sign(r) * max_increment
+        return np.clip(step, -max_increment, max_increment)
+    try:
+        step = np.linalg.solve(K, -r)
+    except np.linalg.LinAlgError:
+        step = -np.sign(r) * max_increment
+    big = np.abs(step).max()
+    return step * (max_increment / big) if big > max_increment else step
+
+
+class MaterialPoint:
+    """One material point of ``law`` with its committed state and deformation.
+
+    Attributes:
+        law: the law.  state: committed state (``law.initial_state(1)`` for a HistoryLaw, None
+            for a MaterialLaw).  F: (d, d) committed deformation gradient (the identity at first).
+        last: the last committed :class:`PointResult` (None before the first step).
+    """
+
+    def __init__(self, law, state=None, dim=2):
+        self.law = law
+        if state is None and hasattr(law, "initial_state"):
+            state = law.initial_state(1)
+        self.state = state
+        self.F = np.eye(dim)
+        self.last = None
+
+    def trial(self, F, stress=None, **options) -> PointResult:
+        """:func:`solve_point` from the committed state; commits nothing."""
+        return solve_point(self.law, F, stress, self.state, **options)
+
+    def commit(self, result: PointResult) -> None:
+        """Make ``result`` (a converged step from the committed state) the committed one."""
+        self.state, self.F, self.last = result.state, result.F, result
+
+    def step(self, F, stress=None, **options) -> PointResult:
+        """Solve (:func:`solve_point`) and commit; on :class:`ControlError` nothing changes."""
+        result = self.trial(F, stress, **options)
+        self.commit(result)
+        return result
+
+    def path(self, Fs, stress=None, **options) -> list:
+        """Follow the (m, d, d) prescribed F (the unknown components of each start from the
+        last converged F) under the same stress targets, committing every step; a ``stress``
+        of callables ``{(i, j): f(k)}`` gives the target at step k. Returns the m results."""
+        out = []
+        for k, F in enumerate(np.asarray(Fs, dtype=float)):
+            F = F.copy()
+            targets = {key: (v(k) if callable(v) else v) for key, v in (stress or {}).items()}
+            for i, j in targets:
+                F[i, j] = self.F[i, j]
+            out.append(self.step(F, targets, **options))
+        return out

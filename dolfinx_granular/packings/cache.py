@@ -1,0 +1,88 @@
+"""Generated packings kept on disk, so that studies pay for the jamming of each packing once.
+
+:class:`PackingCache` is shared by the RVE-size study (``demos/rve_study.py``), the friction study
+(``demos/friction_study.py``) and the performance report (``benchmarks/report.py``): they ask for
+packings by particle count and seed, and the RVE-size study and the report also report how long
+generating each one took.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from typing import TYPE_CHECKING
+
+from .generation import generate_packing
+from .packing import Packing
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+
+class PackingCache:
+    """Packings of :func:`~dolfinx_granular.generate_packing` by (particles, seed),
+    stored as ``DIR/n{n}_s{seed}.npz``.
+
+    :meth:`get` loads a packing this cache generated before (in this process or an earlier one,
+    if ``use_cache``); otherwise it generates the packing, saves it and records the generation
+    time (wall seconds) in ``DIR/generation_times.json``. A file without a recorded time (from
+    elsewhere) is generated afresh, so that every packing has its time.
+
+    Args:
+        directory: the folder of the files (created).
+        use_cache: False: generate every packing once more (files and times are replaced).
+
+    Attributes:
+        directory, use_cache: as given.
+        times: ``{"n/seed": seconds}``, the generation time of every packing generated into
+            ``directory`` (wall time, on the machine that generated it).
+    """
+
+    TIMES_FILE = "generation_times.json"
+
+    def __init__(self, directory: str | PathLike[str], use_cache: bool = True) -> None:
+        self.directory = str(directory)
+        self.use_cache = bool(use_cache)
+        os.makedirs(self.directory, exist_ok=True)
+        self._times_path = os.path.join(self.directory, self.TIMES_FILE)
+        self.times = {}
+        if self.use_cache and os.path.isfile(self._times_path):
+            with open(self._times_path) as f:
+                self.times = json.load(f)
+        self._loaded = {}  # (n, seed) -> Packing, so that repeated gets do not reread the file
+
+    @staticmethod
+    def _key(n, seed) -> str:
+        return f"{int(n)}/{int(seed)}"
+
+    def path(self, n: int, seed: int = 0) -> str:
+        """The file of the packing with ``n`` particles and ``seed``."""
+        return os.path.join(self.directory, f"n{int(n)}_s{int(seed)}.npz")
+
+    def get(self, n: int, seed: int = 0) -> Packing:
+        """The packing of ``n`` particles and ``seed``: from memory, from its file, or generated
+        (then saved and its generation time recorded)."""
+        key = (int(n), int(seed))
+        if key in self._loaded:
+            return self._loaded[key]
+        path = self.path(n, seed)
+        if self.use_cache and os.path.isfile(path) and self._key(n, seed) in self.times:
+            packing = Packing.load(path)
+        else:
+            t0 = time.perf_counter()
+            packing = generate_packing(int(n), seed=int(seed))
+            self.times[self._key(n, seed)] = time.perf_counter() - t0
+            packing.save(path)
+            # imported here: runwriter imports mpi4py (MPI_Init), which the MPI-free studies that
+            # use this cache (rve_study, friction_study) do not need
+            from ..io.runwriter import atomic_write
+
+            # atomic: a study killed while writing leaves the previous times, not half a file
+            atomic_write(self._times_path, json.dumps(self.times, indent=1))
+        self._loaded[key] = packing
+        return packing
+
+    def generation_time(self, n: int, seed: int = 0) -> float:
+        """Wall seconds it took to generate the packing (after :meth:`get`)."""
+        return float(self.times[self._key(n, seed)])
