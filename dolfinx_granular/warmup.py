@@ -12,9 +12,10 @@
   and the slope's forms, elements and expressions (FFCx).
 
 Two caches keep what it compiles. Numba's (``cache=True``) lives in the ``__pycache__`` folder
-beside each kernel's source (or in ``$NUMBA_CACHE_DIR``) and is keyed to each source file's modification time and to the CPU: a
-source edited later recompiles on its first use (correct, just slower; the next set-up warms it
-again). FFCx's lives in ``~/.cache/fenics`` (``$XDG_CACHE_HOME/fenics``) and is keyed to the form.
+beside each kernel's source (or in ``$NUMBA_CACHE_DIR``) and is keyed to each source file's
+modification time and to the CPU: a source edited later recompiles on its first use (correct, just
+slower; the next set-up warms it again). FFCx's lives in ``~/.cache/fenics``
+(``$XDG_CACHE_HOME/fenics``) and is keyed to the form.
 
 A run whose inputs have not changed since the last one (the package's sources, the interpreter,
 Numba, the cache locations: :func:`fingerprint`) does nothing, so that a repeated set-up stays
