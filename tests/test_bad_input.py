@@ -95,7 +95,8 @@ def test_unwritable_out(tmp_path):
 
 
 def test_debug_shows_the_traceback(tmp_path):
-    proc = demo("--packing", str(tmp_path / "nope.npz"), "--debug")
+    # its own --out: the default results/slope may hold a user's run, which is refused first
+    proc = demo("--packing", str(tmp_path / "nope.npz"), "--out", str(tmp_path / "run"), "--debug")
     assert proc.returncode != 0 and "Traceback" in proc.stderr and "PackingFileError" in proc.stderr
 
 

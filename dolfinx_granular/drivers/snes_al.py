@@ -89,7 +89,7 @@ class SNESArcLength:
             version = ".".join(str(v) for v in PETSc.Sys.getVersion())
             raise RuntimeError(
                 f"SNESNEWTONAL needs PETSc >= 3.23 (this is PETSc {version}): use "
-                "dolfinx_granular.drivers.arclength.ArcLength for path following here"
+                "dolfinx_granular.ArcLength for path following here"
             )
         self.problem = getattr(problem, "problem", problem)
         self.load, self.target = load, float(target)

@@ -149,7 +149,7 @@ def has_history(law: object) -> bool:
     ]
     raise TypeError(
         f"{type(law).__name__} is not a material law: it lacks {', '.join(missing)} (see "
-        "dolfinx_granular.laws.protocol.MaterialLaw; TaylorRVE, SmallStrainRVE, AdaptiveRVE and "
+        "dolfinx_granular.MaterialLaw; TaylorRVE, SmallStrainRVE, AdaptiveRVE and "
         "FrictionalRVE are laws)"
     )
 

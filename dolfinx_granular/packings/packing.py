@@ -16,7 +16,8 @@ import numpy as np
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
-FORMAT_NAME = "dolfinx_granular.packings.packing"
+# the file-format tag, kept from when the module was dolfinx_granular.packing: old files load
+FORMAT_NAME = "dolfinx_granular.packing"
 FORMAT_VERSION = 1
 
 
