@@ -92,10 +92,21 @@ class Cell:
         """The cell of a packing's :class:`~dolfinx_granular.ContactCandidates`."""
         X, Y = candidates.components
         pairs = candidates.pairs
-        return cls(np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1]), X, Y,
-                   candidates.radius_sum, candidates.ratio, packing.radii.shape[0],
-                   float(stiffness_per_area), candidates.min_stretch, packing.box,
-                   packing.centers, packing.radii, candidates.shift)
+        return cls(
+            np.ascontiguousarray(pairs[:, 0]),
+            np.ascontiguousarray(pairs[:, 1]),
+            X,
+            Y,
+            candidates.radius_sum,
+            candidates.ratio,
+            packing.radii.shape[0],
+            float(stiffness_per_area),
+            candidates.min_stretch,
+            packing.box,
+            packing.centers,
+            packing.radii,
+            candidates.shift,
+        )
 
     def visited(self, F, w):
         """How many candidates (a prefix) can be in contact at F with fluctuations w.
@@ -115,8 +126,9 @@ class Cell:
         distance below (r_i + r_j) / s_min(F)."""
         x = self.centers + w
         wraps = np.floor(x / self.box).astype(np.int64)
-        m, pi, pj, ps = neighbours.find_pairs(x - wraps * self.box, self.radii, self.box,
-                                              1.0 / s_min, 0.0, True)
+        m, pi, pj, ps = neighbours.find_pairs(
+            x - wraps * self.box, self.radii, self.box, 1.0 / s_min, 0.0, True
+        )
         i, j = pi[:m].astype(np.int64), pj[:m].astype(np.int64)
         shift = ps[:m] + wraps[j] - wraps[i]
         flip = j < i
@@ -132,8 +144,9 @@ class Cell:
 
     def _keys(self):
         if not hasattr(self, "_known"):
-            self._known = set(zip(self.pi.tolist(), self.pj.tolist(),
-                                  *np.asarray(self.shift).T.tolist()))
+            self._known = set(
+                zip(self.pi.tolist(), self.pj.tolist(), *np.asarray(self.shift).T.tolist())
+            )
         return self._known
 
 
@@ -146,13 +159,14 @@ class Equilibrium:
     P: np.ndarray  # (2, 2)
     A: np.ndarray | None  # (2, 2, 2, 2)
     contacts: np.ndarray  # (k,) candidate indices with e > 0
+    network: np.ndarray  # (k',) those between two non-rattlers
     rattlers: int
     iterations: int
     shifted_steps: int
     residual: float
 
 
-class _State:
+class ContactState:
     """Contact state of a cell at (F, w): overlaps, forces, non-rattlers."""
 
     def __init__(self, cell, F, w):
@@ -162,8 +176,9 @@ class _State:
         )
         self.on = self.e > 0.0
         self.W = rk.energy(self.e, cell.K)
-        self.g, self.f = rk.forces(F, cell.pi, cell.pj, self.lx, self.ly, self.d, self.e,
-                                   cell.K, cell.n_disks)
+        self.g, self.f = rk.forces(
+            F, cell.pi, cell.pj, self.lx, self.ly, self.d, self.e, cell.K, cell.n_disks
+        )
         self.keep = rk.non_rattlers(cell.pi, cell.pj, self.e, cell.n_disks, MIN_CONTACTS)
 
     def residual(self, cell):
@@ -185,8 +200,20 @@ def _unknowns(keep, pinned):
 def _matrix(cell, F, s, use, dof, n):
     """Stiffness over the contacts ``use``: exact between non-rattlers, positive part else."""
     exact = s.keep[cell.pi[: s.m]] & s.keep[cell.pj[: s.m]]
-    rows, cols, vals = rk.stiffness(F, cell.pi[: s.m], cell.pj[: s.m], s.lx, s.ly, s.d, s.e,
-                                    cell.R[: s.m], cell.K, use, exact, dof)
+    rows, cols, vals = rk.stiffness(
+        F,
+        cell.pi[: s.m],
+        cell.pj[: s.m],
+        s.lx,
+        s.ly,
+        s.d,
+        s.e,
+        cell.R[: s.m],
+        cell.K,
+        use,
+        exact,
+        dof,
+    )
     ok = (rows >= 0) & (cols >= 0)
     return coo_matrix((vals[ok], (rows[ok], cols[ok])), shape=(n, n)).tocsc()
 
@@ -195,8 +222,9 @@ def _factorise(H):
     """SuperLU of a symmetric matrix with symmetric (diagonal) pivoting, and whether it is
     positive definite (all pivots > 0: Sylvester's law of inertia); None if singular."""
     try:
-        lu = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                  options={"SymmetricMode": True})
+        lu = splu(
+            H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+        )
     except RuntimeError:
         return None, False
     pd = bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0.0))
@@ -244,7 +272,7 @@ def _line_search(cell, F, w, s, delta):
     alpha = min(1.0, MAX_STEP * cell.R.min() / longest) if longest > 0 else 1.0
     for _ in range(60):
         try:
-            trial = _State(cell, F, w + alpha * delta)
+            trial = ContactState(cell, F, w + alpha * delta)
         except RelaxationError:  # beyond the candidates: a shorter step
             alpha *= 0.5
             continue
@@ -256,7 +284,7 @@ def _line_search(cell, F, w, s, delta):
     raise RelaxationError("the line search found no lower energy")
 
 
-def _tangent(cell, F, s):
+def condensed_tangent(cell, F, s):
     """(2, 2, 2, 2) condensed tangent at an equilibrium; RigidityLostError without rigidity."""
     use = s.on & s.keep[cell.pi[: s.m]] & s.keep[cell.pj[: s.m]]
     nr = np.flatnonzero(s.keep)
@@ -273,8 +301,22 @@ def _tangent(cell, F, s):
         raise RigidityLostError(
             f"the non-rattlers' stiffness (disk {pinned} pinned) is not positive definite"
         )
-    B = rk.mixed(F, cell.pi[: s.m], cell.pj[: s.m], s.qx, s.qy, s.lx, s.ly, s.d, s.e,
-                 cell.R[: s.m], cell.K, use, dof, n)
+    B = rk.mixed(
+        F,
+        cell.pi[: s.m],
+        cell.pj[: s.m],
+        s.qx,
+        s.qy,
+        s.lx,
+        s.ly,
+        s.d,
+        s.e,
+        cell.R[: s.m],
+        cell.K,
+        use,
+        dof,
+        n,
+    )
     return A - (B.T @ lu.solve(B)).reshape(2, 2, 2, 2)
 
 
@@ -282,8 +324,7 @@ def _affine(cell, F, s, use):
     """Born part: the Taylor tangent (eqs. 12-13) over the contacts ``use`` at branch Q."""
     acc = np.empty(9)
     X, Y, R = s.qx[use].copy(), s.qy[use].copy(), cell.R[: s.m][use].copy()
-    taylor_kernel.moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, X.shape[0], True,
-                              acc)
+    taylor_kernel.moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, X.shape[0], True, acc)
     return taylor_tangent(F, acc, cell.K)
 
 
@@ -303,14 +344,16 @@ def stress(cell, F, s):
     on = s.on
     b = s.e[on] / s.d[on]
     qx, qy = s.qx[on], s.qy[on]
-    S = np.array([[np.dot(b, qx * qx), np.dot(b, qx * qy)], [np.dot(b, qx * qy), np.dot(b, qy * qy)]])
+    S = np.array(
+        [[np.dot(b, qx * qx), np.dot(b, qx * qy)], [np.dot(b, qx * qy), np.dot(b, qy * qy)]]
+    )
     return s.W, -cell.K * F @ S
 
 
 def relax(cell, F, w0, tangent, settings):
     """Relax one cell at F (2, 2) from the fluctuations w0 (N, 2): an :class:`Equilibrium`."""
     w = np.array(w0, dtype=np.float64)
-    s = _State(cell, F, w)
+    s = ContactState(cell, F, w)
     shifted_steps = 0
     for it in range(settings.max_iterations + 1):
         if not s.keep.any():
@@ -318,9 +361,20 @@ def relax(cell, F, w0, tangent, settings):
         r = s.residual(cell)
         if r <= settings.force_tol:
             W, P = stress(cell, F, s)
-            A = _tangent(cell, F, s) if tangent else None
-            return Equilibrium(w, W, P, A, np.flatnonzero(s.on), int((~s.keep).sum()), it,
-                               shifted_steps, r)
+            A = condensed_tangent(cell, F, s) if tangent else None
+            network = s.on & s.keep[cell.pi[: s.m]] & s.keep[cell.pj[: s.m]]
+            return Equilibrium(
+                w,
+                W,
+                P,
+                A,
+                np.flatnonzero(s.on),
+                np.flatnonzero(network),
+                int((~s.keep).sum()),
+                it,
+                shifted_steps,
+                r,
+            )
         if it == settings.max_iterations:
             break
         delta, shifted = _step(cell, F, s, settings)
