@@ -17,6 +17,7 @@ import numpy as np
 from ..packings.packing import Packing
 from . import relaxation
 from .contacts import ContactCandidates
+from .relaxed_cell import Cell, ContactState, RelaxationError
 from .tools import as_batch, output_buffers, push_forward, to_float
 
 if TYPE_CHECKING:
@@ -132,7 +133,7 @@ class RelaxedRVE:
         self.min_stretch = to_float(min_stretch, "min_stretch")
         self.candidates = ContactCandidates.from_packing(packing, self.min_stretch)
         self.settings = relaxation.Settings(force_tol=to_float(force_tol, "force_tol"))
-        self._cell = relaxation.Cell.of(self.candidates, packing, k / packing.area)
+        self._cell = Cell.of(self.candidates, packing, k / packing.area)
 
     def initial_state(self, n: int) -> RelaxedState:
         """n points at F = I in the stress-free packing (no fluctuation)."""
@@ -153,15 +154,17 @@ class RelaxedRVE:
         mean_radius = float(self.packing.radii.mean())
         for q in range(n):
             try:
-                eq = relaxation.relax(self._cell, F[q], state.w[q], tangent, self.settings)
-            except relaxation.RelaxationError as err:
+                eq = relaxation.relax_from(
+                    self._cell, state.F[q], state.w[q], F[q], tangent, self.settings
+                )
+            except RelaxationError as err:
                 raise type(err)(f"point {q}: {err}", np.array([q])) from None
             W[q], P[q], w[q] = eq.W, eq.P, eq.w
             if tangent:
                 A[q] = eq.A
             u = eq.w @ F[q].T
             moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / mean_radius
-            network[q] = _fingerprint(eq.network)
+            network[q] = _fingerprint(self._cell.pair_keys(eq.network))
             rearranged[q] = network[q] != state.network[q]
         new = RelaxedState(w, F.copy(), moved, rearranged, network)
         if single:
@@ -198,7 +201,7 @@ class RelaxedRVE:
         with overlaps ~1e-11 of a diameter that a relaxation would only open), condensed over
         the non-rattlers."""
         eye = np.eye(2)
-        s = relaxation.ContactState(self._cell, eye, np.zeros((self.packing.radii.shape[0], 2)))
+        s = ContactState(self._cell, eye, np.zeros((self.packing.radii.shape[0], 2)))
         return relaxation.condensed_tangent(self._cell, eye, s)
 
     def positions(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:

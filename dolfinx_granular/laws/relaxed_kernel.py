@@ -51,24 +51,25 @@ def contact_state(F, w, pi, pj, X, Y, R, m):
 
 
 @njit(cache=True)
-def energy(e, K):
-    """W = K/2 sum over contacts (e > 0) of e^2 (Pa)."""
+def energy(e, K, use):
+    """K/2 sum over the contacts ``use`` (m,) bool (all with e > 0) of e^2 (Pa)."""
     s = 0.0
     for c in range(e.shape[0]):
-        if e[c] > 0.0:
+        if use[c]:
             s += e[c] * e[c]
     return 0.5 * K * s
 
 
 @njit(cache=True)
-def forces(F, pi, pj, lx, ly, d, e, K, n_disks):
-    """Gradient of W with respect to the fluctuations, (N, 2) (Pa per length), and the net
-    contact force on each disk in the current frame, (N, 2), in units of K times length
-    (sum of K e n over the disk's contacts, pushing it away from each partner)."""
+def forces(F, pi, pj, lx, ly, d, e, K, n_disks, use):
+    """Over the contacts ``use`` (m,) bool (all with e > 0): the gradient of their energy with
+    respect to the fluctuations, (N, 2) (Pa per length), and the net contact force on each
+    disk in the current frame, (N, 2), in units of K times length (sum of K e n over the
+    disk's contacts, pushing it away from each partner)."""
     g = np.zeros((n_disks, 2))
     f = np.zeros((n_disks, 2))
     for c in range(e.shape[0]):
-        if e[c] <= 0.0:
+        if not use[c]:
             continue
         i = pi[c]
         j = pj[c]
