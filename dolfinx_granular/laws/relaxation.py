@@ -250,6 +250,8 @@ def _newton(cell, F, w, settings, budget):
     stepper = _Stepper(cell, settings)
     steps = factorisations = shifted = 0
     while True:
+        if not s.on.any():
+            raise RigidityLostError("no two disks touch (the cell has come apart)")
         g, f = s.forces(cell, F, s.on)
         residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
         if residual <= settings.force_tol:
@@ -280,23 +282,33 @@ def relax(
         w, s, residual, steps, factorisations, shifted = _newton(
             cell, F, w, settings, settings.max_iterations
         )
+    return _equilibrium(
+        cell, F, w, s, tangent, residual, steps, factorisations, shifted, fire_steps
+    )
+
+
+def _equilibrium(cell, F, w, s, tangent, residual, *counts):
+    """The :class:`Equilibrium` at the contact state s (``counts``: steps, factorisations,
+    shifted, fire_steps)."""
     if not s.keep.any():
         raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
     A = condensed_tangent(cell, F, s) if tangent else None
     W, P = stress(cell, F, s)
-    return Equilibrium(
-        w,
-        W,
-        P,
-        A,
-        np.flatnonzero(s.network),
-        int((~s.keep).sum()),
-        steps,
-        factorisations,
-        shifted,
-        fire_steps,
-        residual,
-    )
+    network = np.flatnonzero(s.network)
+    return Equilibrium(w, W, P, A, network, int((~s.keep).sum()), *counts, residual)
+
+
+def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibrium:
+    """The :class:`Equilibrium` of disks at rest at F by construction, not relaxed again: a
+    committed equilibrium at the same F, or the stress-free packing at F = I (whose contacts
+    have overlaps of ~1e-11 of a diameter that mark them, not forces in balance)."""
+    s = ContactState(cell, F, w)
+    if not s.on.any():
+        raise RigidityLostError("no two disks touch (the cell has come apart)")
+    _, f = s.forces(cell, F, s.on)
+    residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
+    w = np.array(w, dtype=np.float64)
+    return _equilibrium(cell, F, w, s, tangent, residual, 0, 0, 0, 0)
 
 
 def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:

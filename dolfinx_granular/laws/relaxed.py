@@ -17,7 +17,7 @@ import numpy as np
 from ..packings.packing import Packing
 from . import relaxation
 from .contacts import ContactCandidates
-from .relaxed_cell import Cell, ContactState, RelaxationError
+from .relaxed_cell import Cell, RelaxationError
 from .tools import as_batch, output_buffers, push_forward, to_float
 
 if TYPE_CHECKING:
@@ -154,9 +154,10 @@ class RelaxedRVE:
         mean_radius = float(self.packing.radii.mean())
         for q in range(n):
             try:
-                eq = relaxation.relax_from(
-                    self._cell, state.F[q], state.w[q], F[q], tangent, self.settings
-                )
+                if np.array_equal(F[q], state.F[q]):  # the committed positions are at rest
+                    eq = relaxation.at_rest(self._cell, F[q], state.w[q], tangent)
+                else:
+                    eq = relaxation.relax(self._cell, F[q], state.w[q], tangent, self.settings)
             except RelaxationError as err:
                 raise type(err)(f"point {q}: {err}", np.array([q])) from None
             W[q], P[q], w[q] = eq.W, eq.P, eq.w
@@ -200,9 +201,8 @@ class RelaxedRVE:
         contact network (the stress-free packing is in equilibrium to the generator's accuracy,
         with overlaps ~1e-11 of a diameter that a relaxation would only open), condensed over
         the non-rattlers."""
-        eye = np.eye(2)
-        s = ContactState(self._cell, eye, np.zeros((self.packing.radii.shape[0], 2)))
-        return relaxation.condensed_tangent(self._cell, eye, s)
+        N = self.packing.radii.shape[0]
+        return relaxation.at_rest(self._cell, np.eye(2), np.zeros((N, 2)), True).A
 
     def positions(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
         """(n, N, 2) relaxed centres in the current cell F [0, box) of ``state``'s points."""
