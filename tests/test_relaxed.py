@@ -215,3 +215,11 @@ def test_the_state_records_distance_from_affine_and_rearrangements(rve, relaxed)
     np.testing.assert_array_equal(state.F, F_TEST)
     _, _, again = rve.stress(F_TEST, state)  # the same F again: nothing moves
     assert not again.rearranged.any()
+
+
+def test_the_benchmark_runs(capsys):
+    import relaxed as benchmark  # benchmarks/relaxed.py
+
+    benchmark.main(["--points", "3", "--particles", "70"])
+    out = capsys.readouterr().out
+    assert "ratio" in out and "ms/point" in out

@@ -108,6 +108,20 @@ class RelaxedRVE:
         min_stretch: smallest singular value of F supported (the candidate contacts' reach).
         force_tol: equilibrium when every disk's net force is at most this times the mean
             contact force.
+
+    Attributes:
+        candidates: the packing's :class:`~dolfinx_granular.ContactCandidates`.
+        cell: the candidates as the micro solver takes them
+            (:class:`~dolfinx_granular.laws.relaxed_cell.Cell`; pairs a rearrangement brings
+            within reach are appended to it).
+        settings: the micro solver's tolerances
+            (:class:`~dolfinx_granular.laws.relaxation.Settings`).
+
+    A point whose F equals the committed one is not relaxed again: its committed positions are
+    at rest (the initial state, the stress-free packing at F = I, included). Where the micro
+    solver fails, or the cell loses its rigidity, :class:`RelaxationError` /
+    :class:`RigidityLostError` (both :class:`~dolfinx_granular.LawEvaluationError`) name the
+    point, so that load stepping cuts back.
     """
 
     dim = 2
@@ -133,7 +147,7 @@ class RelaxedRVE:
         self.min_stretch = to_float(min_stretch, "min_stretch")
         self.candidates = ContactCandidates.from_packing(packing, self.min_stretch)
         self.settings = relaxation.Settings(force_tol=to_float(force_tol, "force_tol"))
-        self._cell = Cell.of(self.candidates, packing, k / packing.area)
+        self.cell = Cell.of(self.candidates, packing, k / packing.area)
 
     def initial_state(self, n: int) -> RelaxedState:
         """n points at F = I in the stress-free packing (no fluctuation)."""
@@ -155,9 +169,9 @@ class RelaxedRVE:
         for q in range(n):
             try:
                 if np.array_equal(F[q], state.F[q]):  # the committed positions are at rest
-                    eq = relaxation.at_rest(self._cell, F[q], state.w[q], tangent)
+                    eq = relaxation.at_rest(self.cell, F[q], state.w[q], tangent)
                 else:
-                    eq = relaxation.relax(self._cell, F[q], state.w[q], tangent, self.settings)
+                    eq = relaxation.relax(self.cell, F[q], state.w[q], tangent, self.settings)
             except RelaxationError as err:
                 raise type(err)(f"point {q}: {err}", np.array([q])) from None
             W[q], P[q], w[q] = eq.W, eq.P, eq.w
@@ -165,7 +179,7 @@ class RelaxedRVE:
                 A[q] = eq.A
             u = eq.w @ F[q].T
             moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / mean_radius
-            network[q] = _fingerprint(self._cell.pair_keys(eq.network))
+            network[q] = _fingerprint(self.cell.pair_keys(eq.network))
             rearranged[q] = network[q] != state.network[q]
         new = RelaxedState(w, F.copy(), moved, rearranged, network)
         if single:
@@ -202,7 +216,7 @@ class RelaxedRVE:
         with overlaps ~1e-11 of a diameter that a relaxation would only open), condensed over
         the non-rattlers."""
         N = self.packing.radii.shape[0]
-        return relaxation.at_rest(self._cell, np.eye(2), np.zeros((N, 2)), True).A
+        return relaxation.at_rest(self.cell, np.eye(2), np.zeros((N, 2)), True).A
 
     def positions(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
         """(n, N, 2) relaxed centres in the current cell F [0, box) of ``state``'s points."""
