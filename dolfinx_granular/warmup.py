@@ -44,6 +44,7 @@ def warm_api(particles: int = PARTICLES) -> None:
     """Run the public material-point API once on a tiny generated packing (every Numba kernel
     specialisation that plain-array calls use)."""
     from .laws.friction import FrictionalRVE
+    from .laws.relaxed import RelaxedRVE
     from .laws.taylor import TaylorRVE
     from .packings.generation import generate_packing, relax_overlaps
     from .packings.packing import Packing
@@ -63,6 +64,8 @@ def warm_api(particles: int = PARTICLES) -> None:
     state = frictional.initial_state(len(F))
     for method in (frictional.evaluate, frictional.stress):
         method(F, state)
+    relaxed = RelaxedRVE(packing, 2.8e7)
+    relaxed.evaluate(F, relaxed.initial_state(len(F)))
 
 
 def warm_slope(particles: int = PARTICLES) -> None:

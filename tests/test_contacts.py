@@ -32,6 +32,10 @@ LAW_MODULES = (
     "levels",
     "taylor",
     "validity",
+    "relaxed",
+    "relaxation",
+    "relaxed_cell",
+    "relaxed_kernel",
 )
 
 

@@ -1,0 +1,114 @@
+"""Relaxed RVE speed: ms per quadrature point beside the Taylor kernel, and where the time goes.
+
+Run: ``.venv/bin/python benchmarks/relaxed.py [--points 100] [--particles 700] [--step 1e-4]``.
+
+A generated packing (seed 0, k_n = 2.8e7 N/m²) is relaxed once at an isotropic compression
+``--compression`` (default 0.5 %, p / k_n ~ 1e-3), and that equilibrium is the committed state of
+every point. Each point then takes its own strain step of size ``--step`` in a random direction
+(a Newton iterate of the next load step) and is timed:
+
+- ``Taylor P+A``: :class:`TaylorRVE` ``evaluate`` at the same F (µs per point);
+- ``relaxed P+A``: :class:`RelaxedRVE` ``evaluate`` warm-started from the committed state, in ms
+  per point, split into the points whose contact network stayed and those that rearranged;
+- ``ratio``: relaxed over Taylor, per point, in this one run;
+- Newton steps, factorisations and FIRE steps per point, and the time of one contact state
+  (overlaps, forces, rattlers) and one tangent (a factorisation and the condensation) at the
+  committed state: where the time goes.
+"""
+
+import argparse
+import time
+
+from dolfinx_granular import TaylorRVE, generate_packing
+from dolfinx_granular.laws import relaxation
+from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
+from dolfinx_granular.laws.relaxed_cell import ContactState
+
+import numpy as np
+
+K_N = 2.8e7
+
+
+def best_time(fn, repeats=3):
+    """Best wall time of ``fn()`` over ``repeats`` calls (s) and its last result."""
+    best, out = np.inf, None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def committed(rve, compression, n):
+    """The equilibrium at F = (1 - compression) I as the committed state of n points."""
+    F0 = np.eye(2) * (1.0 - compression)
+    _, _, _, one = rve.evaluate(F0[None], rve.initial_state(1))
+    return F0, RelaxedState.concatenate([one] * n)
+
+
+def steps(F0, n, size, seed=0):
+    """F0 + size * (random unit direction) for n points, (n, 2, 2)."""
+    d = np.random.default_rng(seed).normal(size=(n, 2, 2))
+    d /= np.linalg.norm(d, axis=(1, 2))[:, None, None]
+    return F0[None] + size * d
+
+
+def per_point(rve, F, state):
+    """Time (s), steps, factorisations and FIRE steps of each point, and whether it
+    rearranged."""
+    rows = []
+    for q in range(F.shape[0]):
+        t = time.perf_counter()
+        eq = relaxation.relax(rve.cell, F[q], state.w[q], True, rve.settings)
+        rows.append((time.perf_counter() - t, eq.steps, eq.factorisations, eq.fire_steps))
+    _, _, _, new = rve.evaluate(F, state)
+    return np.array(rows), new.rearranged
+
+
+def phases(rve, F0, state):
+    """Seconds of one contact state and one tangent (the network's factorisation and the
+    condensation) at the committed state."""
+    w = state.w[0]
+    t_state, s = best_time(lambda: ContactState(rve.cell, F0, w), 20)
+    t_tangent, _ = best_time(lambda: relaxation.condensed_tangent(rve.cell, F0, s), 5)
+    return t_state, t_tangent
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=100)
+    ap.add_argument("--particles", type=int, default=700)
+    ap.add_argument("--step", type=float, default=1e-4)
+    ap.add_argument("--compression", type=float, default=0.005)
+    a = ap.parse_args(argv)
+    packing = generate_packing(a.particles, seed=0)
+    rve, taylor = RelaxedRVE(packing, K_N), TaylorRVE(packing, K_N)
+    F0, state = committed(rve, a.compression, a.points)
+    F = steps(F0, a.points, a.step)
+    t_taylor, _ = best_time(lambda: taylor.evaluate(F))
+    t_relaxed, _ = best_time(lambda: rve.evaluate(F, state), 1)
+    rows, rearranged = per_point(rve, F, state)
+    t_state, t_tangent = phases(rve, F0, state)
+    us = 1e6 / a.points
+    print(
+        f"{a.particles} particles, {a.points} points, step {a.step:g} at compression "
+        f"{a.compression:g}"
+    )
+    print(f"Taylor P+A    {t_taylor * us:9.2f} µs/point")
+    print(f"relaxed P+A   {t_relaxed * us / 1e3:9.2f} ms/point   ratio {t_relaxed / t_taylor:.0f}")
+    for name, mask in (("kept network", ~rearranged), ("rearranged", rearranged)):
+        if mask.any():
+            r = rows[mask]
+            print(
+                f"  {name:13s} {mask.sum():4d} points: {1e3 * r[:, 0].mean():8.2f} ms, "
+                f"{r[:, 1].mean():.1f} Newton steps, {r[:, 2].mean():.1f} factorisations, "
+                f"{r[:, 3].mean():.0f} FIRE steps per point"
+            )
+    print(
+        f"one contact state {1e3 * t_state:.3f} ms, one tangent (factorisation and "
+        f"condensation) {1e3 * t_tangent:.3f} ms"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,405 @@
+"""The relaxed RVE's micro solver: static equilibrium of one periodic cell at a given F, and the
+condensed tangent there.
+
+Unknowns: the fluctuations w (N, 2) of the disks in the reference frame (x_i = F (X_i + w_i),
+:mod:`~dolfinx_granular.laws.relaxed_kernel`), one disk pinned (the rigid translation). Newton
+minimises the contact energy with a sparse factorisation of the stiffness and a backtracking
+line search on the energy:
+
+* between non-rattlers the stiffness is exact; a contact that touches a rattler (fewer than 3
+  contacts, removed recursively) enters by its positive part K n n^T, and the rattlers'
+  unknowns get a small extra diagonal, so that a rattler is pushed out of its overlaps (it ends
+  force-free) and one without contacts stays where it is;
+* where the stiffness is not positive definite (the network buckles: a rearrangement), the step
+  is taken on H + mu I (Levenberg-Marquardt, in effect a trust region), mu growing until the
+  factorisation is positive definite; the next step tries plain Newton again;
+* while the rattlers stay the same and the forces fall fast, the last factorisation is reused
+  (a chord step: one solve instead of a factorisation);
+* where Newton stalls (far from the equilibrium, where the network rearranges), FIRE (Bitzek et
+  al. 2006) relaxes the disks towards it, and Newton takes up again from there.
+
+The rattler set is recomputed at every step (a disk the network presses into joins it). At the
+equilibrium the factorisation of the network's stiffness gives the tangent of the relaxed
+response,
+
+    A = W_FF - W_Fw W_ww^-1 W_wF,
+
+over the network only (rattlers add nothing), W_FF the Taylor (Born) tangent at the relaxed
+branch vectors. Its positive definiteness is the cell's rigidity; without it (or without
+non-rattlers) the point fails with a :class:`RigidityLostError`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix, diags
+from scipy.sparse.linalg import splu
+
+from . import relaxed_kernel as rk
+from . import taylor_kernel
+from .relaxed_cell import Cell, ContactState, RelaxationError
+
+#: Newton counts as stalled (FIRE takes over) when after this many steps the largest force is
+#: still above this part of the mean contact force
+STALLED_AFTER, STALLED_ABOVE = 20, 1e-2
+#: longest move of a disk in one step, relative to the smallest radius sum
+MAX_STEP = 0.1
+
+
+class RigidityLostError(RelaxationError):
+    """The relaxed cell has no rigid contact network left: no non-rattler disk, or a stiffness
+    of the non-rattlers (one disk pinned) that is not positive definite (tension, a buckled
+    network)."""
+
+
+@dataclass
+class Settings:
+    """Tolerances of the micro solver.
+
+    Attributes:
+        force_tol: equilibrium when every disk's net force is at most this times the mean
+            contact force.
+        max_iterations: Newton steps before FIRE takes over (and again after it).
+        fire_tol, fire_steps: FIRE stops at this largest net force relative to the mean
+            contact force, or fails after that many steps.
+        rattler_shift: extra diagonal of the rattlers' unknowns, relative to K (a rattler
+            without contacts stays where it is).
+        chord_rate: a factorisation is reused while the largest force falls at least by this
+            factor per step and the contacts stay the same.
+    """
+
+    force_tol: float = 1e-10
+    max_iterations: int = 60
+    fire_tol: float = 1e-3
+    fire_steps: int = 100_000
+    rattler_shift: float = 1e-8
+    chord_rate: float = 0.2
+
+
+@dataclass
+class Equilibrium:
+    """A relaxed point: fluctuations, energy, stress and (if asked) tangent.
+
+    Attributes:
+        w: (N, 2) fluctuations. W: energy (Pa). P: (2, 2) first Piola stress (Pa).
+        A: (2, 2, 2, 2) tangent dP/dF (Pa) or None. network: candidate indices of the
+        contacts between non-rattlers. rattlers: their number. steps: Newton steps,
+        factorisations: stiffness factorisations for them, shifted: of which shifted.
+        fire_steps: FIRE steps before Newton took up again (0: Newton alone).
+        residual: largest net force over the mean contact force.
+    """
+
+    w: np.ndarray
+    W: float
+    P: np.ndarray
+    A: np.ndarray | None
+    network: np.ndarray
+    rattlers: int
+    steps: int
+    factorisations: int
+    shifted: int
+    fire_steps: int
+    residual: float
+
+
+def _largest(f, disks):
+    """max |f_i| over the disks ``disks`` (N,) bool (0 if none)."""
+    return float(np.sqrt((f[disks] ** 2).sum(axis=1).max())) if disks.any() else 0.0
+
+
+def _matrix(cell, F, s, use, exact, dof, n):
+    """(n, n) CSC stiffness over the contacts ``use`` on the unknowns ``dof``."""
+    rows, cols, vals = rk.stiffness(
+        F,
+        cell.pi[: s.m],
+        cell.pj[: s.m],
+        s.lx,
+        s.ly,
+        s.d,
+        s.e,
+        cell.R[: s.m],
+        cell.K,
+        use,
+        exact,
+        dof,
+    )
+    ok = (rows >= 0) & (cols >= 0)
+    return coo_matrix((vals[ok], (rows[ok], cols[ok])), shape=(n, n)).tocsc()
+
+
+def _factorise(H):
+    """SuperLU of a symmetric matrix with symmetric (diagonal) pivoting, and whether it is
+    positive definite (every pivot > 0: Sylvester's law of inertia)."""
+    try:
+        lu = splu(
+            H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+        )
+    except RuntimeError:  # exactly singular
+        return None, False
+    pd = bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0.0))
+    return lu, pd
+
+
+class _Network:
+    """The non-rattlers' exact stiffness at an equilibrium (one disk pinned) and its
+    factorisation: the condensation of the tangent and the rigidity test."""
+
+    def __init__(self, cell, F, s):
+        nr = np.flatnonzero(s.keep)
+        self.dof = -np.ones(cell.n_disks, np.int64)
+        self.dof[nr[1:]] = np.arange(nr.size - 1)
+        self.n = 2 * (nr.size - 1)
+        H = _matrix(cell, F, s, s.network, s.network, self.dof, self.n)
+        self.lu, self.pd = _factorise(H) if self.n else (None, True)
+
+
+class _Stepper:
+    """Newton directions on every disk but one pinned non-rattler. An H that is not positive
+    definite gets the smallest shift mu I (Levenberg-Marquardt) that makes it so; a
+    factorisation is reused (a chord step, damped if it was shifted) while the rattlers stay
+    the same and the largest force falls by ``chord_rate`` per step."""
+
+    def __init__(self, cell, settings):
+        self.cell, self.settings = cell, settings
+        self.lu = self.key = None
+        self.last = np.inf
+
+    def direction(self, F, s, g, residual):
+        """Direction (N, 2) for the gradient g (N, 2) at state s; ``(delta, factorised,
+        shifted)``."""
+        key = np.packbits(s.keep).tobytes()
+        factorised = shifted = False
+        if self.lu is None or key != self.key or residual > self.settings.chord_rate * self.last:
+            shifted = self._factorise(F, s)
+            factorised, self.key = True, key
+        self.last = residual
+        v = -self.lu.solve(_gather(g, self.dof, self.n))
+        return _scatter(v, self.dof, g.shape[0]), factorised, shifted
+
+    def _factorise(self, F, s):
+        """Factorise the stiffness; True if it had to be shifted."""
+        cell = self.cell
+        self.dof = dof = np.arange(cell.n_disks, dtype=np.int64)
+        pinned = int(np.argmax(s.keep))
+        dof[pinned + 1 :] -= 1
+        dof[pinned] = -1
+        self.n = n = 2 * (cell.n_disks - 1)
+        H = _matrix(cell, F, s, s.on, s.network, dof, n)
+        shift = np.zeros(n)
+        r = np.flatnonzero(~s.keep)
+        shift[2 * dof[r]] = shift[2 * dof[r] + 1] = self.settings.rattler_shift * cell.K
+        H = H + diags(shift, format="csc")
+        self.lu, pd = _factorise(H)
+        if pd:
+            return False
+        diag = H.diagonal()
+        scale = diag[diag > 0].mean() if np.any(diag > 0) else cell.K
+        mu = 1e-8 * scale
+        while not pd:
+            if mu > 1e6 * scale:
+                raise RelaxationError("the shifted stiffness never became positive definite")
+            self.lu, pd = _factorise(H + diags(np.full(n, mu), format="csc"))
+            mu *= 10.0
+        return True
+
+
+def _gather(g, dof, n):
+    """The entries of g (N, 2) at the unknowns ``dof`` as a vector (n,)."""
+    v = np.zeros(n)
+    k = dof >= 0
+    v[2 * dof[k]] = g[k, 0]
+    v[2 * dof[k] + 1] = g[k, 1]
+    return v
+
+
+def _scatter(v, dof, N):
+    """A vector (n,) on the unknowns ``dof`` as (N, 2), zero at the fixed disks."""
+    x = np.zeros((N, 2))
+    k = dof >= 0
+    x[k, 0] = v[2 * dof[k]]
+    x[k, 1] = v[2 * dof[k] + 1]
+    return x
+
+
+def _line_search(cell, F, w, s, delta, g):
+    """Backtracking (Armijo) on the energy, from a step that moves no disk by more than
+    ``MAX_STEP`` of the smallest radius sum; ``(w, state, cut)``, cut the factor the line
+    search took off that first step."""
+    E0 = s.energy(cell, s.on)
+    slope = float((g * delta).sum())
+    longest = np.sqrt((delta * delta).sum(axis=1).max())
+    alpha = first = min(1.0, MAX_STEP * cell.R.min() / longest) if longest > 0 else 1.0
+    for _ in range(60):
+        try:
+            trial = ContactState(cell, F, w + alpha * delta)
+        except RelaxationError:  # beyond the candidate list: a shorter step
+            alpha *= 0.5
+            continue
+        if trial.energy(cell, trial.on) <= E0 + 1e-4 * alpha * slope + 1e-13 * abs(E0):
+            return w + alpha * delta, trial, alpha / first
+        alpha *= 0.5
+    raise RelaxationError("the line search found no lower energy")
+
+
+def _newton(cell, F, w, settings, budget):
+    """Newton from w until equilibrium: ``(w, state, residual, steps, factorisations,
+    shifted)``; RelaxationError after ``budget`` steps or a failed line search."""
+    s = ContactState(cell, F, w)
+    stepper = _Stepper(cell, settings)
+    steps = factorisations = shifted = 0
+    while True:
+        if not s.on.any():
+            raise RigidityLostError("no two disks touch (the cell has come apart)")
+        g, f = s.forces(cell, F, s.on)
+        residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
+        if residual <= settings.force_tol:
+            return w, s, residual, steps, factorisations, shifted
+        if steps == budget or (steps >= STALLED_AFTER and residual > STALLED_ABOVE):
+            raise RelaxationError(
+                f"no equilibrium after {steps} Newton steps (largest net force "
+                f"{residual:.3g} of the mean contact force)"
+            )
+        delta, factorised, was_shifted = stepper.direction(F, s, g, residual)
+        w, s, _ = _line_search(cell, F, w, s, delta, g)
+        steps, factorisations = steps + 1, factorisations + factorised
+        shifted += was_shifted
+
+
+def relax(
+    cell: Cell, F: np.ndarray, w0: np.ndarray, tangent: bool, settings: Settings
+) -> Equilibrium:
+    """Relax one cell at F (2, 2) from the fluctuations w0 (N, 2): an :class:`Equilibrium`."""
+    w0 = np.array(w0, dtype=np.float64)
+    fire_steps = 0
+    try:
+        w, s, residual, steps, factorisations, shifted = _newton(
+            cell, F, w0, settings, settings.max_iterations
+        )
+    except RelaxationError:  # FIRE from where Newton started, not from where it strayed
+        w, fire_steps = fire(cell, F, w0, settings)
+        w, s, residual, steps, factorisations, shifted = _newton(
+            cell, F, w, settings, settings.max_iterations
+        )
+    return _equilibrium(
+        cell, F, w, s, tangent, residual, steps, factorisations, shifted, fire_steps
+    )
+
+
+def _equilibrium(cell, F, w, s, tangent, residual, *counts):
+    """The :class:`Equilibrium` at the contact state s (``counts``: steps, factorisations,
+    shifted, fire_steps)."""
+    if not s.keep.any():
+        raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
+    A = condensed_tangent(cell, F, s) if tangent else None
+    W, P = stress(cell, F, s)
+    network = np.flatnonzero(s.network)
+    return Equilibrium(w, W, P, A, network, int((~s.keep).sum()), *counts, residual)
+
+
+def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibrium:
+    """The :class:`Equilibrium` of disks at rest at F by construction, not relaxed again: a
+    committed equilibrium at the same F, or the stress-free packing at F = I (whose contacts
+    have overlaps of ~1e-11 of a diameter that mark them, not forces in balance)."""
+    s = ContactState(cell, F, w)
+    if not s.on.any():
+        raise RigidityLostError("no two disks touch (the cell has come apart)")
+    _, f = s.forces(cell, F, s.on)
+    residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
+    w = np.array(w, dtype=np.float64)
+    return _equilibrium(cell, F, w, s, tangent, residual, 0, 0, 0, 0)
+
+
+def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
+    """FIRE on the current positions x = F (X + w) (unit masses, the contact forces) until
+    the largest net force is ``settings.fire_tol`` of the mean contact force: ``(w, steps)``."""
+    Finv = np.linalg.inv(F)
+    u = w @ F.T  # fluctuations in the current frame
+    v = np.zeros_like(u)
+    dt_max = 1.0 / np.sqrt(cell.K)
+    dt, alpha, since = 0.1 * dt_max, 0.1, 0
+    for step in range(settings.fire_steps):
+        s = ContactState(cell, F, u @ Finv.T)
+        _, f = s.forces(cell, F, s.on)
+        if _largest(f, np.ones(cell.n_disks, np.bool_)) <= settings.fire_tol * s.force_scale(cell):
+            return u @ Finv.T, step
+        power = float((f * v).sum())
+        if power > 0.0:
+            fn, vn = np.sqrt((f * f).sum()), np.sqrt((v * v).sum())
+            v = (1.0 - alpha) * v + alpha * vn * f / max(fn, 1e-300)
+            since += 1
+            if since > 5:
+                dt, alpha = min(1.1 * dt, dt_max), 0.99 * alpha
+        else:
+            v[:] = 0.0
+            dt, alpha, since = 0.5 * dt, 0.1, 0
+        v = v + dt * f
+        u = u + dt * v
+    raise RelaxationError(f"FIRE did not relax the cell in {settings.fire_steps} steps")
+
+
+def condensed_tangent(cell: Cell, F: np.ndarray, s: ContactState) -> np.ndarray:
+    """(2, 2, 2, 2) tangent of the relaxed response at an equilibrium s;
+    :class:`RigidityLostError` where the network's stiffness is not positive definite."""
+    A = _affine(cell, F, s)
+    net = _Network(cell, F, s)
+    if net.n == 0:
+        return A
+    if not net.pd:
+        raise RigidityLostError(
+            "the non-rattlers' stiffness (one disk pinned) is not positive definite"
+        )
+    B = rk.mixed(
+        F,
+        cell.pi[: s.m],
+        cell.pj[: s.m],
+        s.qx,
+        s.qy,
+        s.lx,
+        s.ly,
+        s.d,
+        s.e,
+        cell.R[: s.m],
+        cell.K,
+        s.network,
+        net.dof,
+        net.n,
+    )
+    return A - (B.T @ net.lu.solve(B)).reshape(2, 2, 2, 2)
+
+
+def _affine(cell, F, s):
+    """Born part: the Taylor tangent (eqs. 12-13) over the network at the branch vectors Q."""
+    acc = np.empty(9)
+    use = s.network
+    X, Y, R = s.qx[use].copy(), s.qy[use].copy(), cell.R[: s.m][use].copy()
+    taylor_kernel.moment_sums(F[0, 0], F[0, 1], F[1, 0], F[1, 1], X, Y, R, X.shape[0], True, acc)
+    return taylor_tangent(F, acc, cell.K)
+
+
+def taylor_tangent(F: np.ndarray, acc: np.ndarray, K: float) -> np.ndarray:
+    """A_abcd = K [F_ae F_cf T_efbd - delta_ac S_bd] (2, 2, 2, 2) from the Taylor kernel's
+    moment sums ``acc`` (9,) (S in acc[1:4] by b + d, T in acc[4:9] by e + f + b + d)."""
+    S, T = acc[1:4], acc[4:9]
+    i = np.arange(2)
+    T4 = T[
+        i[:, None, None, None]
+        + i[None, :, None, None]
+        + i[None, None, :, None]
+        + i[None, None, None, :]
+    ]
+    S2 = S[i[:, None] + i[None, :]]
+    A = np.einsum("ae,cf,efbd->abcd", F, F, T4) - np.einsum("ac,bd->abcd", np.eye(2), S2)
+    return K * A
+
+
+def stress(cell: Cell, F: np.ndarray, s: ContactState) -> tuple[float, np.ndarray]:
+    """(W, P (2, 2)) at the contact state s: W = K/2 sum e^2 and P = -K F S(Q) over every
+    contact (e > 0)."""
+    on = s.on
+    b = s.e[on] / s.d[on]
+    qx, qy = s.qx[on], s.qy[on]
+    sxy = np.dot(b, qx * qy)
+    S = np.array([[np.dot(b, qx * qx), sxy], [sxy, np.dot(b, qy * qy)]])
+    return s.energy(cell, on), -cell.K * F @ S

@@ -1,0 +1,227 @@
+"""The relaxed RVE: every disk in static equilibrium in the periodic cell deformed by F.
+
+Under the Taylor assumption every disk follows F (an upper bound of the response). Here the
+disks move to the minimum of the contact energy in the cell spanned by F, and the tangent is the
+exact derivative of that relaxed response (:mod:`~dolfinx_granular.laws.relaxation`). The state
+of a point is where its disks are: fluctuations w (N, 2) in the reference frame, x_i =
+F (X_i + w_i), so that a new F carries them with fixed fractional coordinates (the warm start).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..packings.packing import Packing
+from . import relaxation
+from .contacts import ContactCandidates
+from .relaxed_cell import Cell, RelaxationError
+from .tools import as_batch, output_buffers, push_forward, to_float
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping
+
+    from numpy.typing import ArrayLike
+
+_KEYS = ("w", "F", "fluctuation", "rearranged", "network")
+
+
+@dataclass(frozen=True, eq=False)
+class RelaxedState:
+    """Relaxed positions of n points (immutable by convention).
+
+    Attributes:
+        w: (n, N, 2) fluctuations of the disks in the reference frame (length; x = F (X + w)).
+        F: (n, 2, 2) the deformation gradient the positions are relaxed at.
+        fluctuation: (n,) root mean square of |F w_i| over the disks, relative to the mean
+            radius: how far the point moved from the affine positions.
+        rearranged: (n,) bool, the non-rattlers' contact set changed during the last increment.
+        network: (n,) uint64 fingerprint of the non-rattlers' contact set.
+    """
+
+    w: np.ndarray
+    F: np.ndarray
+    fluctuation: np.ndarray
+    rearranged: np.ndarray
+    network: np.ndarray
+
+    @property
+    def n_points(self) -> int:
+        return self.w.shape[0]
+
+    def take(self, indices: ArrayLike) -> RelaxedState:
+        idx = np.asarray(indices, dtype=np.int64)
+        return RelaxedState(*(getattr(self, k)[idx] for k in _KEYS))
+
+    @classmethod
+    def concatenate(cls, states: Iterable[RelaxedState]) -> RelaxedState:
+        states = list(states)
+        return cls(*(np.concatenate([getattr(s, k) for s in states]) for k in _KEYS))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {k: np.array(getattr(self, k)) for k in _KEYS}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, ArrayLike]) -> RelaxedState:
+        missing = [k for k in _KEYS if k not in arrays]
+        if missing:
+            raise ValueError(f"RelaxedState arrays lack {', '.join(missing)}")
+        w = np.asarray(arrays["w"], dtype=np.float64)
+        n = w.shape[0] if w.ndim == 3 else -1
+        if w.ndim != 3 or w.shape[2] != 2 or np.shape(arrays["F"]) != (n, 2, 2):
+            raise ValueError(f"RelaxedState: w must be (n, N, 2) and F (n, 2, 2), got {w.shape}")
+        if not np.isfinite(w).all():
+            raise ValueError("RelaxedState.w has NaN or inf entries")
+        return cls(
+            w,
+            np.asarray(arrays["F"], dtype=np.float64),
+            np.asarray(arrays["fluctuation"], dtype=np.float64),
+            np.asarray(arrays["rearranged"], dtype=bool),
+            np.asarray(arrays["network"], dtype=np.uint64),
+        )
+
+
+def _fingerprint(contacts: np.ndarray) -> np.uint64:
+    """An order-free hash of a set of candidate indices (splitmix64 summed mod 2^64)."""
+    z = contacts.astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15)
+    with np.errstate(over="ignore"):
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z = z ^ (z >> np.uint64(31))
+        return np.uint64(z.sum(dtype=np.uint64))
+
+
+class RelaxedRVE:
+    """Frictionless periodic disk packing relaxed to static equilibrium at every F.
+
+    Same contact law and units as :class:`~dolfinx_granular.TaylorRVE`: linear normal springs
+    k_n (N/m²), energy and stresses per reference area (Pa). A history law
+    (:class:`~dolfinx_granular.HistoryLaw`): ``evaluate(F, state)`` relaxes each point from the
+    committed positions ``state`` and returns the trial state beside W, P and A.
+
+    Args:
+        packing: the reference microstructure (jammed and stress-free, e.g. from
+            :func:`~dolfinx_granular.generate_packing`).
+        normal_stiffness: k_n > 0 in N/m².
+        min_stretch: smallest singular value of F supported (the candidate contacts' reach).
+        force_tol: equilibrium when every disk's net force is at most this times the mean
+            contact force.
+
+    Attributes:
+        candidates: the packing's :class:`~dolfinx_granular.ContactCandidates`.
+        cell: the candidates as the micro solver takes them
+            (:class:`~dolfinx_granular.laws.relaxed_cell.Cell`; pairs a rearrangement brings
+            within reach are appended to it).
+        settings: the micro solver's tolerances
+            (:class:`~dolfinx_granular.laws.relaxation.Settings`).
+
+    A point whose F equals the committed one is not relaxed again: its committed positions are
+    at rest (the initial state, the stress-free packing at F = I, included). Where the micro
+    solver fails, or the cell loses its rigidity, :class:`RelaxationError` /
+    :class:`RigidityLostError` (both :class:`~dolfinx_granular.LawEvaluationError`) name the
+    point, so that load stepping cuts back.
+    """
+
+    dim = 2
+
+    def __init__(
+        self,
+        packing: Packing,
+        normal_stiffness: float,
+        min_stretch: float = 0.5,
+        force_tol: float = 1e-10,
+    ) -> None:
+        if not isinstance(packing, Packing):
+            raise TypeError(
+                f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}"
+            )
+        k = to_float(normal_stiffness, "normal_stiffness")
+        if not (np.isfinite(k) and k > 0.0):
+            raise ValueError(
+                f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}"
+            )
+        self.packing = packing
+        self.normal_stiffness = k
+        self.min_stretch = to_float(min_stretch, "min_stretch")
+        self.candidates = ContactCandidates.from_packing(packing, self.min_stretch)
+        self.settings = relaxation.Settings(force_tol=to_float(force_tol, "force_tol"))
+        self.cell = Cell.of(self.candidates, packing, k / packing.area)
+
+    def initial_state(self, n: int) -> RelaxedState:
+        """n points at F = I in the stress-free packing (no fluctuation)."""
+        N = self.packing.radii.shape[0]
+        eye = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+        return RelaxedState(
+            np.zeros((n, N, 2)), eye, np.zeros(n), np.zeros(n, bool), np.zeros(n, np.uint64)
+        )
+
+    def _run(self, F, state, tangent, out=None):
+        F, single = as_batch(F)
+        n = F.shape[0]
+        if state.n_points != n:
+            raise ValueError(f"state has {state.n_points} points, F has {n}")
+        W, P, A = output_buffers(n, tangent, out)
+        w = np.empty_like(state.w)
+        moved, rearranged, network = np.empty(n), np.empty(n, bool), np.empty(n, np.uint64)
+        mean_radius = float(self.packing.radii.mean())
+        for q in range(n):
+            try:
+                if np.array_equal(F[q], state.F[q]):  # the committed positions are at rest
+                    eq = relaxation.at_rest(self.cell, F[q], state.w[q], tangent)
+                else:
+                    eq = relaxation.relax(self.cell, F[q], state.w[q], tangent, self.settings)
+            except RelaxationError as err:
+                raise type(err)(f"point {q}: {err}", np.array([q])) from None
+            W[q], P[q], w[q] = eq.W, eq.P, eq.w
+            if tangent:
+                A[q] = eq.A
+            u = eq.w @ F[q].T
+            moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / mean_radius
+            network[q] = _fingerprint(self.cell.pair_keys(eq.network))
+            rearranged[q] = network[q] != state.network[q]
+        new = RelaxedState(w, F.copy(), moved, rearranged, network)
+        if single:
+            return W[0], P[0], (A[0] if tangent else None), new
+        return W, P, A, new
+
+    def evaluate(self, F: ArrayLike, state: RelaxedState, out: tuple | None = None) -> tuple:
+        """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F relaxed from
+        ``state`` (left untouched); A = dP/dF of the relaxed response."""
+        return self._run(F, state, True, out)
+
+    def stress(self, F: ArrayLike, state: RelaxedState, out: tuple | None = None) -> tuple:
+        """``(W, P, trial_state)`` without the tangent."""
+        W, P, _, new = self._run(F, state, False, out)
+        return W, P, new
+
+    def cauchy(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
+        """Cauchy stress (n, 2, 2) of the relaxed state."""
+        Fb, single = as_batch(F)
+        _, P, _, _ = self._run(Fb, state, False)
+        sigma, _ = push_forward(Fb, P, None)
+        return sigma[0] if single else sigma
+
+    def spatial_tangent(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
+        """Spatial tangent (n, 2, 2, 2, 2) of the relaxed response."""
+        Fb, single = as_batch(F)
+        _, P, A, _ = self._run(Fb, state, True)
+        _, a = push_forward(Fb, P, A)
+        return a[0] if single else a
+
+    def small_strain_modulus(self) -> np.ndarray:
+        """The relaxed modulus C (2, 2, 2, 2) at F = I: the linear response of the reference
+        contact network (the stress-free packing is in equilibrium to the generator's accuracy,
+        with overlaps ~1e-11 of a diameter that a relaxation would only open), condensed over
+        the non-rattlers."""
+        N = self.packing.radii.shape[0]
+        return relaxation.at_rest(self.cell, np.eye(2), np.zeros((N, 2)), True).A
+
+    def positions(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
+        """(n, N, 2) relaxed centres in the current cell F [0, box) of ``state``'s points."""
+        Fb, _ = as_batch(F)
+        box = self.packing.box
+        xi = self.packing.centers[None] + state.w
+        xi = xi - np.floor(xi / box) * box
+        return np.einsum("qab,qnb->qna", Fb, xi)

@@ -1,0 +1,225 @@
+"""RelaxedRVE: disks in static equilibrium at every F, the exact condensed tangent.
+
+Each test checks one property against something computed another way: the net forces by a
+brute-force pair loop over the relaxed positions, P and A by central differences, the affine
+modulus and W, P by a TaylorRVE of the relaxed positions, a lattice against TaylorRVE."""
+
+import warnings
+
+from dolfinx_granular import (
+    HistoryLaw,
+    HistoryState,
+    LawEvaluationError,
+    Packing,
+    TaylorRVE,
+    generate_packing,
+)
+from dolfinx_granular.laws.relaxation import RigidityLostError
+from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
+
+import numpy as np
+import pytest
+
+from helpers import hex_lattice
+
+K_N = 1e8
+#: an isotropic compression and a sheared one (p / k_n ~ 1e-3 on the 70-disk packing)
+F_TEST = np.array([[[0.99, 0.0], [0.0, 0.99]], [[0.99, 0.004], [0.001, 0.992]]])
+
+
+@pytest.fixture(scope="module")
+def packing():
+    return generate_packing(70, seed=1)
+
+
+@pytest.fixture(scope="module")
+def rve(packing):
+    return RelaxedRVE(packing, K_N)
+
+
+@pytest.fixture(scope="module")
+def relaxed(rve):
+    """(W, P, A, state) at F_TEST from the initial state."""
+    return rve.evaluate(F_TEST, rve.initial_state(len(F_TEST)))
+
+
+def net_forces(packing, x, F):
+    """Net contact force (N, 2) on every disk at current centres x (N, 2) in the cell spanned by
+    F box, by brute force over all pairs and images (linear springs, k_n = 1)."""
+    a = F @ np.diag(packing.box)  # columns: the current lattice vectors
+    r = packing.radii
+    f = np.zeros_like(x)
+    for sx in (-1, 0, 1):
+        for sy in (-1, 0, 1):
+            d = x[None, :, :] + (a @ [sx, sy])[None, None, :] - x[:, None, :]  # (i, j, 2)
+            dist = np.linalg.norm(d, axis=2)
+            eps = r[:, None] + r[None, :] - dist
+            if sx == 0 and sy == 0:
+                np.fill_diagonal(eps, -1.0)
+            on = eps > 0.0
+            n = np.where(on[..., None], d / np.where(dist > 0, dist, 1.0)[..., None], 0.0)
+            f -= np.einsum("ij,ijk->ik", np.where(on, eps, 0.0), n)  # pushed away from j
+    return f, eps
+
+
+def mean_force(packing, x, F):
+    """Mean overlap of the contacts (the mean contact force over k_n)."""
+    a = F @ np.diag(packing.box)
+    r = packing.radii
+    overlaps = []
+    for sx in (-1, 0, 1):
+        for sy in (-1, 0, 1):
+            d = x[None, :, :] + (a @ [sx, sy])[None, None, :] - x[:, None, :]
+            eps = r[:, None] + r[None, :] - np.linalg.norm(d, axis=2)
+            if sx == 0 and sy == 0:
+                np.fill_diagonal(eps, -1.0)
+            overlaps.append(eps[eps > 0.0])
+    return np.concatenate(overlaps).mean()
+
+
+def test_it_is_a_history_law_with_a_history_state(rve):
+    assert isinstance(rve, HistoryLaw)
+    state = rve.initial_state(3)
+    assert isinstance(state, HistoryState) and state.n_points == 3
+
+
+def test_every_disk_is_in_equilibrium(packing, rve, relaxed):
+    _, P, _, state = relaxed
+    x = rve.positions(F_TEST, state)
+    for q, F in enumerate(F_TEST):
+        p = -np.trace(P[q] @ F.T) / (2 * np.linalg.det(F))
+        assert p / K_N >= 1e-5
+        f, _ = net_forces(packing, x[q], F)
+        worst = np.linalg.norm(f, axis=1).max()
+        assert worst <= 1e-9 * mean_force(packing, x[q], F)
+
+
+def test_the_state_passed_in_is_left_untouched(rve):
+    state = rve.initial_state(2)
+    before = {k: v.copy() for k, v in state.to_arrays().items()}
+    rve.evaluate(F_TEST, state)
+    for k, v in state.to_arrays().items():
+        np.testing.assert_array_equal(v, before[k])
+
+
+def test_the_state_round_trips_through_arrays_and_selection(relaxed):
+    state = relaxed[3]
+    again = RelaxedState.from_arrays(state.to_arrays())
+    np.testing.assert_array_equal(again.w, state.w)
+    both = RelaxedState.concatenate([state.take([1]), state.take([0])])
+    np.testing.assert_array_equal(both.w[0], state.w[1])
+    assert both.n_points == 2
+
+
+def test_a_damaged_state_is_refused():
+    with pytest.raises(ValueError, match="RelaxedState"):
+        RelaxedState.from_arrays({"w": np.zeros((2, 3)), "F": np.zeros((2, 2, 2))})
+
+
+def _step(rve, F, state, h, c, d):
+    """W, P and the network fingerprint at F +- h e_cd, relaxed from ``state`` (at F)."""
+    out = []
+    for sign in (1.0, -1.0):
+        dF = np.zeros_like(F)
+        dF[:, c, d] = sign * h
+        W, P, new = rve.stress(F + dF, state)
+        out.append((W, P, new.network))
+    return out
+
+
+def test_P_is_the_derivative_of_the_relaxed_energy(rve, relaxed):
+    W, P, _, state = relaxed
+    h = 1e-7
+    for c in range(2):
+        for d in range(2):
+            (Wp, _, _), (Wm, _, _) = _step(rve, F_TEST, state, h, c, d)
+            np.testing.assert_allclose(
+                (Wp - Wm) / (2 * h), P[:, c, d], rtol=1e-6, atol=1e-7 * np.abs(P).max()
+            )
+
+
+def test_A_is_the_derivative_of_P_where_the_contacts_stay(rve, relaxed):
+    _, P, A, state = relaxed
+    h = 1e-8
+    for c in range(2):
+        for d in range(2):
+            (_, Pp, netp), (_, Pm, netm) = _step(rve, F_TEST, state, h, c, d)
+            assert np.array_equal(netp, state.network) and np.array_equal(netm, state.network)
+            np.testing.assert_allclose(
+                (Pp - Pm) / (2 * h), A[..., c, d], rtol=1e-5, atol=1e-6 * np.abs(A).max()
+            )
+
+
+def test_W_and_P_are_taylors_at_the_relaxed_positions_and_A_lies_below(packing, rve, relaxed):
+    """The affine (Born) modulus of the relaxed positions bounds the relaxed one."""
+    W, P, A, state = relaxed
+    x = rve.positions(F_TEST, state)
+    for q, F in enumerate(F_TEST):
+        X = np.linalg.solve(F, x[q].T).T  # the relaxed centres pulled back to the reference
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the relaxed positions overlap at F = I
+            taylor = TaylorRVE(Packing(X, packing.radii, packing.box), K_N, allow_overlaps=True)
+        Wt, Pt, At = taylor.evaluate(F)
+        np.testing.assert_allclose(Wt, W[q], rtol=1e-10)
+        np.testing.assert_allclose(Pt, P[q], rtol=1e-9, atol=1e-9 * np.abs(P[q]).max())
+        gap = np.linalg.eigvalsh(((At - A[q]).reshape(4, 4) + (At - A[q]).reshape(4, 4).T) / 2)
+        assert gap.min() >= -1e-9 * np.abs(At).max()
+        assert gap.max() > 1e-3 * np.abs(At).max()  # relaxation softens the packing
+
+
+def test_objective_and_the_cauchy_stress_is_symmetric(rve, relaxed):
+    W, P, A, state = relaxed
+    t = 0.7
+    Q = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    QF = np.einsum("ab,qbc->qac", Q, F_TEST)
+    Wr, Pr, Ar, _ = rve.evaluate(QF, state)
+    np.testing.assert_allclose(Wr, W, rtol=1e-9)
+    np.testing.assert_allclose(Pr, np.einsum("ab,qbc->qac", Q, P), atol=1e-8 * np.abs(P).max())
+    QAQ = np.einsum("ae,cf,qebfd->qabcd", Q, Q, A)
+    np.testing.assert_allclose(Ar, QAQ, atol=1e-7 * np.abs(A).max())
+    sigma = rve.cauchy(F_TEST, state)
+    np.testing.assert_allclose(sigma, np.swapaxes(sigma, 1, 2), atol=1e-9 * np.abs(sigma).max())
+
+
+def test_a_triangular_lattice_does_not_relax():
+    """Every disk is a centre of symmetry: no force moves it, so relaxed = Taylor."""
+    lattice = hex_lattice(6, 6)
+    F = np.array([[[0.995, 0.002], [0.0, 0.996]]])
+    relaxed = RelaxedRVE(lattice, K_N)
+    W, P, A, state = relaxed.evaluate(F, relaxed.initial_state(1))
+    Wt, Pt, At = TaylorRVE(lattice, K_N).evaluate(F)
+    assert np.abs(state.w).max() <= 1e-12
+    np.testing.assert_allclose(W, Wt, rtol=1e-12)
+    np.testing.assert_allclose(P, Pt, rtol=1e-12, atol=1e-12 * np.abs(Pt).max())
+    np.testing.assert_allclose(A, At, rtol=1e-10, atol=1e-10 * np.abs(At).max())
+
+
+def test_tension_loses_rigidity_and_names_the_point(rve):
+    F = np.array([np.diag([0.99, 0.99]), np.diag([1.01, 1.01])])
+    with pytest.raises(RigidityLostError, match="point 1") as err:
+        rve.evaluate(F, rve.initial_state(2))
+    assert isinstance(err.value, LawEvaluationError)
+    np.testing.assert_array_equal(err.value.points, [1])
+
+
+def test_the_small_strain_modulus_is_symmetric_and_below_taylors(packing, rve):
+    C = rve.small_strain_modulus().reshape(4, 4)
+    Ct = TaylorRVE(packing, K_N).small_strain_modulus().reshape(4, 4)
+    np.testing.assert_allclose(C, C.T, atol=1e-9 * np.abs(C).max())
+    assert np.linalg.eigvalsh(Ct - C).min() >= -1e-9 * np.abs(Ct).max()
+
+
+def test_the_state_records_distance_from_affine_and_rearrangements(rve, relaxed):
+    _, _, _, state = relaxed
+    assert np.all(state.fluctuation > 0.0) and np.all(state.rearranged)  # from F = I
+    np.testing.assert_array_equal(state.F, F_TEST)
+    _, _, again = rve.stress(F_TEST, state)  # the same F again: nothing moves
+    assert not again.rearranged.any()
+
+
+def test_the_benchmark_runs(capsys):
+    import relaxed as benchmark  # benchmarks/relaxed.py
+
+    benchmark.main(["--points", "3", "--particles", "70"])
+    out = capsys.readouterr().out
+    assert "ratio" in out and "ms/point" in out
