@@ -232,7 +232,14 @@ def taylor_remainders(L, a, u, direction, update, h0, halvings=5):
 # -- demos -----------------------------------------------------------------------------------------
 
 #: every demo in demos/, each honouring ``--small`` and ``DEMO_SMALL=1`` (tests/test_demos.py)
-DEMOS = ("granular_column", "friction_study", "rve_study", "slope", "slope_collapse")
+DEMOS = (
+    "granular_column",
+    "friction_study",
+    "relaxed_study",
+    "rve_study",
+    "slope",
+    "slope_collapse",
+)
 
 
 def demo_command(name, *args, ranks=1):

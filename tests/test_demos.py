@@ -42,6 +42,21 @@ def check_friction_study(out, stdout):
     assert "wrote" in stdout
 
 
+def check_relaxed_study(out, stdout):
+    rows = read_csv(out / "moduli.csv")
+    assert len(rows) == 2  # the small run: two pressures, one seed
+    for r in rows:
+        # relaxation never stiffens: B and G at most Taylor's at the same F
+        assert float(r["B_relaxed"]) <= float(r["B_taylor"])
+        assert float(r["G_relaxed"]) <= float(r["G_taylor"])
+        assert float(r["z"]) >= 4.0  # a rigid network of frictionless disks: isostatic or more
+    shear = read_csv(out / "shear.csv")
+    assert {r["law"] for r in shear} == {"relaxed", "taylor"}
+    for name in ("moduli", "coordination", "shear"):
+        assert is_png(out / f"relaxed_{name}.png"), name
+    assert "Taylor over relaxed G" in stdout
+
+
 def check_rve_study(out, stdout):
     summary = json.loads((out / "summary.json").read_text())
     assert [row["n"] for row in summary["speed_error"]] == [70, 140]  # the small sizes

@@ -44,6 +44,10 @@ from .relaxed_cell import Cell, ContactState, RelaxationError
 #: Newton counts as stalled (FIRE takes over) when after this many steps the largest force is
 #: still above this part of the mean contact force
 STALLED_AFTER, STALLED_ABOVE = 20, 1e-2
+#: FIRE counts the cell as unjammed once its energy falls below this part of the start's
+UNJAMMED = 1e-12
+#: relative round-off of the energy: a smaller promised decrease is judged by the forces
+ROUND_OFF = 1e-12
 #: longest move of a disk in one step, relative to the smallest radius sum
 MAX_STEP = 0.1
 
@@ -72,8 +76,8 @@ class Settings:
 
     force_tol: float = 1e-10
     max_iterations: int = 60
-    fire_tol: float = 1e-3
-    fire_steps: int = 100_000
+    fire_tol: float = 1e-5
+    fire_steps: int = 20_000
     rattler_shift: float = 1e-8
     chord_rate: float = 0.2
 
@@ -223,11 +227,18 @@ def _scatter(v, dof, N):
     return x
 
 
+def _residual(cell, F, s):
+    """Largest net force over the mean contact force at the contact state s."""
+    _, f = s.forces(cell, F, s.on)
+    return _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
+
+
 def _line_search(cell, F, w, s, delta, g):
     """Backtracking (Armijo) on the energy, from a step that moves no disk by more than
     ``MAX_STEP`` of the smallest radius sum; ``(w, state, cut)``, cut the factor the line
     search took off that first step."""
     E0 = s.energy(cell, s.on)
+    r0 = _residual(cell, F, s)
     slope = float((g * delta).sum())
     longest = np.sqrt((delta * delta).sum(axis=1).max())
     alpha = first = min(1.0, MAX_STEP * cell.R.min() / longest) if longest > 0 else 1.0
@@ -237,13 +248,18 @@ def _line_search(cell, F, w, s, delta, g):
         except RelaxationError:  # beyond the candidate list: a shorter step
             alpha *= 0.5
             continue
-        if trial.energy(cell, trial.on) <= E0 + 1e-4 * alpha * slope + 1e-13 * abs(E0):
+        E = trial.energy(cell, trial.on)
+        if E <= E0 + 1e-4 * alpha * slope:
+            return w + alpha * delta, trial, alpha / first
+        # where the decrease a step promises is below the energy's round-off, the energy
+        # cannot tell: take the step if it lowers the largest force
+        if -alpha * slope <= ROUND_OFF * abs(E0) and _residual(cell, F, trial) < r0:
             return w + alpha * delta, trial, alpha / first
         alpha *= 0.5
     raise RelaxationError("the line search found no lower energy")
 
 
-def _newton(cell, F, w, settings, budget):
+def _newton(cell, F, w, settings, budget, stall=True):
     """Newton from w until equilibrium: ``(w, state, residual, steps, factorisations,
     shifted)``; RelaxationError after ``budget`` steps or a failed line search."""
     s = ContactState(cell, F, w)
@@ -256,7 +272,7 @@ def _newton(cell, F, w, settings, budget):
         residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
         if residual <= settings.force_tol:
             return w, s, residual, steps, factorisations, shifted
-        if steps == budget or (steps >= STALLED_AFTER and residual > STALLED_ABOVE):
+        if steps == budget or (stall and steps >= STALLED_AFTER and residual > STALLED_ABOVE):
             raise RelaxationError(
                 f"no equilibrium after {steps} Newton steps (largest net force "
                 f"{residual:.3g} of the mean contact force)"
@@ -280,7 +296,7 @@ def relax(
     except RelaxationError:  # FIRE from where Newton started, not from where it strayed
         w, fire_steps = fire(cell, F, w0, settings)
         w, s, residual, steps, factorisations, shifted = _newton(
-            cell, F, w, settings, settings.max_iterations
+            cell, F, w, settings, settings.max_iterations, stall=False
         )
     return _equilibrium(
         cell, F, w, s, tangent, residual, steps, factorisations, shifted, fire_steps
@@ -319,8 +335,12 @@ def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
     v = np.zeros_like(u)
     dt_max = 1.0 / np.sqrt(cell.K)
     dt, alpha, since = 0.1 * dt_max, 0.1, 0
+    E0 = None
     for step in range(settings.fire_steps):
         s = ContactState(cell, F, u @ Finv.T)
+        if not s.on.any() or (E0 is not None and s.energy(cell, s.on) < UNJAMMED * E0):
+            raise RigidityLostError("the cell unjammed: relaxation opens its contacts")
+        E0 = s.energy(cell, s.on) if E0 is None else E0
         _, f = s.forces(cell, F, s.on)
         if _largest(f, np.ones(cell.n_disks, np.bool_)) <= settings.fire_tol * s.force_scale(cell):
             return u @ Finv.T, step

@@ -1,0 +1,326 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+# ---
+
+# %% [markdown]
+# # Relaxed against Taylor: moduli over pressure, and shear under confinement
+#
+# Under the Taylor assumption every disk follows F; in a `RelaxedRVE` the disks find their
+# static equilibrium. For frictionless harmonic disks the jamming literature (O'Hern, Silbert,
+# Liu & Nagel, PRE 68, 011306, 2003) finds that near jamming the bulk modulus B stays finite,
+# the shear modulus falls as G ~ p^(1/2) and the excess coordination as z - z_iso ~ p^(1/2)
+# (z_iso = 4 in 2-D). The Taylor bound keeps G of the order of B at every pressure.
+
+# %%
+"""Relaxed against Taylor RVE: bulk and shear moduli over pressure, coordination, confined shear.
+
+    python demos/relaxed_study.py [--out results/relaxed_study] [--small]
+
+``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests; under ``mpirun`` rank 0 runs
+the (serial) study and the other ranks exit.
+
+* packings: ``generate_packing(n, seed, pressure=p)`` for each target pressure p / k_n: the
+  contact network jammed at that pressure, so that compressing it to p keeps its network
+  (``--small``: 70 disks, one seed, two pressures);
+* each packing is compressed isotropically, sigma_11 = sigma_22 = -p, in pressure steps (the
+  material-point driver, warm-started from step to step); there the relaxed and the Taylor
+  tangents are taken at the same F;
+* moduli from the spatial tangent a_abcd = F_bB F_dD A_aBcD / J (what the tangent of Cauchy's
+  stress gives, its stress terms included): B = (a_1111 + a_2222 + a_1122 + a_2211) / 4, and G
+  the average over the plane's orientations of the shear modulus,
+  G = (a_1111 + a_2222 - a_1122 - a_2211) / 8 + (a_1212 + a_2121 + a_1221 + a_2112) / 8;
+* coordination: z = 2 contacts / disks over the non-rattlers of the relaxed state;
+* confined simple shear, F = [[1, gamma], [0, F22]] with sigma_22 = -p (p / k_n = 1e-3), for
+  both laws; steps where the relaxed contact network changed are marked.
+
+Writes to ``--out``: ``moduli.csv`` (one row per packing and pressure), ``shear.csv`` (every
+shear step), ``relaxed_moduli.png``, ``relaxed_coordination.png``, ``relaxed_shear.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import time
+
+from dolfinx_granular import (
+    ControlError,
+    LawEvaluationError,
+    MaterialPoint,
+    Packing,
+    RelaxedRVE,
+    TaylorRVE,
+    generate_packing,
+)
+from dolfinx_granular.io.shear_figures import save_figure
+from dolfinx_granular.laws import relaxation
+
+import numpy as np
+from matplotlib.figure import Figure
+
+K_N = 2.8e7  # N/m², table 1 of the paper
+FULL = dict(particles=700, seeds=(0, 1, 2), pressures=(1e-5, 1e-4, 1e-3, 1e-2), shear_steps=40)
+SMALL = dict(particles=70, seeds=(0,), pressures=(1e-3, 3e-3), shear_steps=4)
+SHEAR_PRESSURE, MAX_SHEAR, RAMP = 1e-3, 0.02, 6
+
+
+# %% [markdown]
+# ## Packings jammed at each pressure, compressed to it
+
+
+# %%
+def packing_at(n, seed, pressure, folder):
+    """The packing of n disks jammed at ``pressure`` (p / k_n), cached in ``folder``."""
+    path = os.path.join(folder, f"relaxed_{n}_{seed}_{pressure:g}.npz")
+    if os.path.exists(path):
+        return Packing.load(path)
+    packing = generate_packing(n, seed=seed, pressure=pressure)
+    packing.save(path)
+    return packing
+
+
+def ramp(point, values, load, max_increment, start=0.0):
+    """Step ``point`` through the load parameters ``values`` (``load(v, F)`` gives the F guess
+    and the stress targets), committing each; a step that fails (the network rearranges and
+    the driver's Newton cycles) is halved, down to 1/64. Returns the committed results."""
+    targets, done, cuts, results = list(values), start, 0, []
+    while targets:
+        F, stress = load(targets[0], point.F.copy())
+        try:
+            results.append(point.step(F, stress, max_increment=max_increment))
+        except (ControlError, LawEvaluationError):
+            if cuts == 6:
+                raise
+            targets.insert(0, 0.5 * (done + targets[0]))
+            cuts += 1
+            continue
+        done, cuts = targets.pop(0), 0
+    return results
+
+
+def compress(point, pressure):
+    """Ramp sigma_11 = sigma_22 = -pressure * k_n in RAMP geometric steps from 1 % of it (the
+    unknowns F11 and F22; F12 = F21 = 0). The driver's steps are capped at ten times the
+    strain the pressure asks for: near jamming the relaxed tangent is nearly singular in
+    shear. Returns the last result."""
+
+    def load(p, F):
+        return F, {(0, 0): -p, (1, 1): -p}
+
+    levels = np.geomspace(0.01, 1.0, RAMP) * pressure * K_N
+    return ramp(point, levels, load, 10 * pressure)[-1]
+
+
+def moduli(F, P, A):
+    """(B, G) in Pa of the spatial tangent of (F, P, A) (2, 2, 2, 2) (see the module doc)."""
+    J = np.linalg.det(F)
+    a = np.einsum("bB,dD,aBcD->abcd", F, F, A) / J
+    B = (a[0, 0, 0, 0] + a[1, 1, 1, 1] + a[0, 0, 1, 1] + a[1, 1, 0, 0]) / 4
+    G = (a[0, 0, 0, 0] + a[1, 1, 1, 1] - a[0, 0, 1, 1] - a[1, 1, 0, 0]) / 8
+    G += (a[0, 1, 0, 1] + a[1, 0, 1, 0] + a[0, 1, 1, 0] + a[1, 0, 0, 1]) / 8
+    return B, G
+
+
+def coordination(rve, F, state):
+    """z over the non-rattlers of the relaxed state at F, and the rattler fraction."""
+    eq = relaxation.at_rest(rve.cell, F, state.w[0], False)
+    n = rve.packing.radii.shape[0]
+    return 2.0 * eq.network.size / (n - eq.rattlers), eq.rattlers / n
+
+
+def moduli_row(packing, seed, pressure):
+    """One row of moduli.csv: the packing compressed to ``pressure``, both laws at its F."""
+    relaxed = RelaxedRVE(packing, K_N)
+    point = MaterialPoint(relaxed)
+    t = time.perf_counter()
+    r = compress(point, pressure)
+    seconds = time.perf_counter() - t
+    _, Pr, Ar, _ = relaxed.evaluate(r.F, point.state)
+    _, Pt, At = TaylorRVE(packing, K_N).evaluate(r.F)
+    (Br, Gr), (Bt, Gt) = moduli(r.F, Pr, Ar), moduli(r.F, Pt, At)
+    z, rattlers = coordination(relaxed, r.F, point.state)
+    p = -np.trace(r.sigma) / 2
+    return dict(
+        seed=seed,
+        target=pressure,
+        p_over_kn=p / K_N,
+        B_relaxed=Br,
+        G_relaxed=Gr,
+        B_taylor=Bt,
+        G_taylor=Gt,
+        G_ratio=Gt / Gr,
+        z=z,
+        rattlers=rattlers,
+        fluctuation=float(point.state.fluctuation[0]),
+        seconds=seconds,
+    )
+
+
+# %% [markdown]
+# ## Confined simple shear
+
+
+# %%
+def shear_rows(packing, steps):
+    """Confined simple shear to MAX_SHEAR in ``steps`` for both laws: one dict per step."""
+    rows = []
+    for name, law in (("relaxed", RelaxedRVE(packing, K_N)), ("taylor", TaylorRVE(packing, K_N))):
+        point = MaterialPoint(law)
+        p = SHEAR_PRESSURE * K_N
+        compress(point, SHEAR_PRESSURE)
+
+        def load(gamma, F, p=p):
+            F[0, 1] = gamma
+            return F, {(0, 0): -p, (1, 1): -p}
+
+        for r in ramp(point, np.linspace(0.0, MAX_SHEAR, steps + 1)[1:], load, 10 * SHEAR_PRESSURE):
+            s = r.sigma
+            pm, q = -(s[0, 0] + s[1, 1]) / 2, np.hypot((s[0, 0] - s[1, 1]) / 2, s[0, 1])
+            moved = bool(r.state.rearranged[0]) if name == "relaxed" else False
+            rows.append(dict(law=name, gamma=r.F[0, 1], q_over_p=q / pm, p=pm, rearranged=moved))
+    return rows
+
+
+# %% [markdown]
+# ## Figures and tables
+
+
+# %%
+def moduli_figure(rows):
+    fig = Figure(figsize=(6.4, 4.4))
+    ax = fig.subplots()
+    p = np.array([r["p_over_kn"] for r in rows])
+    for key, style, label in (
+        ("B_taylor", "s", "B Taylor"),
+        ("G_taylor", "^", "G Taylor"),
+        ("B_relaxed", "o", "B relaxed"),
+        ("G_relaxed", "v", "G relaxed"),
+    ):
+        v = np.array([r[key] for r in rows]) / K_N
+        ax.loglog(p[v > 0], v[v > 0], style, label=label, alpha=0.8)
+    ref = np.geomspace(p.min(), p.max(), 10)
+    G = np.array([r["G_relaxed"] for r in rows]) / K_N
+    if np.any(G > 0):
+        c = np.exp(np.mean(np.log(G[G > 0]) - 0.5 * np.log(p[G > 0])))
+        ax.loglog(ref, c * np.sqrt(ref), "k--", lw=0.8, label="p^(1/2) (O'Hern et al. 2003)")
+    ax.set_xlabel("p / k_n")
+    ax.set_ylabel("modulus / k_n")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def coordination_figure(rows):
+    fig = Figure(figsize=(5.6, 4.0))
+    ax = fig.subplots()
+    p = np.array([r["p_over_kn"] for r in rows])
+    dz = np.array([r["z"] for r in rows]) - 4.0
+    ax.loglog(p[dz > 0], dz[dz > 0], "o", label="relaxed, non-rattlers")
+    ref = np.geomspace(p.min(), p.max(), 10)
+    if np.any(dz > 0):
+        c = np.exp(np.mean(np.log(dz[dz > 0]) - 0.5 * np.log(p[dz > 0])))
+        ax.loglog(ref, c * np.sqrt(ref), "k--", lw=0.8, label="p^(1/2)")
+    ax.set_xlabel("p / k_n")
+    ax.set_ylabel("z - 4")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def shear_figure(rows):
+    fig = Figure(figsize=(6.0, 4.0))
+    ax = fig.subplots()
+    for law, style in (("taylor", "-"), ("relaxed", "-o")):
+        r = [x for x in rows if x["law"] == law]
+        g = 100 * np.array([x["gamma"] for x in r])
+        qp = np.array([x["q_over_p"] for x in r])
+        ax.plot(g, qp, style, ms=3, label=law)
+        moved = np.array([x["rearranged"] for x in r])
+        if moved.any():
+            ax.plot(g[moved], qp[moved], "rx", label="relaxed: network changed")
+    ax.set_xlabel("shear gamma (%)")
+    ax.set_ylabel("q / p")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def write_csv(path, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def run(out="results/relaxed_study", small=False, verbose=True):
+    """Run the study, write the CSVs and figures to ``out``; returns the two tables."""
+    cfg = SMALL if small else FULL
+    say = print if verbose else (lambda *a, **k: None)
+    folder = os.path.join(out, "packings")
+    os.makedirs(folder, exist_ok=True)
+    t0, rows = time.perf_counter(), []
+    for pressure in cfg["pressures"]:
+        for seed in cfg["seeds"]:
+            rows.append(
+                moduli_row(packing_at(cfg["particles"], seed, pressure, folder), seed, pressure)
+            )
+            r = rows[-1]
+            say(
+                f"p/kn {r['p_over_kn']:.2e} seed {seed}: B {r['B_relaxed']:.3e} / "
+                f"{r['B_taylor']:.3e} Pa, G {r['G_relaxed']:.3e} / {r['G_taylor']:.3e} Pa "
+                f"(relaxed / Taylor), z {r['z']:.3f} ({time.perf_counter() - t0:.0f} s)"
+            )
+    shear = shear_rows(
+        packing_at(cfg["particles"], cfg["seeds"][0], SHEAR_PRESSURE, folder), cfg["shear_steps"]
+    )
+    write_csv(os.path.join(out, "moduli.csv"), rows)
+    write_csv(os.path.join(out, "shear.csv"), shear)
+    for name, fig in (
+        ("moduli", moduli_figure(rows)),
+        ("coordination", coordination_figure(rows)),
+        ("shear", shear_figure(shear)),
+    ):
+        save_figure(fig, os.path.join(out, f"relaxed_{name}.png"))
+    negative = sum(r["G_relaxed"] < 0 for r in rows)
+    ratio = np.array([r["G_ratio"] for r in rows if r["G_relaxed"] > 0])
+    say(
+        f"Taylor over relaxed G: {ratio.min():.3g} to {ratio.max():.3g} "
+        f"(median {np.median(ratio):.3g}); {negative} of {len(rows)} packings with G < 0"
+    )
+    say(f"wrote {out}/ in {time.perf_counter() - t0:.1f} s")
+    return rows, shear
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", default="results/relaxed_study", help="output directory")
+    parser.add_argument(
+        "--small",
+        action="store_true",
+        default=os.environ.get("DEMO_SMALL") == "1",
+        help="reduced run (tests; also DEMO_SMALL=1)",
+    )
+    args = parser.parse_args(argv)
+    if _mpi_rank() == 0:  # a serial study: under mpirun, rank 0 runs it and the others rest
+        run(args.out, small=args.small)
+    return 0
+
+
+def _mpi_rank():
+    """This process's rank in MPI.COMM_WORLD (0 without mpi4py: the study needs no MPI)."""
+    try:
+        from mpi4py import MPI
+    except ImportError:
+        return 0
+    return MPI.COMM_WORLD.rank
+
+
+# %% [markdown]
+# Run as a script; in a notebook call `run("results/relaxed_study")` instead of this cell.
+
+# %%
+if __name__ == "__main__":
+    sys.exit(main())
