@@ -1,6 +1,11 @@
 """The relaxed RVE in DOLFINx: GranularMaterial holds its state like any history law, the
 consistent tangent makes Newton converge superlinearly, and relaxation softens the column."""
 
+import json
+import os
+import subprocess
+import sys
+
 from dolfinx_granular import TaylorRVE, generate_packing
 from dolfinx_granular.laws.relaxed import RelaxedRVE
 
@@ -8,7 +13,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from helpers import granular_column
+from helpers import MPI_ENV, ROOT, granular_column
 
 K_N = 2.8e7
 PRESSURE = 2e4  # Pa on the column's top
@@ -42,3 +47,35 @@ def test_the_relaxed_column_converges_superlinearly_and_is_softer(packing):
     assert rates and max(rates) > 1.5, history  # the last steps are quadratic
     moved = MPI.COMM_WORLD.allreduce(float(material.state.fluctuation.max()), op=MPI.MAX)
     assert moved > 0.0  # the committed state holds the relaxed positions
+
+
+SETTLE = """
+import json
+from mpi4py import MPI
+from dolfinx_granular import RelaxedRVE, generate_packing
+from test_relaxed_dolfinx import settle
+s, history, _ = settle(RelaxedRVE(generate_packing(70, seed=4), 2.8e7), "relaxed_np_")
+if MPI.COMM_WORLD.rank == 0:
+    print(json.dumps(dict(settlement=s, iterations=len(history) - 1)))
+"""
+
+
+def _settle(ranks):
+    """The relaxed column's settlement and iterations, solved on ``ranks`` processes."""
+    from dolfinx_granular.fem.compat import mpi_command
+
+    cmd = [sys.executable, "-c", SETTLE]
+    if ranks > 1:
+        cmd = [*mpi_command(ranks), *cmd]
+    env = dict(MPI_ENV, PYTHONPATH=os.path.join(ROOT, "tests"))
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_serial_and_two_ranks_agree():
+    """Every point relaxes on its own rank: the partition changes only the summation order."""
+    one, two = _settle(1), _settle(2)
+    assert one["iterations"] == two["iterations"]
+    np.testing.assert_allclose(two["settlement"], one["settlement"], rtol=1e-12)
