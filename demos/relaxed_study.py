@@ -139,7 +139,13 @@ def moduli_row(packing, seed, pressure):
     relaxed = RelaxedRVE(packing, K_N)
     point = MaterialPoint(relaxed)
     t = time.perf_counter()
-    r = compress(point, pressure)
+    try:
+        r = compress(point, pressure)
+    except (ControlError, LawEvaluationError) as err:  # e.g. a cell that unjams: report it
+        keys = ("p_over_kn", "B_relaxed", "G_relaxed", "B_taylor", "G_taylor", "G_ratio", "z",
+                "rattlers", "fluctuation")  # fmt: skip
+        return dict(seed=seed, target=pressure, **dict.fromkeys(keys, np.nan),
+                    seconds=time.perf_counter() - t, status=f"failed: {err}"[:200])  # fmt: skip
     seconds = time.perf_counter() - t
     _, Pr, Ar, _ = relaxed.evaluate(r.F, point.state)
     _, Pt, At = TaylorRVE(packing, K_N).evaluate(r.F)
@@ -159,6 +165,7 @@ def moduli_row(packing, seed, pressure):
         rattlers=rattlers,
         fluctuation=float(point.state.fluctuation[0]),
         seconds=seconds,
+        status="ok",
     )
 
 
@@ -195,6 +202,7 @@ def shear_rows(packing, steps):
 def moduli_figure(rows):
     fig = Figure(figsize=(6.4, 4.4))
     ax = fig.subplots()
+    rows = [r for r in rows if r["status"] == "ok"]
     p = np.array([r["p_over_kn"] for r in rows])
     for key, style, label in (
         ("B_taylor", "s", "B Taylor"),
@@ -218,6 +226,7 @@ def moduli_figure(rows):
 def coordination_figure(rows):
     fig = Figure(figsize=(5.6, 4.0))
     ax = fig.subplots()
+    rows = [r for r in rows if r["status"] == "ok"]
     p = np.array([r["p_over_kn"] for r in rows])
     dz = np.array([r["z"] for r in rows]) - 4.0
     ax.loglog(p[dz > 0], dz[dz > 0], "o", label="relaxed, non-rattlers")
@@ -268,6 +277,9 @@ def run(out="results/relaxed_study", small=False, verbose=True):
                 moduli_row(packing_at(cfg["particles"], seed, pressure, folder), seed, pressure)
             )
             r = rows[-1]
+            if r["status"] != "ok":
+                say(f"p/kn {pressure:.0e} seed {seed}: {r['status']}")
+                continue
             say(
                 f"p/kn {r['p_over_kn']:.2e} seed {seed}: B {r['B_relaxed']:.3e} / "
                 f"{r['B_taylor']:.3e} Pa, G {r['G_relaxed']:.3e} / {r['G_taylor']:.3e} Pa "
@@ -285,11 +297,12 @@ def run(out="results/relaxed_study", small=False, verbose=True):
     ):
         save_figure(fig, os.path.join(out, f"relaxed_{name}.png"))
     negative = sum(r["G_relaxed"] < 0 for r in rows)
+    failed = sum(r["status"] != "ok" for r in rows)
     ratio = np.array([r["G_ratio"] for r in rows if r["G_relaxed"] > 0])
-    say(
-        f"Taylor over relaxed G: {ratio.min():.3g} to {ratio.max():.3g} "
-        f"(median {np.median(ratio):.3g}); {negative} of {len(rows)} packings with G < 0"
-    )
+    spread = (f"{ratio.min():.3g} to {ratio.max():.3g} (median {np.median(ratio):.3g})"
+              if ratio.size else "none with G > 0")  # fmt: skip
+    say(f"Taylor over relaxed G: {spread}; {negative} of {len(rows)} packings with G < 0, "
+        f"{failed} failed")  # fmt: skip
     say(f"wrote {out}/ in {time.perf_counter() - t0:.1f} s")
     return rows, shear
 
