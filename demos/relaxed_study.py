@@ -85,23 +85,27 @@ def packing_at(n, seed, pressure, folder):
     return packing
 
 
-def ramp(point, values, load, max_increment, start=0.0):
+def ramp(point, values, load, max_increment, start=0.0, partial=False):
     """Step ``point`` through the load parameters ``values`` (``load(v, F)`` gives the F guess
     and the stress targets), committing each; a step that fails (the network rearranges and
-    the driver's Newton cycles) is halved, down to 1/64. Returns the committed results."""
+    the driver's Newton cycles) is halved, down to 1/64. Returns the committed results; with
+    ``partial``, ``(results, error)``: those up to a step that failed even so, and its error
+    (None if none failed)."""
     targets, done, cuts, results = list(values), start, 0, []
     while targets:
         F, stress = load(targets[0], point.F.copy())
         try:
             results.append(point.step(F, stress, max_increment=max_increment))
-        except (ControlError, LawEvaluationError):
+        except (ControlError, LawEvaluationError) as err:
+            if cuts == 6 and partial:
+                return results, err
             if cuts == 6:
                 raise
             targets.insert(0, 0.5 * (done + targets[0]))
             cuts += 1
             continue
         done, cuts = targets.pop(0), 0
-    return results
+    return (results, None) if partial else results
 
 
 def compress(point, pressure):
@@ -175,18 +179,25 @@ def moduli_row(packing, seed, pressure):
 
 # %%
 def shear_rows(packing, steps):
-    """Confined simple shear to MAX_SHEAR in ``steps`` for both laws: one dict per step."""
-    rows = []
+    """Confined simple shear to MAX_SHEAR in ``steps`` for both laws: one dict per step (a path
+    ends where its law failed, which is printed)."""
+    rows, p = [], SHEAR_PRESSURE * K_N
+
+    def squeeze(level, F):
+        return F, {(0, 0): -level, (1, 1): -level}
+
+    def load(gamma, F):
+        F[0, 1] = gamma
+        return F, {(0, 0): -p, (1, 1): -p}
+
     for name, law in (("relaxed", RelaxedRVE(packing, K_N)), ("taylor", TaylorRVE(packing, K_N))):
-        point = MaterialPoint(law)
-        p = SHEAR_PRESSURE * K_N
-        compress(point, SHEAR_PRESSURE)
-
-        def load(gamma, F, p=p):
-            F[0, 1] = gamma
-            return F, {(0, 0): -p, (1, 1): -p}
-
-        for r in ramp(point, np.linspace(0.0, MAX_SHEAR, steps + 1)[1:], load, 10 * SHEAR_PRESSURE):
+        point, cap = MaterialPoint(law), 10 * SHEAR_PRESSURE
+        _, error = ramp(point, np.geomspace(0.01, 1.0, RAMP) * p, squeeze, cap, partial=True)
+        gammas = np.linspace(0.0, MAX_SHEAR, steps + 1)[1:]
+        path, error = ([], error) if error else ramp(point, gammas, load, cap, partial=True)
+        if error is not None:
+            print(f"confined shear, {name}: stopped: {error}"[:240])
+        for r in path:
             s = r.sigma
             pm, q = -(s[0, 0] + s[1, 1]) / 2, np.hypot((s[0, 0] - s[1, 1]) / 2, s[0, 1])
             moved = bool(r.state.rearranged[0]) if name == "relaxed" else False
