@@ -19,6 +19,7 @@ from . import relaxation
 from .contacts import ContactCandidates
 from .relaxed_cell import Cell, RelaxationError
 from .tools import as_batch, output_buffers, push_forward, to_float
+from .tools import normal_stiffness as normal_stiffness_of
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping
@@ -133,19 +134,14 @@ class RelaxedRVE:
         min_stretch: float = 0.5,
         force_tol: float = 1e-10,
     ) -> None:
-        if not isinstance(packing, Packing):
-            raise TypeError(
-                f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}"
-            )
-        k = to_float(normal_stiffness, "normal_stiffness")
-        if not (np.isfinite(k) and k > 0.0):
-            raise ValueError(
-                f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}"
-            )
+        k = normal_stiffness_of(normal_stiffness)
+        # (from_packing refuses what is no Packing and a min_stretch outside (0, 1])
+        self.candidates = ContactCandidates.from_packing(
+            packing, to_float(min_stretch, "min_stretch")
+        )
         self.packing = packing
         self.normal_stiffness = k
-        self.min_stretch = to_float(min_stretch, "min_stretch")
-        self.candidates = ContactCandidates.from_packing(packing, self.min_stretch)
+        self.min_stretch = self.candidates.min_stretch
         self.settings = relaxation.Settings(force_tol=to_float(force_tol, "force_tol"))
         self.cell = Cell.of(self.candidates, packing, k / packing.area)
 

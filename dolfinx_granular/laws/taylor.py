@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..packings.packing import Packing
-from . import taylor_kernel, validity
+from . import taylor_kernel, tools, validity
 from .contacts import ContactCandidates
 from .tools import UnsupportedDeformationError, as_batch, to_float, unsupported_deformation
 
@@ -117,11 +117,7 @@ class TaylorRVE:
             raise TypeError(
                 f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}"
             )
-        k = to_float(normal_stiffness, "normal_stiffness")
-        if not (np.isfinite(k) and k > 0.0):
-            raise ValueError(
-                f"normal_stiffness must be a finite number > 0 (N/m²), got {normal_stiffness!r}"
-            )
+        k = tools.normal_stiffness(normal_stiffness)
         s = to_float(min_stretch, "min_stretch")
         if not (0.0 < s <= 1.0):
             raise ValueError(f"min_stretch must lie in (0, 1], got {min_stretch!r}")

@@ -68,6 +68,14 @@ def to_float(value: object, name: str) -> float:
         raise ValueError(f"{name} must be a number, got {value!r}") from None
 
 
+def normal_stiffness(value: object) -> float:
+    """A contact law's k_n as a finite float > 0 (N/m²); a ValueError that names it otherwise."""
+    k = to_float(value, "normal_stiffness")
+    if not (np.isfinite(k) and k > 0.0):
+        raise ValueError(f"normal_stiffness must be a finite number > 0 (N/m²), got {value!r}")
+    return k
+
+
 def as_batch(F: ArrayLike, dim: int = 2) -> tuple[np.ndarray, bool]:
     """``(F (n, d, d) C-contiguous float64, single)``; one F (d, d) becomes a batch of 1 and
     ``single`` is True."""
