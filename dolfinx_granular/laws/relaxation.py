@@ -321,10 +321,8 @@ def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibr
     s = ContactState(cell, F, w)
     if not s.on.any():
         raise RigidityLostError("no two disks touch (the cell has come apart)")
-    _, f = s.forces(cell, F, s.on)
-    residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
     w = np.array(w, dtype=np.float64)
-    return _equilibrium(cell, F, w, s, tangent, residual, 0, 0, 0, 0)
+    return _equilibrium(cell, F, w, s, tangent, _residual(cell, F, s), 0, 0, 0, 0)
 
 
 def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:

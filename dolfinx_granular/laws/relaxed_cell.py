@@ -16,6 +16,7 @@ import numpy as np
 from ..packings import neighbours
 from . import relaxed_kernel as rk
 from .protocol import LawEvaluationError
+from .tools import singular_values_2x2
 
 #: contacts a disk needs to be no rattler (d + 1 in d = 2 dimensions)
 MIN_CONTACTS = 3
@@ -47,6 +48,9 @@ class Cell:
     centers: np.ndarray
     radii: np.ndarray
     shift: np.ndarray
+    #: length of the list built from the reference packing, sorted by |L| / R (pairs appended
+    #: by :meth:`extend` follow it)
+    n_sorted: int
 
     @classmethod
     def of(cls, candidates, packing, stiffness_per_area):
@@ -67,6 +71,7 @@ class Cell:
             packing.centers,
             packing.radii,
             candidates.shift,
+            len(candidates),
         )
 
     def visited(self, F, w):
@@ -76,11 +81,11 @@ class Cell:
         changes no branch vector). Where that reaches past the sorted list (a rattler that
         crossed its cage, a rearrangement), :meth:`extend` adds the pairs now within reach and
         the whole list is visited."""
-        s_min = np.linalg.svd(F, compute_uv=False)[-1]
+        s_min = float(singular_values_2x2(F[None])[1][0])
         v = w - w.mean(axis=0)
         reach = 1.0 / s_min + 2.0 * np.sqrt((v * v).sum(axis=1).max()) / self.R.min()
         if reach <= 1.0 / self.min_stretch:
-            return int(np.searchsorted(self.ratio[: self.sorted], reach, side="right"))
+            return int(np.searchsorted(self.ratio[: self.n_sorted], reach, side="right"))
         ref = self.__dict__.get("_verlet")
         if ref is not None and s_min >= ref[1]:
             moved = w - ref[0]
@@ -91,12 +96,6 @@ class Cell:
         self.extend(w, s_min, skin)
         self._verlet = (w.copy(), s_min, skin)
         return self.pi.shape[0]
-
-    @property
-    def sorted(self) -> int:
-        """Length of the list built from the reference packing, sorted by |L| / R (pairs
-        appended by :meth:`extend` follow it)."""
-        return self.__dict__.setdefault("_sorted", self.pi.shape[0])
 
     def extend(self, w, s_min, skin):
         """Append every pair whose relaxed reference distance is below (r_i + r_j) / s_min(F)
@@ -118,7 +117,6 @@ class Cell:
         fresh = np.flatnonzero(known[pos] != keys)
         if fresh.size == 0:
             return
-        _ = self.sorted
         a, b, sh = i[fresh], j[fresh], shift[fresh]
         L = self.centers[b] + sh * self.box - self.centers[a]
         R = self.radii[a] + self.radii[b]
