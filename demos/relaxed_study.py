@@ -210,6 +210,14 @@ def shear_rows(packing, steps):
 
 
 # %%
+def sqrt_line(ax, p, y, label):
+    """A dashed c p^(1/2) over the range of p, c fitted (log mean) to the points with y > 0."""
+    if np.any(y > 0):
+        c = np.exp(np.mean(np.log(y[y > 0]) - 0.5 * np.log(p[y > 0])))
+        ref = np.geomspace(p.min(), p.max(), 10)
+        ax.loglog(ref, c * np.sqrt(ref), "k--", lw=0.8, label=label)
+
+
 def moduli_figure(rows):
     fig = Figure(figsize=(6.4, 4.4))
     ax = fig.subplots()
@@ -223,11 +231,8 @@ def moduli_figure(rows):
     ):
         v = np.array([r[key] for r in rows]) / K_N
         ax.loglog(p[v > 0], v[v > 0], style, label=label, alpha=0.8)
-    ref = np.geomspace(p.min(), p.max(), 10)
     G = np.array([r["G_relaxed"] for r in rows]) / K_N
-    if np.any(G > 0):
-        c = np.exp(np.mean(np.log(G[G > 0]) - 0.5 * np.log(p[G > 0])))
-        ax.loglog(ref, c * np.sqrt(ref), "k--", lw=0.8, label="p^(1/2) (O'Hern et al. 2003)")
+    sqrt_line(ax, p, G, "p^(1/2) (O'Hern et al. 2003)")
     ax.set_xlabel("p / k_n")
     ax.set_ylabel("modulus / k_n")
     ax.legend(fontsize=8)
@@ -241,10 +246,7 @@ def coordination_figure(rows):
     p = np.array([r["p_over_kn"] for r in rows])
     dz = np.array([r["z"] for r in rows]) - 4.0
     ax.loglog(p[dz > 0], dz[dz > 0], "o", label="relaxed, non-rattlers")
-    ref = np.geomspace(p.min(), p.max(), 10)
-    if np.any(dz > 0):
-        c = np.exp(np.mean(np.log(dz[dz > 0]) - 0.5 * np.log(p[dz > 0])))
-        ax.loglog(ref, c * np.sqrt(ref), "k--", lw=0.8, label="p^(1/2)")
+    sqrt_line(ax, p, dz, "p^(1/2)")
     ax.set_xlabel("p / k_n")
     ax.set_ylabel("z - 4")
     ax.legend(fontsize=8)
