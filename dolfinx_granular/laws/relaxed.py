@@ -85,7 +85,8 @@ class RelaxedState:
 
 
 def _fingerprint(contacts: np.ndarray) -> np.uint64:
-    """An order-free hash of a set of candidate indices (splitmix64 summed mod 2^64)."""
+    """An order-free hash of a set of pair keys (:meth:`Cell.pair_keys`; splitmix64 summed mod
+    2^64)."""
     z = contacts.astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15)
     with np.errstate(over="ignore"):
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
