@@ -58,6 +58,7 @@ from dolfinx_granular import (
     TaylorRVE,
     generate_packing,
 )
+from dolfinx_granular.drivers.confinement import RAMP, compress, ramp
 from dolfinx_granular.io.shear_figures import save_figure
 from dolfinx_granular.laws import relaxation
 
@@ -67,11 +68,14 @@ from matplotlib.figure import Figure
 K_N = 2.8e7  # N/m², table 1 of the paper
 FULL = dict(particles=700, seeds=(0, 1, 2), pressures=(1e-5, 1e-4, 1e-3, 1e-2), shear_steps=40)
 SMALL = dict(particles=70, seeds=(0,), pressures=(1e-3, 3e-3), shear_steps=4)
-SHEAR_PRESSURE, MAX_SHEAR, RAMP = 1e-3, 0.02, 6
+SHEAR_PRESSURE, MAX_SHEAR = 1e-3, 0.02
 
 
 # %% [markdown]
 # ## Packings jammed at each pressure, compressed to it
+#
+# ``compress`` and ``ramp`` (:mod:`dolfinx_granular.drivers.confinement`) step the material
+# point in geometric pressure steps, halving a step where the network rearranges.
 
 
 # %%
@@ -83,42 +87,6 @@ def packing_at(n, seed, pressure, folder):
     packing = generate_packing(n, seed=seed, pressure=pressure)
     packing.save(path)
     return packing
-
-
-def ramp(point, values, load, max_increment, start=0.0, partial=False):
-    """Step ``point`` through the load parameters ``values`` (``load(v, F)`` gives the F guess
-    and the stress targets), committing each; a step that fails (the network rearranges and
-    the driver's Newton cycles) is halved, down to 1/64. Returns the committed results; with
-    ``partial``, ``(results, error)``: those up to a step that failed even so, and its error
-    (None if none failed)."""
-    targets, done, cuts, results = list(values), start, 0, []
-    while targets:
-        F, stress = load(targets[0], point.F.copy())
-        try:
-            results.append(point.step(F, stress, max_increment=max_increment))
-        except (ControlError, LawEvaluationError) as err:
-            if cuts == 6 and partial:
-                return results, err
-            if cuts == 6:
-                raise
-            targets.insert(0, 0.5 * (done + targets[0]))
-            cuts += 1
-            continue
-        done, cuts = targets.pop(0), 0
-    return (results, None) if partial else results
-
-
-def compress(point, pressure):
-    """Ramp sigma_11 = sigma_22 = -pressure * k_n in RAMP geometric steps from 1 % of it (the
-    unknowns F11 and F22; F12 = F21 = 0). The driver's steps are capped at ten times the
-    strain the pressure asks for: near jamming the relaxed tangent is nearly singular in
-    shear. Returns the last result."""
-
-    def load(p, F):
-        return F, {(0, 0): -p, (1, 1): -p}
-
-    levels = np.geomspace(0.01, 1.0, RAMP) * pressure * K_N
-    return ramp(point, levels, load, 10 * pressure)[-1]
 
 
 def moduli(F, P, A):
@@ -144,7 +112,8 @@ def moduli_row(packing, seed, pressure):
     point = MaterialPoint(relaxed)
     t = time.perf_counter()
     try:
-        r = compress(point, pressure)
+        # (the driver's strain steps capped at ten times the strain the pressure asks for)
+        r = compress(point, pressure * K_N, max_increment=10 * pressure)
     except (ControlError, LawEvaluationError) as err:  # e.g. a cell that unjams: report it
         keys = ("p_over_kn", "B_relaxed", "G_relaxed", "B_taylor", "G_taylor", "G_ratio", "z",
                 "rattlers", "fluctuation")  # fmt: skip

@@ -268,3 +268,24 @@ def run_demo(name, *args, ranks=1, env=None, timeout=900):
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc
+
+
+def net_forces(packing, x, F):
+    """Net contact force (N, 2) on every disk at current centres x (N, 2) in the cell spanned by
+    F box, and the mean overlap of the contacts (the mean contact force), by brute force over
+    all pairs and images (linear springs, k_n = 1)."""
+    a = F @ np.diag(packing.box)  # columns: the current lattice vectors
+    r = packing.radii
+    f, overlaps = np.zeros_like(x), []
+    for sx in (-1, 0, 1):
+        for sy in (-1, 0, 1):
+            d = x[None, :, :] + (a @ [sx, sy])[None, None, :] - x[:, None, :]  # (i, j, 2)
+            dist = np.linalg.norm(d, axis=2)
+            eps = r[:, None] + r[None, :] - dist
+            if sx == 0 and sy == 0:
+                np.fill_diagonal(eps, -1.0)
+            on = eps > 0.0
+            n = np.where(on[..., None], d / np.where(dist > 0, dist, 1.0)[..., None], 0.0)
+            f -= np.einsum("ij,ijk->ik", np.where(on, eps, 0.0), n)  # pushed away from j
+            overlaps.append(eps[on])
+    return f, np.concatenate(overlaps).mean()

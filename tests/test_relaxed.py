@@ -20,7 +20,7 @@ from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
 import numpy as np
 import pytest
 
-from helpers import hex_lattice
+from helpers import hex_lattice, net_forces
 
 K_N = 1e8
 #: an isotropic compression and a sheared one (p / k_n ~ 1e-3 on the 70-disk packing)
@@ -41,27 +41,6 @@ def rve(packing):
 def relaxed(rve):
     """(W, P, A, state) at F_TEST from the initial state."""
     return rve.evaluate(F_TEST, rve.initial_state(len(F_TEST)))
-
-
-def net_forces(packing, x, F):
-    """Net contact force (N, 2) on every disk at current centres x (N, 2) in the cell spanned by
-    F box, and the mean overlap of the contacts (the mean contact force), by brute force over
-    all pairs and images (linear springs, k_n = 1)."""
-    a = F @ np.diag(packing.box)  # columns: the current lattice vectors
-    r = packing.radii
-    f, overlaps = np.zeros_like(x), []
-    for sx in (-1, 0, 1):
-        for sy in (-1, 0, 1):
-            d = x[None, :, :] + (a @ [sx, sy])[None, None, :] - x[:, None, :]  # (i, j, 2)
-            dist = np.linalg.norm(d, axis=2)
-            eps = r[:, None] + r[None, :] - dist
-            if sx == 0 and sy == 0:
-                np.fill_diagonal(eps, -1.0)
-            on = eps > 0.0
-            n = np.where(on[..., None], d / np.where(dist > 0, dist, 1.0)[..., None], 0.0)
-            f -= np.einsum("ij,ijk->ik", np.where(on, eps, 0.0), n)  # pushed away from j
-            overlaps.append(eps[on])
-    return f, np.concatenate(overlaps).mean()
 
 
 def test_it_is_a_history_law_with_a_history_state(rve):

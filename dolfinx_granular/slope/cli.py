@@ -27,6 +27,7 @@ from ..io.runwriter import RestartError
 from ..packings.packing import Packing, PackingFileError
 from .geometry import SlopeGeometry
 from .interrupt import RunInterrupted, StopRequest, exit_status
+from .options import K_N, RVES
 from .run import SlopeOptions, clear_run, is_complete, load_restart, run_files, run_slope
 
 if TYPE_CHECKING:
@@ -108,6 +109,12 @@ def _add_packing_and_output(p: argparse.ArgumentParser) -> None:
         "--steps", type=_int_at_least(1), default=20, help="footing load steps (default 20)"
     )
     p.add_argument(
+        "--gravity-steps",
+        type=_int_at_least(1),
+        default=1,
+        help="steps of the gravity phase (default 1: the whole weight at once)",
+    )
+    p.add_argument(
         "--out",
         default="results/slope",
         help="output folder (default results/slope); one that holds a run is refused "
@@ -156,6 +163,21 @@ def _add_model(p: argparse.ArgumentParser) -> None:
         metavar="KT",
         help="tangential contact stiffness k_t in N/m² (default: the normal one, "
         "2.8e7, where --friction > 0; no effect with --friction 0)",
+    )
+    p.add_argument(
+        "--rve",
+        choices=RVES,
+        default="taylor",
+        help="the RVE: taylor (every disk follows F, the paper's model; default) or relaxed "
+        "(the disks in static equilibrium, frictionless; needs --confinement)",
+    )
+    p.add_argument(
+        "--confinement",
+        type=_finite(0.0),
+        default=0.0,
+        metavar="P",
+        help="confining pressure in Pa (default 0: none): the packing is generated jammed at "
+        "it, compressed to it and relaxed, and the boundaries hold it",
     )
     p.add_argument(
         "--allow-overlaps",
@@ -239,6 +261,7 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
     try:
         return SlopeOptions(
             steps=a.steps,
+            gravity_steps=a.gravity_steps,
             load_factor=a.load_factor,
             stabilise=a.stabilise,
             petsc_options={"snes_linesearch_type": a.line_search},
@@ -249,26 +272,33 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
             max_increments=a.max_increments,
             geometry=geometry,
             allow_overlaps=a.allow_overlaps,
+            rve=a.rve,
+            confinement=a.confinement,
         )
     except ValueError as err:
         raise UserError(str(err)) from None
 
 
 def make_packing(
-    particles: int, seed: int | None, packing_file: str | PathLike[str] | None = None
+    particles: int,
+    seed: int | None,
+    packing_file: str | PathLike[str] | None = None,
+    pressure: float | None = None,
 ) -> Packing:
     """The RVE's packing: from ``packing_file`` if given; the shipped reference packing for the
     default 700 particles of seed 0 (the same on every stack, where generation differs in the
-    last bits); else ``generate_packing``."""
+    last bits); else ``generate_packing``, jammed at ``pressure`` (p / k_n) if given."""
     if packing_file:
         return Packing.load(packing_file)
     from ..packings import reference_packing as shipped
 
-    if (particles, seed) == (shipped.PARTICLES, shipped.SEED):
+    if (particles, seed) == (shipped.PARTICLES, shipped.SEED) and pressure is None:
         return shipped.reference_packing()
     from ..packings.generation import generate_packing
 
-    return generate_packing(particles, seed=seed)
+    if pressure is None:
+        return generate_packing(particles, seed=seed)
+    return generate_packing(particles, seed=seed, pressure=pressure)
 
 
 def _check_out(out):
@@ -309,7 +339,9 @@ def _prepare(a):
         return restart
     _claim_out(a.out, a.force)
     try:
-        return make_packing(a.particles, a.seed, a.packing)
+        # a confined packing keeps the contact network it jammed with: jam it at its pressure
+        pressure = a.confinement / K_N if a.confinement > 0.0 else None
+        return make_packing(a.particles, a.seed, a.packing, pressure)
     except PackingFileError as err:
         raise UserError(
             f"--packing: {err}; give a .npz written by 'python -m dolfinx_granular "

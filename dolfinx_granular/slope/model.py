@@ -21,8 +21,9 @@ from ..fem import compat as dfx
 from ..fem.material import GranularMaterial
 from ..gathers import global_extremum, nearest_point
 from ..io.postprocess import min_acoustic_eigenvalue, von_mises
+from ..laws.protocol import has_history
 from ..laws.validity import OVERLAP_THRESHOLD, OverlapSummary, validity_summary
-from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SlopeGeometry, create_mesh
+from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SURFACE, SlopeGeometry, create_mesh
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -54,6 +55,14 @@ def newton_solver(
     return NewtonSolver(residual, jacobian, u, bcs, material, **options)
 
 
+def reference_stress(law: MaterialLaw | HistoryLaw) -> np.ndarray:
+    """P(I) (2, 2) of ``law`` (Pa): at its initial state for a law with history."""
+    eye = np.eye(2)[None]
+    if has_history(law):
+        return np.asarray(law.stress(eye, law.initial_state(1))[1][0])
+    return np.asarray(law.stress(eye)[1][0])
+
+
 class SlopeModel:
     """The slope of :class:`~dolfinx_granular.slope.geometry.SlopeGeometry` under its own weight
     and an eccentric strip footing, plane strain, dead loads on the reference configuration.
@@ -66,6 +75,8 @@ class SlopeModel:
         material_factory: ``material_factory(law, u)`` -> a quadrature material.
         solver_factory: ``solver_factory(residual, jacobian, u, bcs, material)`` -> a solver
             with ``solve()``, ``materials``, ``u``, ``timings`` and ``destroy()``.
+        confined: the law's reference stress P(I) (a confined packing) is held by the traction
+            P(I) n on every boundary but the fixed base, so that u = 0 is in equilibrium.
 
     Attributes:
         mesh, facets, V, u, material, solver, bcs: the model's DOLFINx objects.
@@ -81,6 +92,7 @@ class SlopeModel:
         load_factor: float = 1.0,
         material_factory: Callable[[Any, fem.Function], QuadratureMaterial] = granular_material,
         solver_factory: Callable[..., NewtonSolver] = newton_solver,
+        confined: bool = False,
     ) -> None:
         self.comm, self.law = comm, law
         self.geometry = g = geometry or SlopeGeometry()
@@ -99,6 +111,10 @@ class SlopeModel:
             self.gravity * (-g.density * g.gravity) * v[1] * ufl.dx
             + self.footing * self.footing_pattern
         )
+        if confined:
+            P0 = fem.Constant(self.mesh, PETSc.ScalarType(reference_stress(law)))
+            traction = ufl.dot(P0, ufl.FacetNormal(self.mesh))
+            self.f_ext += ufl.dot(traction, v) * ds((SURFACE, FOOTING, LEFT, RIGHT))
         residual = self.material.residual_form(v) - self.f_ext
         self.bcs = self._supports()
         self.solver = solver_factory(

@@ -4,19 +4,24 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import TYPE_CHECKING, Any
 
-from ..laws.taylor import TaylorRVE
+from ..laws.taylor import PrestressWarning, TaylorRVE
 from .geometry import SlopeGeometry
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from ..laws.friction import FrictionalRVE
+    from ..laws.relaxed import RelaxedRVE
     from ..packings.packing import Packing
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 PHASES = ("gravity", "footing")
+RVES = ("taylor", "relaxed")
+#: largest confinement / k_n: beyond it the overlaps pass 10 % of a radius
+MAX_CONFINEMENT = 1e-2
 
 
 @dataclasses.dataclass
@@ -24,7 +29,8 @@ class SlopeOptions:
     """What defines a slope run (stored in its restart file).
 
     Attributes:
-        steps: nominal footing load steps after the gravity step.
+        steps: nominal footing load steps after the gravity phase.
+        gravity_steps: nominal steps of the gravity phase (1: the whole weight at once).
         load_factor: multiplies the footing load (2: doubled, -0.25: uplift).
         stabilise: stiffness where an RVE has no loaded contact, relative to its small-strain
             modulus (0: off).
@@ -40,9 +46,17 @@ class SlopeOptions:
             carried, or after ``max_increments``; ``steps`` sets the first increment.
         allow_overlaps: accept a packing whose disks overlap far (``allow_overlaps`` of
             :class:`~dolfinx_granular.TaylorRVE`), prestressed as it is.
+        rve: ``"taylor"`` (every disk follows F, the paper's model) or ``"relaxed"``
+            (:class:`~dolfinx_granular.RelaxedRVE`: the disks in static equilibrium;
+            frictionless, and only with a ``confinement``).
+        confinement: confining pressure in Pa (0: none). The packing is compressed to it and
+            relaxed (:func:`~dolfinx_granular.drivers.confinement.confined_packing`), and the
+            slope's boundaries other than the fixed base carry the traction P(I) n that holds
+            this reference stress: the gravity and footing loads come on top of it.
     """
 
     steps: int = 20
+    gravity_steps: int = 1
     load_factor: float = 1.0
     stabilise: float = 0.0
     max_cutbacks: int = 6
@@ -56,12 +70,34 @@ class SlopeOptions:
     max_increments: int = 100
     unload_fraction: float = 0.9
     allow_overlaps: bool = False
+    rve: str = "taylor"
+    confinement: float = 0.0
 
     def __post_init__(self):
+        self._check_rve()
         if self.path_following and self.unload:
             raise ValueError(
                 "path following ends past the limit load, where unloading has no "
                 "meaning: choose --path-following or --unload"
+            )
+
+    def _check_rve(self):
+        if self.rve not in RVES:
+            raise ValueError(f"rve must be one of {RVES}, got {self.rve!r}")
+        if not 0.0 <= self.confinement <= MAX_CONFINEMENT * self.normal_stiffness:
+            raise ValueError(
+                f"confinement is a pressure in [0, {MAX_CONFINEMENT:g} k_n] = [0, "
+                f"{MAX_CONFINEMENT * self.normal_stiffness:g}] Pa, got {self.confinement!r}"
+            )
+        if self.rve == "relaxed" and self.friction > 0.0:
+            raise ValueError(
+                "the relaxed RVE is frictionless: drop --friction, or use --rve taylor"
+            )
+        if self.rve == "relaxed" and self.confinement == 0.0:
+            raise ValueError(
+                "the relaxed RVE needs a confining pressure: a stress-free frictionless packing "
+                "has no shear stiffness once its disks relax (its RVEs unjam in the first "
+                "iterate of the gravity step): give --confinement P in Pa, e.g. 1e5"
             )
 
     def as_dict(self) -> dict:
@@ -72,8 +108,26 @@ class SlopeOptions:
         """The load phases: gravity, footing and (``unload``) unloading."""
         return PHASES + (("unloading",) if self.unload else ())
 
-    def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
-        """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0."""
+    def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE | RelaxedRVE:
+        """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0,
+        or the relaxed RVE; of the packing confined to ``confinement`` if > 0."""
+        if self.confinement > 0.0:
+            from ..drivers.confinement import confined_packing
+
+            packing = confined_packing(
+                packing, self.normal_stiffness, self.confinement / self.normal_stiffness
+            )
+        if self.rve == "relaxed":
+            from ..laws.relaxed import RelaxedRVE
+
+            return RelaxedRVE(packing, self.normal_stiffness)
+        with warnings.catch_warnings():
+            if self.confinement > 0.0:  # (the prestress is the confinement asked for)
+                warnings.simplefilter("ignore", PrestressWarning)
+            return self._taylor_law(packing)
+
+    def _taylor_law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
+        overlaps = self.allow_overlaps or self.confinement > 0.0
         if self.friction > 0.0:
             from ..laws.friction import FrictionalRVE
 
@@ -87,9 +141,9 @@ class SlopeOptions:
                 normal_stiffness=self.normal_stiffness,
                 tangential_stiffness=kt,
                 friction=self.friction,
-                allow_overlaps=self.allow_overlaps,
+                allow_overlaps=overlaps,
             )
-        return TaylorRVE(packing, self.normal_stiffness, allow_overlaps=self.allow_overlaps)
+        return TaylorRVE(packing, self.normal_stiffness, allow_overlaps=overlaps)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> SlopeOptions:

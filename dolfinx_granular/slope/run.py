@@ -193,7 +193,13 @@ class SlopeRun:
         )
         self.law = law_factory(packing, o.normal_stiffness) if law_factory else o.law(packing)
         self.model = SlopeModel(
-            comm, self.law, o.geometry, o.load_factor, material_factory, solver_factory
+            comm,
+            self.law,
+            o.geometry,
+            o.load_factor,
+            material_factory,
+            solver_factory,
+            confined=o.confinement > 0.0,
         )
         self.writer = RunWriter(out, comm)
         if restart is not None and comm.rank == 0:
@@ -228,10 +234,11 @@ class SlopeRun:
 
     @property
     def n_nominal(self) -> int:
-        """Nominal load steps: gravity, the footing steps and as many to unload."""
-        if self.options.path_following:
-            return 1 + self.options.max_increments
-        return 1 + self.options.steps * (len(self.options.phases) - 1)
+        """Nominal load steps: the gravity steps, the footing steps and as many to unload."""
+        o = self.options
+        if o.path_following:
+            return o.gravity_steps + o.max_increments
+        return o.gravity_steps + o.steps * (len(o.phases) - 1)
 
     # -- output ----------------------------------------------------------------------------------
 
@@ -498,7 +505,7 @@ class SlopeRun:
             return self.arclength, lambda inc: inc.lam / o.load_factor
         setter = (m.set_gravity, m.set_footing, lambda t: m.set_footing(1.0 - t))[i]
         setter(t0)  # the loads of the converged state the phase starts from
-        increment = 1.0 if i == 0 else 1.0 / o.steps
+        increment = 1.0 / (o.gravity_steps if i == 0 else o.steps)
         return self.stepper.phase(o.phases[i], setter, increment, t0, dt), lambda inc: inc.t
 
     def _failure(self, i, driver):

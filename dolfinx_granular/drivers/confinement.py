@@ -1,0 +1,108 @@
+"""A packing confined: compressed isotropically to a pressure by the relaxed RVE, its disks in
+static equilibrium there, as the prestressed reference packing of a boundary value problem.
+
+A frictionless packing at zero pressure has no shear stiffness once relaxed: the first shear
+strain opens half its contacts. A relaxed RVE therefore starts a boundary value problem from a
+confined state: :func:`confined_packing` compresses the packing to sigma_11 = sigma_22 = -p
+(the material-point driver on :class:`~dolfinx_granular.RelaxedRVE`, in geometric pressure
+steps) and returns the relaxed disks in the compressed cell, a new packing whose reference state
+F = I carries the stress P(I) ~ -p I (their overlaps) and is in equilibrium. The boundary value
+problem holds that stress with the traction P(I) n on its free boundaries (the confinement of
+:class:`~dolfinx_granular.slope.SlopeOptions`).
+
+:func:`ramp` and :func:`compress` are the stepping behind it, for studies of one point.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..laws.protocol import LawEvaluationError
+from ..laws.relaxed import RelaxedRVE
+from ..laws.tools import normal_stiffness as normal_stiffness_of
+from ..packings.packing import Packing
+from .material_point import ControlError, MaterialPoint, PointResult
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+#: pressure steps of :func:`compress`, geometric from 1 % of the pressure
+RAMP = 6
+#: halvings of one step of :func:`ramp` before it gives up
+MAX_HALVINGS = 6
+
+
+def ramp(
+    point: MaterialPoint,
+    values: Sequence[float],
+    load: Callable[[float, np.ndarray], tuple[np.ndarray, dict]],
+    max_increment: float,
+    start: float = 0.0,
+    partial: bool = False,
+) -> Any:
+    """Step ``point`` through the load parameters ``values``, committing each.
+
+    ``load(v, F)`` gives the F guess (from the committed F) and the stress targets of parameter
+    v. A step that fails (the contact network rearranges and the driver's Newton cycles, or the
+    law raises) is halved, :data:`MAX_HALVINGS` times at most. Returns the committed
+    :class:`~dolfinx_granular.drivers.material_point.PointResult` list; with ``partial``,
+    ``(results, error)``: those up to a step that failed even so, and its error (None if none).
+    """
+    targets, done, cuts, results = list(values), start, 0, []
+    while targets:
+        F, stress = load(targets[0], point.F.copy())
+        try:
+            results.append(point.step(F, stress, max_increment=max_increment))
+        except (ControlError, LawEvaluationError) as err:
+            if cuts == MAX_HALVINGS:
+                if partial:
+                    return results, err
+                raise
+            targets.insert(0, 0.5 * (done + targets[0]))
+            cuts += 1
+            continue
+        done, cuts = targets.pop(0), 0
+    return (results, None) if partial else results
+
+
+def compress(point: MaterialPoint, pressure: float, max_increment: float) -> PointResult:
+    """Ramp sigma_11 = sigma_22 = -``pressure`` (Pa) in :data:`RAMP` geometric steps from 1 %
+    of it; the unknowns are F11 and F22 (F12 = F21 = 0). ``max_increment`` caps the driver's
+    strain steps: near jamming the relaxed tangent is nearly singular in shear. Returns the
+    last result (committed)."""
+
+    def load(p, F):
+        return F, {(0, 0): -p, (1, 1): -p}
+
+    levels = np.geomspace(0.01, 1.0, RAMP) * pressure
+    return ramp(point, levels, load, max_increment)[-1]
+
+
+def confined_packing(packing: Packing, normal_stiffness: float, pressure: float) -> Packing:
+    """``packing`` compressed isotropically to ``pressure`` (p / k_n, dimensionless) and relaxed.
+
+    Returns:
+        A :class:`~dolfinx_granular.Packing` of the same disks in the compressed cell (its box
+        F0 box, F0 = diag(F11, F22)), at the relaxed positions: in static equilibrium at F = I,
+        with the Cauchy stress sigma_11 = sigma_22 = -p k_n (sigma_12 is what the relaxation
+        leaves, a small fraction of p). Overlapping disks: give it to ``TaylorRVE`` with
+        ``allow_overlaps=True``.
+
+    Raises:
+        ValueError: a pressure outside (0, 1e-2] (at larger p / k_n the overlaps pass 10 % of a
+            radius: beyond the contact law's range).
+        LawEvaluationError, ControlError: the packing cannot be compressed to it (e.g. it
+            unjams at a pressure far below the one it was generated at); generate the packing
+            at this pressure (``generate_packing(n, pressure=p)``).
+    """
+    kn = normal_stiffness_of(normal_stiffness)
+    p = float(pressure)
+    if not 0.0 < p <= 1e-2:
+        raise ValueError(f"pressure is p / k_n in (0, 1e-2], got {pressure!r}")
+    rve = RelaxedRVE(packing, kn)
+    point = MaterialPoint(rve)
+    result = compress(point, p * kn, max_increment=10.0 * p)
+    F0 = result.F
+    return Packing(rve.positions(F0, result.state)[0], packing.radii, np.diag(F0) * packing.box)

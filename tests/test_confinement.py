@@ -1,0 +1,90 @@
+"""A packing confined by the relaxed RVE: in equilibrium at its pressure, the reference state of
+the relaxed and the Taylor law alike; and the slope options that use it."""
+
+import warnings
+
+from dolfinx_granular import RelaxedRVE, TaylorRVE, generate_packing
+from dolfinx_granular.drivers.confinement import confined_packing
+from dolfinx_granular.slope.options import SlopeOptions
+
+import numpy as np
+import pytest
+
+from helpers import net_forces
+
+K_N = 2.8e7
+PRESSURE = 1e-3
+
+
+@pytest.fixture(scope="module")
+def packings():
+    packing = generate_packing(70, seed=1, pressure=PRESSURE)
+    return packing, confined_packing(packing, K_N, PRESSURE)
+
+
+def test_the_confined_packing_is_in_equilibrium_at_its_pressure(packings):
+    packing, confined = packings
+    np.testing.assert_array_equal(confined.radii, packing.radii)
+    assert confined.area < packing.area  # (one side may lengthen: a small cell is anisotropic)
+    f, mean = net_forces(confined, confined.centers, np.eye(2))
+    assert np.linalg.norm(f, axis=1).max() <= 1e-9 * mean
+    rve = RelaxedRVE(confined, K_N)
+    sigma = rve.cauchy(np.eye(2), rve.initial_state(1))
+    np.testing.assert_allclose(np.diag(sigma), -PRESSURE * K_N, rtol=1e-9)
+    assert abs(sigma[0, 1]) <= 0.1 * PRESSURE * K_N
+
+
+def test_relaxing_the_confined_packing_moves_nothing(packings):
+    """A strain of 1e-12 from its reference state: the relaxation starts in equilibrium."""
+    _, confined = packings
+    rve = RelaxedRVE(confined, K_N)
+    F = np.eye(2) * (1.0 - 1e-12)
+    _, P, _, state = rve.evaluate(F, rve.initial_state(1))
+    _, P0 = rve.stress(np.eye(2), rve.initial_state(1))[:2]
+    np.testing.assert_allclose(P, P0, atol=1e-8 * PRESSURE * K_N)
+    assert state.fluctuation[0] < 1e-6
+
+
+def test_taylor_reads_the_same_reference_stress(packings):
+    _, confined = packings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        taylor = TaylorRVE(confined, K_N, allow_overlaps=True)
+    relaxed = RelaxedRVE(confined, K_N)
+    _, P_taylor = taylor.stress(np.eye(2))
+    _, P_relaxed, _ = relaxed.stress(np.eye(2), relaxed.initial_state(1))
+    np.testing.assert_allclose(P_taylor, P_relaxed, atol=1e-12 * PRESSURE * K_N)
+
+
+@pytest.mark.parametrize("pressure", [0.0, -1e-3, 0.02, float("nan")])
+def test_a_pressure_out_of_range_is_refused(packings, pressure):
+    with pytest.raises(ValueError, match="pressure"):
+        confined_packing(packings[0], K_N, pressure)
+
+
+@pytest.mark.parametrize(
+    "options, words",
+    [
+        (dict(rve="relaxed"), ("confining pressure", "--confinement")),
+        (dict(rve="relaxed", confinement=1e5, friction=0.5), ("frictionless", "--friction")),
+        (dict(confinement=1e6), ("confinement", "280000")),
+        (dict(rve="dem"), ("rve", "taylor")),
+    ],
+)
+def test_slope_options_refuse_what_has_no_meaning(options, words):
+    with pytest.raises(ValueError) as err:
+        SlopeOptions(**options)
+    assert all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_the_slope_law_is_built_on_the_confined_packing(packings):
+    packing, confined = packings
+    law = SlopeOptions(rve="relaxed", confinement=PRESSURE * K_N).law(packing)
+    assert isinstance(law, RelaxedRVE)
+    np.testing.assert_array_equal(law.packing.centers, confined.centers)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the intended prestress gives no PrestressWarning
+        taylor = SlopeOptions(confinement=PRESSURE * K_N).law(packing)
+    np.testing.assert_allclose(
+        taylor.stress(np.eye(2))[1], law.stress(np.eye(2), law.initial_state(1))[1], rtol=1e-12
+    )
