@@ -189,3 +189,36 @@ def test_the_benchmark_runs(capsys):
     benchmark.main(["--points", "3", "--particles", "70"])
     out = capsys.readouterr().out
     assert "ratio" in out and "ms/point" in out
+
+
+def test_contacts_are_those_of_the_relaxed_positions(rve, relaxed):
+    """The force network of a relaxed point: branch vectors between its relaxed centres, and
+    forces k_n * overlap that balance on every disk."""
+    _, _, _, state = relaxed
+    one = state.take([1])
+    c = rve.contacts(F_TEST[1], one)
+    x = rve.positions(F_TEST[1], one)[0]
+    lattice = F_TEST[1] @ np.diag(rve.packing.box)
+    i, j = c.pairs.T
+    np.testing.assert_allclose(c.branch, x[j] + c.shift @ lattice.T - x[i], atol=1e-12)
+    r = rve.packing.radii
+    np.testing.assert_allclose(c.overlap, r[i] + r[j] - np.linalg.norm(c.branch, axis=1))
+    f = np.zeros_like(x)
+    n = c.branch / np.linalg.norm(c.branch, axis=1)[:, None]
+    np.add.at(f, i, -c.force[:, None] * n)
+    np.add.at(f, j, c.force[:, None] * n)
+    assert np.abs(f).max() <= 1e-9 * c.force.mean()
+    with pytest.raises(ValueError, match="one-point state"):
+        rve.contacts(F_TEST[1], state)
+
+
+def test_the_force_network_is_drawn_at_the_relaxed_positions(rve, relaxed):
+    from dolfinx_granular.io.postprocess import force_network
+
+    one = relaxed[3].take([1])
+    quads, centers, _, sliding = force_network(rve, F_TEST[1], 1e-3, state=one)
+    x = rve.positions(F_TEST[1], one)[0] - F_TEST[1] @ (0.5 * rve.packing.box)
+    np.testing.assert_allclose(centers, x, atol=1e-12)
+    c = rve.contacts(F_TEST[1], one)
+    np.testing.assert_allclose(quads[:, [0, 3]].mean(axis=1), x[c.pairs[:, 0]], atol=1e-9)
+    assert not sliding.any() and len(quads) == len(c.force)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..gathers import global_extremum, nearest_point  # noqa: F401 (their home before)
+from ..laws.taylor import ContactSet
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -22,7 +23,7 @@ if TYPE_CHECKING:
 
     from ..laws.friction import FrictionalRVE, FrictionContactSet, FrictionState
     from ..laws.levels import AdaptiveRVE, SmallStrainRVE
-    from ..laws.taylor import ContactSet, TaylorRVE
+    from ..laws.taylor import TaylorRVE
 
 
 def von_mises(sigma: ArrayLike) -> np.ndarray:
@@ -121,6 +122,8 @@ def contact_network(
         c = rve.contacts(F)
         return c, c.force, np.zeros(len(c.force), dtype=bool)
     c = rve.contacts(F, state)
+    if isinstance(c, ContactSet):  # a frictionless law with history (the relaxed RVE)
+        return c, c.force, np.zeros(len(c.force), dtype=bool)
     return c, c.normal_force, np.asarray(c.sliding, dtype=bool)
 
 
@@ -147,7 +150,10 @@ def force_network(
     """
     c, force, sliding = contact_network(rve, F, state) if network is None else network
     pk = rve.packing
-    centers = pk.centers @ np.asarray(F).T
+    if state is not None and hasattr(rve, "positions"):  # disks off the affine positions
+        centers = rve.positions(F, state)[0]
+    else:
+        centers = pk.centers @ np.asarray(F).T
     centers = centers - (np.asarray(F) @ (0.5 * pk.box))
     start = centers[c.pairs[:, 0]]
     end = start + c.branch

@@ -17,7 +17,8 @@ import numpy as np
 from ..packings.packing import Packing
 from . import relaxation
 from .contacts import ContactCandidates
-from .relaxed_cell import Cell, RelaxationError
+from .relaxed_cell import Cell, ContactState, RelaxationError
+from .taylor import ContactSet
 from .tools import as_batch, output_buffers, push_forward, to_float
 from .tools import normal_stiffness as normal_stiffness_of
 
@@ -214,6 +215,26 @@ class RelaxedRVE:
         the non-rattlers."""
         N = self.packing.radii.shape[0]
         return relaxation.at_rest(self.cell, np.eye(2), np.zeros((N, 2)), True).A
+
+    def contacts(self, F: ArrayLike, state: RelaxedState) -> ContactSet:
+        """The contacts (rattlers' included) of one point of ``state``, relaxed at F (2, 2): its
+        committed F (for force networks and diagnostics)."""
+        F = np.asarray(F, dtype=np.float64)
+        if F.shape != (2, 2) or state.n_points != 1:
+            raise ValueError(
+                f"contacts() takes one F of shape (2, 2) and a one-point state, got F of shape "
+                f"{F.shape} and {state.n_points} points (state.take([i]) selects one)"
+            )
+        s = ContactState(self.cell, F, state.w[0])
+        on = np.flatnonzero(s.on)
+        c = self.cell
+        return ContactSet(
+            pairs=np.stack([c.pi[on], c.pj[on]], axis=1).astype(np.int64),
+            shift=np.asarray(c.shift)[on],
+            branch=np.stack([s.lx[on], s.ly[on]], axis=1),
+            overlap=s.e[on],
+            force=self.normal_stiffness * s.e[on],
+        )
 
     def positions(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
         """(n, N, 2) relaxed centres in the current cell F [0, box) of ``state``'s points."""

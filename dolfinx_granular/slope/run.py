@@ -550,8 +550,10 @@ def run_slope(
     o, m = run.options, run.model
     run.say(
         f"slope: {m.mesh.topology.index_map(2).size_global} cells, "
-        f"{comm.allreduce(m.material.n_points)} RVEs of {packing.n_particles} particles, "
-        f"{comm.size} rank(s), {run.n_nominal} load steps, footing load x{o.load_factor:g}"
+        f"{comm.allreduce(m.material.n_points)} {'' if o.rve == 'taylor' else o.rve + ' '}RVEs "
+        f"of {packing.n_particles} particles"
+        + (f" confined at {o.confinement:g} Pa" if o.confinement else "")
+        + f", {comm.size} rank(s), {run.n_nominal} load steps, footing load x{o.load_factor:g}"
         + (f", stabiliser {o.stabilise:g}" if o.stabilise else "")
     )
     if getattr(run.law, "prestress", None) is not None:

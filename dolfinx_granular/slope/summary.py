@@ -130,6 +130,10 @@ def summarise(
         "footing_settlement": m.settlement(),
         "footing_settlement_point": m.edge.tolist(),
         "friction": run.options.friction,
+        "rve": run.options.rve,
+        # Pa: the packing compressed and relaxed to it, held by the boundaries (0: none)
+        "confinement": run.options.confinement,
+        "gravity_steps": run.options.gravity_steps,
         "unload": run.options.unload,
         # J per metre of slope: the energy the contacts' sliding dissipated (0 without friction)
         "dissipated_energy": m.material.dissipated_energy(),
