@@ -302,7 +302,8 @@ def _inset(plotter, inset, network, scale, extent):
             qpts = np.c_[q.reshape(-1, 2), np.zeros(4 * len(q))]
             plotter.add_mesh(pv.PolyData(qpts, faces.ravel()), color=colour)
     # the validity measure (validity.py): overlap over the smaller radius of the two disks
-    overlap = rve.overlap_statistics(np.asarray(F)[None]).max_ratio[0]
+    smaller = np.minimum(radii[c.pairs[:, 0]], radii[c.pairs[:, 1]])
+    overlap = float((c.overlap / smaller).max()) if len(smaller) else 0.0
     slide = f", {int(sliding.sum())} sliding" if state is not None else ""
     plotter.add_text(
         f"{label}: {text}\n{len(force)} contacts{slide}, largest overlap "

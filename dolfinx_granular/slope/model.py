@@ -21,7 +21,6 @@ from ..fem import compat as dfx
 from ..fem.material import GranularMaterial
 from ..gathers import global_extremum, nearest_point
 from ..io.postprocess import min_acoustic_eigenvalue, von_mises
-from ..laws.protocol import has_history
 from ..laws.validity import OVERLAP_THRESHOLD, OverlapSummary, validity_summary
 from .geometry import BOTTOM, FOOTING, LEFT, RIGHT, SURFACE, SlopeGeometry, create_mesh
 
@@ -53,14 +52,6 @@ def newton_solver(
     ``options`` (petsc_options, verbose, skip_final_tangent, ...) go to NewtonSolver."""
     options = {"max_it": 15, "prefix": "slope_", **options}
     return NewtonSolver(residual, jacobian, u, bcs, material, **options)
-
-
-def reference_stress(law: MaterialLaw | HistoryLaw) -> np.ndarray:
-    """P(I) (2, 2) of ``law`` (Pa): at its initial state for a law with history."""
-    eye = np.eye(2)[None]
-    if has_history(law):
-        return np.asarray(law.stress(eye, law.initial_state(1))[1][0])
-    return np.asarray(law.stress(eye)[1][0])
 
 
 class SlopeModel:
@@ -112,7 +103,7 @@ class SlopeModel:
             + self.footing * self.footing_pattern
         )
         if confined:
-            P0 = fem.Constant(self.mesh, PETSc.ScalarType(reference_stress(law)))
+            P0 = fem.Constant(self.mesh, PETSc.ScalarType(self.material.reference_stress()))
             traction = ufl.dot(P0, ufl.FacetNormal(self.mesh))
             self.f_ext += ufl.dot(traction, v) * ds((SURFACE, FOOTING, LEFT, RIGHT))
         residual = self.material.residual_form(v) - self.f_ext
