@@ -46,6 +46,8 @@ from .relaxed_cell import Cell, ContactState, RelaxationError
 STALLED_AFTER, STALLED_ABOVE = 20, 1e-2
 #: FIRE counts the cell as unjammed once its energy falls below this part of the start's
 UNJAMMED = 1e-12
+#: FIRE steps between two updates of the candidate list
+FIRE_CHUNK = 200
 #: relative round-off of the energy: a smaller promised decrease is judged by the forces
 ROUND_OFF = 1e-12
 #: longest move of a disk in one step, relative to the smallest radius sum
@@ -327,33 +329,31 @@ def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibr
 
 def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
     """FIRE on the current positions x = F (X + w) (unit masses, the contact forces) until
-    the largest net force is ``settings.fire_tol`` of the mean contact force: ``(w, steps)``."""
+    the largest net force is ``settings.fire_tol`` of the mean contact force: ``(w, steps)``.
+
+    The steps run in Numba (:func:`relaxed_kernel.fire_chunk`) in chunks of
+    :data:`FIRE_CHUNK`; between chunks the candidate list is brought up to the disks' new
+    positions (:meth:`Cell.visited`)."""
     Finv = np.linalg.inv(F)
-    u = w @ F.T  # fluctuations in the current frame
+    u = np.ascontiguousarray(w @ F.T)  # fluctuations in the current frame
     v = np.zeros_like(u)
-    dt_max = 1.0 / np.sqrt(cell.K)
-    dt, alpha, since = 0.1 * dt_max, 0.1, 0
-    E0 = None
-    for step in range(settings.fire_steps):
-        s = ContactState(cell, F, u @ Finv.T)
-        if not s.on.any() or (E0 is not None and s.energy(cell, s.on) < UNJAMMED * E0):
+    params = np.array([0.1 / np.sqrt(cell.K), 0.1, 0.0, 1.0 / np.sqrt(cell.K)])
+    s = ContactState(cell, F, w)
+    if not s.on.any():
+        raise RigidityLostError("the cell unjammed: relaxation opens its contacts")
+    E0, steps = s.energy(cell, s.on), 0
+    while steps < settings.fire_steps:
+        m = cell.visited(F, u @ Finv.T)
+        status, taken = rk.fire_chunk(
+            F, Finv, u, v, cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.K, m,
+            cell.n_disks, params, min(FIRE_CHUNK, settings.fire_steps - steps),
+            settings.fire_tol, E0, UNJAMMED,
+        )  # fmt: skip
+        steps += taken
+        if status == rk.FIRE_UNJAMMED:
             raise RigidityLostError("the cell unjammed: relaxation opens its contacts")
-        E0 = s.energy(cell, s.on) if E0 is None else E0
-        _, f = s.forces(cell, F, s.on)
-        if _largest(f, np.ones(cell.n_disks, np.bool_)) <= settings.fire_tol * s.force_scale(cell):
-            return u @ Finv.T, step
-        power = float((f * v).sum())
-        if power > 0.0:
-            fn, vn = np.sqrt((f * f).sum()), np.sqrt((v * v).sum())
-            v = (1.0 - alpha) * v + alpha * vn * f / max(fn, 1e-300)
-            since += 1
-            if since > 5:
-                dt, alpha = min(1.1 * dt, dt_max), 0.99 * alpha
-        else:
-            v[:] = 0.0
-            dt, alpha, since = 0.5 * dt, 0.1, 0
-        v = v + dt * f
-        u = u + dt * v
+        if status == rk.FIRE_CONVERGED:
+            return u @ Finv.T, steps
     raise RelaxationError(f"FIRE did not relax the cell in {settings.fire_steps} steps")
 
 

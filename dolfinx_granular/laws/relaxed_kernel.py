@@ -213,3 +213,54 @@ def mixed(F, pi, pj, qx, qy, lx, ly, d, e, R, K, use, dof, n_unknowns):
                             v += g[a]
                         B[row, 2 * a + b] += sign * v
     return B
+
+
+#: what :func:`fire_chunk` stopped at
+FIRE_RUNNING, FIRE_CONVERGED, FIRE_UNJAMMED = 0, 1, 2
+
+
+@njit(cache=True)
+def fire_chunk(F, Finv, u, v, pi, pj, X, Y, R, K, m, n_disks, params, n_steps, tol, E0, floor):
+    """Up to ``n_steps`` FIRE steps (unit masses) on the current-frame fluctuations u (N, 2)
+    with velocities v (N, 2), both updated in place, over the first m candidates.
+
+    ``params`` (4,) = (dt, alpha, steps since the power was last negative, dt_max), updated in
+    place. Stops when the largest net force is at most ``tol`` times the mean contact force
+    (FIRE_CONVERGED), or when no two disks touch or the energy falls below ``floor`` times
+    ``E0`` (FIRE_UNJAMMED). Returns ``(status, steps taken)``."""
+    dt, alpha, since, dt_max = params[0], params[1], params[2], params[3]
+    w = np.empty_like(u)
+    status, step = FIRE_RUNNING, 0
+    while step < n_steps:
+        for i in range(n_disks):
+            w[i, 0] = Finv[0, 0] * u[i, 0] + Finv[0, 1] * u[i, 1]
+            w[i, 1] = Finv[1, 0] * u[i, 0] + Finv[1, 1] * u[i, 1]
+        _, _, lx, ly, d, e = contact_state(F, w, pi, pj, X, Y, R, m)
+        on = e > 0.0
+        n_on = on.sum()
+        if n_on == 0 or energy(e, K, on) < floor * E0:
+            status = FIRE_UNJAMMED
+            break
+        _, f = forces(F, pi, pj, lx, ly, d, e, K, n_disks, on)
+        mean_force = K * (e * on).sum() / n_on
+        largest = np.sqrt((f * f).sum(axis=1).max())
+        if largest <= tol * mean_force:
+            status = FIRE_CONVERGED
+            break
+        power = (f * v).sum()
+        if power > 0.0:
+            fn = np.sqrt((f * f).sum())
+            vn = np.sqrt((v * v).sum())
+            v[:] = (1.0 - alpha) * v + alpha * vn * f / max(fn, 1e-300)
+            since += 1.0
+            if since > 5.0:
+                dt = min(1.1 * dt, dt_max)
+                alpha *= 0.99
+        else:
+            v[:] = 0.0
+            dt, alpha, since = 0.5 * dt, 0.1, 0.0
+        v += dt * f
+        u += dt * v
+        step += 1
+    params[0], params[1], params[2] = dt, alpha, since
+    return status, step
