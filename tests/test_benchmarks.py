@@ -43,3 +43,22 @@ def test_friction_path_benchmark_writes_its_section(tmp_path):
     assert path["peak"] is not None and path["critical_points"]
     for name, s in slope.items():
         assert f"| {name} | {s['completed_steps']} | {sum(s['iterations'])} |" in text
+
+
+def test_relaxed_bvp_benchmark_cases_run_and_make_a_section():
+    """The benchmark's column case in its own process (the confined Taylor column: the added
+    load in 5 steps), and its section from such records."""
+    import relaxed_bvp
+
+    column = relaxed_bvp.run_case("column", "taylor", 1)
+    assert column["failed"] is None and len(column["steps"]) == relaxed_bvp.COLUMN_STEPS
+    settlements = [s["settlement"] for s in column["steps"]]
+    assert settlements[0] < 0.0 and np.all(np.diff(settlements) < 0.0)
+    slope = relaxed_bvp.slope_case("taylor", stop_after=1)
+    assert len(slope["steps"]) == 1 and slope["steps"][0]["settlement"] < 0.0
+    res = {(case, law, n): (column if case == "column" else slope)
+           for case in ("column", "slope", "speedup") for law in relaxed_bvp.LAWS
+           for n in (1, 2)}  # fmt: skip
+    text = relaxed_bvp.markdown(res, "python benchmarks/relaxed_bvp.py", 0.1)
+    assert text.startswith(relaxed_bvp.BEGIN) and text.endswith(relaxed_bvp.END)
+    assert "## 9. The relaxed RVE in boundary value problems" in text
