@@ -120,6 +120,8 @@ def slope_case(law_name, stop_after):
     from dolfinx_granular.slope.geometry import SlopeGeometry
     from dolfinx_granular.slope.run import SlopeOptions, run_slope
 
+    from mpi4py import MPI
+
     t0 = time.perf_counter()
     options = SlopeOptions(
         rve=law_name,
@@ -128,7 +130,9 @@ def slope_case(law_name, stop_after):
         geometry=SlopeGeometry(rows=2),
     )
     packing = generate_packing(70, seed=0, pressure=SLOPE_CONFINEMENT / K_N)
-    with tempfile.TemporaryDirectory() as out:
+    comm = MPI.COMM_WORLD
+    with tempfile.TemporaryDirectory() as folder:
+        out = comm.bcast(folder, root=0)  # (one folder for every rank: rank 0 writes there)
         s = run_slope(
             packing,
             options,
