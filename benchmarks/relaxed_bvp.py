@@ -190,7 +190,8 @@ def _row(name, r, x_key, x_unit):
     last = steps[-1] if steps else None
     reached = f"{last[x_key]:.4g} {x_unit}" if last else "none"
     found = f"{last['settlement'] * 1e3:.2f} mm" if last else "-"
-    stop = "completed" if r["failed"] is None else f"stops: {r['failed'][:70]}"
+    # (the reason's kind only: its text holds |R|, which a table cell cannot)
+    stop = "completed" if r["failed"] is None else f"stops: {r['failed'].split(':')[0]}"
     per_step = f"{np.mean(its):.1f} ({min(its)}-{max(its)})" if its else "-"
     return (
         f"| {name} | {len(steps)} | {reached} | {found} | {per_step} | {r['rve']:.1f} | "
