@@ -22,6 +22,7 @@ import numpy as np
 from ..laws.protocol import LawEvaluationError
 from ..laws.relaxed import RelaxedRVE
 from ..laws.tools import normal_stiffness as normal_stiffness_of
+from ..packings.generation import MAX_PRESSURE
 from ..packings.packing import Packing
 from .material_point import ControlError, MaterialPoint, PointResult
 
@@ -99,8 +100,8 @@ def confined_packing(packing: Packing, normal_stiffness: float, pressure: float)
     """
     kn = normal_stiffness_of(normal_stiffness)
     p = float(pressure)
-    if not 0.0 < p <= 1e-2:
-        raise ValueError(f"pressure is p / k_n in (0, 1e-2], got {pressure!r}")
+    if not 0.0 < p <= MAX_PRESSURE:
+        raise ValueError(f"pressure is p / k_n in (0, {MAX_PRESSURE:g}], got {pressure!r}")
     rve = RelaxedRVE(packing, kn)
     point = MaterialPoint(rve)
     result = compress(point, p * kn, max_increment=10.0 * p)

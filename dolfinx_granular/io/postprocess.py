@@ -118,11 +118,8 @@ def contact_network(
     """The active contacts of one RVE at F (2, 2): ``(contacts, normal_force (m,), sliding (m,)
     bool)``; ``state`` is the committed state of a law with history (frictional contacts: their
     sliding ones are flagged), None for an elastic law."""
-    if state is None:
-        c = rve.contacts(F)
-        return c, c.force, np.zeros(len(c.force), dtype=bool)
-    c = rve.contacts(F, state)
-    if isinstance(c, ContactSet):  # a frictionless law with history (the relaxed RVE)
+    c = rve.contacts(F) if state is None else rve.contacts(F, state)
+    if isinstance(c, ContactSet):  # frictionless: an elastic law, or the relaxed RVE
         return c, c.force, np.zeros(len(c.force), dtype=bool)
     return c, c.normal_force, np.asarray(c.sliding, dtype=bool)
 

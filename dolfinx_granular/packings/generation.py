@@ -76,6 +76,10 @@ CELL_ORDER_ABOVE = 8192
 # the shortest time between two intermediate progress lines (s)
 PROGRESS_INTERVAL = 1.0
 
+#: largest pressure p / k_n a packing is jammed or confined at: beyond it the contacts' overlaps
+#: pass 10 % of a radius, outside the linear springs' range
+MAX_PRESSURE = 1e-2
+
 
 # -- progress --------------------------------------------------------------------------------------
 
@@ -370,8 +374,8 @@ def _check_arguments(
 ):
     """Validate the arguments of :func:`generate_packing`; returns ``(n, sieve curve)``."""
     n, curve = _check_sizes(n_particles, gsd, d_min, aspect)
-    if not (0.0 < pressure <= 1e-2):
-        raise ValueError(f"pressure (p / k_n) must lie in (0, 1e-2], got {pressure}")
+    if not (0.0 < pressure <= MAX_PRESSURE):
+        raise ValueError(f"pressure (p / k_n) must lie in (0, {MAX_PRESSURE:g}], got {pressure}")
     if not (0.0 <= max_rattlers <= 1.0):
         raise ValueError(f"max_rattlers must lie in [0, 1], got {max_rattlers}")
     if int(max_attempts) != max_attempts or max_attempts < 1:

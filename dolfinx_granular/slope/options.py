@@ -8,6 +8,7 @@ import warnings
 from typing import TYPE_CHECKING, Any
 
 from ..laws.taylor import PrestressWarning, TaylorRVE
+from ..packings.generation import MAX_PRESSURE as MAX_CONFINEMENT
 from .geometry import SlopeGeometry
 
 if TYPE_CHECKING:
@@ -20,8 +21,6 @@ if TYPE_CHECKING:
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
 PHASES = ("gravity", "footing")
 RVES = ("taylor", "relaxed")
-#: largest confinement / k_n: beyond it the overlaps pass 10 % of a radius
-MAX_CONFINEMENT = 1e-2
 
 
 @dataclasses.dataclass
