@@ -134,6 +134,27 @@ def hex_lattice(nx=6, ny=6, overlap=1e-9):
     return Packing(centers, np.full(nx * ny, 0.5 * (1.0 + overlap)), (float(nx), ny * h))
 
 
+def random_spheres(n=40, phi=0.6, seed=0):
+    """Spheres at random centres in a box of three different sides: many overlapping
+    (prestressed) contacts in random directions."""
+    rng = np.random.default_rng(seed)
+    radii = rng.uniform(0.35, 0.65, n)
+    side = (4.0 / 3.0 * np.pi * np.sum(radii**3) / phi / (1.1 * 0.9)) ** (1.0 / 3.0)
+    box = np.array([side, 1.1 * side, 0.9 * side])
+    return Packing(rng.uniform(0.0, 1.0, (n, 3)) * box, radii, box)
+
+
+def fcc_lattice(n=3, overlap=1e-9):
+    """Face-centred cubic lattice of n^3 cubic cells (4 n^3 spheres, 12 contacts each) with
+    neighbour distance 1, radii enlarged by a relative ``overlap`` so that every lattice contact
+    is active despite rounding."""
+    s = np.sqrt(2.0)  # the cubic cell's side
+    basis = np.array([[0, 0, 0], [0.5, 0.5, 0], [0.5, 0, 0.5], [0, 0.5, 0.5]]) + 0.25
+    cells = np.array([(i, j, k) for i in range(n) for j in range(n) for k in range(n)])
+    centers = (cells[:, None, :] + basis[None]).reshape(-1, 3) * s
+    return Packing(centers, np.full(len(centers), 0.5 * (1.0 + overlap)), np.full(3, n * s))
+
+
 # -- the granular column ---------------------------------------------------------------------------
 
 Column = namedtuple("Column", "solver material u p")

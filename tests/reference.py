@@ -5,15 +5,17 @@ included by brute force over a fixed range of image shifts. Independent of the p
 no candidate lists, no moment sums, no pruning.
 """
 
+from itertools import product
+
 import numpy as np
 
 
 def all_branch_vectors(packing, images=3):
-    """Every ordered pair (i, j, image) except a disk with itself: L (M, 2), R (M,)."""
+    """Every ordered pair (i, j, image) except a particle with itself: L (M, d), R (M,)."""
     X, r, box = packing.centers, packing.radii, packing.box
     n = len(r)
-    s = np.arange(-images, images + 1)
-    shifts = np.array([(a, b) for a in s for b in s], dtype=float) * box  # (S, 2)
+    s = range(-images, images + 1)
+    shifts = np.array(list(product(s, repeat=len(box))), dtype=float) * box  # (S, d)
     i, j, k = np.meshgrid(np.arange(n), np.arange(n), np.arange(len(shifts)), indexing="ij")
     i, j, k = i.ravel(), j.ravel(), k.ravel()
     keep = ~((i == j) & np.all(shifts[k] == 0.0, axis=1))
@@ -23,16 +25,17 @@ def all_branch_vectors(packing, images=3):
 
 
 def reference(packing, k_n, F, images=3):
-    """W, P, A, sigma, a at one F (2, 2) from eqs. 7, 10, 11, 13, 14."""
+    """W, P, A, sigma, a at one F (d, d) from eqs. 7, 10, 11, 13, 14 (the 3-D ones with every
+    index over 3 and V the box volume)."""
     L, R = all_branch_vectors(packing, images)
-    V = packing.area
+    V = packing.volume
     l = L @ F.T
     d = np.linalg.norm(l, axis=1)
     eps = R - d
     on = eps >= 0.0
     L, R, l, d, eps = L[on], R[on], l[on], d[on], eps[on]
     n = l / d[:, None]
-    I = np.eye(2)
+    I = np.eye(len(F))
     W = np.sum(k_n * eps**2) / (4.0 * V)  # eq. 7
     f = -k_n * eps[:, None] * n  # eq. 5
     P = np.einsum("ma,mb->ab", f, L) / (2.0 * V)  # eq. 10
@@ -55,17 +58,18 @@ def reference_modulus(packing, k_n, images=3):
     on = R - d >= 0.0
     L, d = L[on], d[on]
     n = L / d[:, None]
-    return np.einsum("m,ma,mb,mc,md->abcd", k_n * d**2, n, n, n, n) / (2.0 * packing.area)
+    return np.einsum("m,ma,mb,mc,md->abcd", k_n * d**2, n, n, n, n) / (2.0 * packing.volume)
 
 
 def central_differences(model, F, h):
     """Central differences of ``model.stress`` (any material point with ``stress(F) -> (W, P)``)
-    in each component of F (n, 2, 2): ``(dW/dF (n, 2, 2), dP/dF (n, 2, 2, 2, 2))``, step h."""
+    in each component of F (n, d, d): ``(dW/dF (n, d, d), dP/dF (n, d, d, d, d))``, step h."""
+    dim = F.shape[-1]
     dW = np.empty(F.shape)
-    dP = np.empty(F.shape + (2, 2))
-    for c in range(2):
-        for d in range(2):
-            dF = np.zeros((2, 2))
+    dP = np.empty(F.shape + (dim, dim))
+    for c in range(dim):
+        for d in range(dim):
+            dF = np.zeros((dim, dim))
             dF[c, d] = h
             Wp, Pp = model.stress(F + dF)
             Wm, Pm = model.stress(F - dF)

@@ -20,6 +20,22 @@ def test_attributes_and_wrapping():
     assert p.volume_fraction == pytest.approx(np.pi * 0.25 / 2.0)
 
 
+def test_spheres_in_a_box():
+    p = Packing([[-0.25, 1.5, 0.5], [2.25, 0.5, 3.5]], [0.4, 0.3], (2.0, 1.0, 3.0))
+    assert p.dim == 3 and p.centers.tolist() == [[1.75, 0.5, 0.5], [0.25, 0.5, 0.5]]
+    assert p.volume == 6.0
+    assert p.volume_fraction == pytest.approx(4 / 3 * np.pi * (0.4**3 + 0.3**3) / 6.0)
+    with pytest.raises(AttributeError, match="Packing.volume"):
+        _ = p.area
+    assert "dim=3" in repr(p)
+
+
+def test_a_3d_packing_round_trips(tmp_path):
+    p = Packing(np.random.default_rng(0).random((5, 3)), np.full(5, 0.1), (1.0, 1.0, 1.0))
+    p.save(tmp_path / "p.npz")
+    assert Packing.load(tmp_path / "p.npz") == p
+
+
 def test_tiny_negative_center_stays_inside_box():
     p = Packing([[-1e-20, 0.5], [0.5, 0.5]], [0.1, 0.1], (1.0, 1.0))
     assert np.all(p.centers < p.box)
@@ -28,10 +44,11 @@ def test_tiny_negative_center_stays_inside_box():
 @pytest.mark.parametrize(
     "centers, radii, box, words",
     [
-        (np.zeros((3, 3)), np.ones(3), (5, 5), r"centers must have shape \(N, 2\)"),
+        (np.zeros((3, 4)), np.ones(3), (5, 5), r"centers must have shape \(N, 2\) \(disks\)"),
+        (np.zeros((3, 3)), np.ones(3), (5, 5), r"box must be \(Lx, Ly, Lz\)"),
         (np.zeros((3, 2)), np.ones(2), (5, 5), r"radii must have shape"),
         (np.zeros((3, 2)), np.ones(3), (5, 5, 5), r"box must be"),
-        (np.zeros((1, 2)), np.ones(1), (5, 5), "at least 2 disks"),
+        (np.zeros((1, 2)), np.ones(1), (5, 5), "at least 2 particles"),
         ([[0, 0], [np.nan, 1]], [1, 1], (5, 5), "centers has non-finite"),
         ([[0, 0], [1, 1]], [1, np.inf], (5, 5), "radii has non-finite"),
         ([[0, 0], [1, 1]], [1, 1], (5, np.nan), "box has non-finite"),

@@ -7,8 +7,8 @@ pairs that can touch at some supported F are candidates: those with rho = |L| / 
 min_stretch (|F L| >= s_min(F) |L|). They are sorted by rho, so that a point with smallest
 singular value s_min(F) needs only the prefix rho <= 1 / s_min(F) (the kernels' loop range).
 
-The arrays are laid out for any dimension d (shape (m, d) per vector); the candidate search of
-:meth:`ContactCandidates.from_packing` is the 2-D one of
+The arrays are laid out for any dimension d (shape (m, d) per vector): disks in 2-D, spheres in
+3-D, both found by the cell list of
 :func:`~dolfinx_granular.packings.neighbours.candidate_pairs`. Lengths are in the packing's units.
 """
 

@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..packings.packing import Packing
+from ..packings.packing import Packing, require_disks
 from . import friction_kernel as fk
 from .taylor import TaylorRVE
 from .tools import as_batch, output_buffers, push_forward, to_float, unsupported_deformation
@@ -308,6 +308,7 @@ class FrictionalRVE:
         kt = _parameter("tangential_stiffness", tangential_stiffness, " (N/m²)")
         mu = _parameter("friction", friction, "")
         self._taylor = TaylorRVE(packing, normal_stiffness, min_stretch, allow_overlaps)
+        require_disks(packing, "FrictionalRVE")
         self.packing = packing
         self.normal_stiffness = self._taylor.normal_stiffness
         self.tangential_stiffness = kt

@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..packings.packing import require_disks
 from . import taylor_kernel
 from .taylor import TaylorRVE, UnsupportedDeformationError
 from .tools import (
@@ -79,6 +80,7 @@ def _full_model(rve):
         return rve.taylor
     if not isinstance(rve, TaylorRVE):
         raise TypeError(f"rve must be a dolfinx_granular.TaylorRVE, got {type(rve).__name__}")
+    require_disks(rve.packing, "the model levels (SmallStrainRVE, AdaptiveRVE)")
     return rve
 
 

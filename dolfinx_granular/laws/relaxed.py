@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..packings.packing import Packing
+from ..packings.packing import Packing, require_disks
 from . import relaxation
 from .contacts import ContactCandidates
 from .relaxed_cell import Cell, ContactState, RelaxationError
@@ -141,6 +141,7 @@ class RelaxedRVE:
         self.candidates = ContactCandidates.from_packing(
             packing, to_float(min_stretch, "min_stretch")
         )
+        require_disks(packing, "RelaxedRVE")
         self.packing = packing
         self.normal_stiffness = k
         self.min_stretch = self.candidates.min_stretch

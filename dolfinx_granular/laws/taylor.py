@@ -6,9 +6,14 @@ follows the macroscopic deformation gradient (x = F X, eq. 1); disks in contact 
 eq. 3) interact through linear normal springs (eq. 4). Each physical contact is counted once, which
 equals the paper's double sum over i != j with its factor 1/2.
 
-Units: ``normal_stiffness`` k_n in N/m² (force per unit overlap per unit thickness), lengths in the
-packing's units; energy density W and all stresses and tangents in Pa. The Taylor stress does not
-depend on the packing's absolute size.
+The same class serves disks in 2-D and spheres in 3-D: the packing's dimension d decides, and
+every formula holds with its indices running over d (the 3-D kernel is
+:mod:`~dolfinx_granular.laws.taylor_kernel_3d`).
+
+Units: ``normal_stiffness`` k_n in N/m² in 2-D (force per unit overlap per unit thickness) and in
+N/m in 3-D (force per unit overlap), lengths in the packing's units (m); energy density W and all
+stresses and tangents in Pa. The 2-D Taylor stress does not depend on the packing's absolute
+size; the 3-D one scales with 1 / size (k_n / V times length²).
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..packings.packing import Packing
-from . import taylor_kernel, tools, validity
+from . import taylor_kernel, taylor_kernel_3d, tools, validity
 from .contacts import ContactCandidates
 from .tools import UnsupportedDeformationError, as_batch, to_float, unsupported_deformation
 
@@ -56,11 +61,11 @@ class ContactSet:
     """Active contacts of one RVE at one F (for force networks and diagnostics).
 
     Attributes:
-        pairs: (m, 2) disk indices i, j.
-        shift: (m, 2) periodic image offset of j, in cells.
-        branch: (m, 2) current branch vectors l = F L (length).
+        pairs: (m, 2) particle indices i, j.
+        shift: (m, d) periodic image offset of j, in cells.
+        branch: (m, d) current branch vectors l = F L (length).
         overlap: (m,) eps >= 0 (length).
-        force: (m,) normal force magnitude k_n * eps (N per unit thickness).
+        force: (m,) normal force magnitude k_n * eps (N per unit thickness in 2-D, N in 3-D).
     """
 
     pairs: np.ndarray
@@ -82,11 +87,12 @@ def _user_stacklevel() -> int:
 
 
 class TaylorRVE:
-    """Taylor-assumption RVE of a periodic disk packing with linear normal contact springs.
+    """Taylor-assumption RVE of a periodic packing of disks (2-D) or spheres (3-D) with linear
+    normal contact springs.
 
     Args:
-        packing: the reference microstructure.
-        normal_stiffness: k_n > 0 in N/m².
+        packing: the reference microstructure; its ``dim`` is the RVE's.
+        normal_stiffness: k_n > 0, in N/m² in 2-D and N/m in 3-D.
         min_stretch: smallest singular value of F that is supported, 0 < min_stretch <= 1.
             Candidate contacts are all pairs that can touch at such an F; a smaller bound costs
             more memory and set-up time but not evaluation time at moderate strain.
@@ -97,7 +103,7 @@ class TaylorRVE:
     ``PRESTRESS_WARNING`` of its modulus (overlapping disks) gives a :class:`PrestressWarning`;
     :func:`~dolfinx_granular.relax_overlaps` makes it stress-free.
 
-    Every ``F`` argument is an array of shape (n, 2, 2) (or (2, 2) for a single point); an F that
+    Every ``F`` argument is an array of shape (n, d, d) (or (d, d) for a single point); an F that
     is non-finite, has det F <= 0 or a singular value below ``min_stretch`` raises
     :class:`UnsupportedDeformationError` naming the points.
 
@@ -124,13 +130,14 @@ class TaylorRVE:
         self.packing = packing
         self.normal_stiffness = k
         self.min_stretch = s
+        self.dim = packing.dim
         self.candidates = ContactCandidates.from_packing(packing, s)
-        self._K = k / packing.area
+        self._K = k / packing.volume
         self._check_reference(bool(allow_overlaps))
 
     def _check_reference(self, allow_overlaps):
         """Refuse far-overlapping disks, report the prestress P(I) of overlapping ones."""
-        _, eps = self.candidates.overlaps(np.eye(2))
+        _, eps = self.candidates.overlaps(np.eye(self.dim))
         worst = float((eps / self.candidates.radius_sum).max()) if eps.size else 0.0
         self.max_reference_overlap = max(worst, 0.0)
         if worst > MAX_REFERENCE_OVERLAP and not allow_overlaps:
@@ -141,7 +148,7 @@ class TaylorRVE:
                 "or on the command line 'python -m dolfinx_granular relax IN.npz -o OUT.npz'), "
                 "or use it as it is with allow_overlaps=True (the slope: --allow-overlaps)"
             )
-        self.prestress = self.stress(np.eye(2))[1]
+        self.prestress = self.stress(np.eye(self.dim))[1]
         if self.prestress_ratio > PRESTRESS_WARNING:
             warnings.warn(
                 f"the reference state is prestressed: P(I) = {self.prestress.round(1).tolist()} Pa "
@@ -168,34 +175,18 @@ class TaylorRVE:
     # -- batch evaluation -------------------------------------------------------------------------
 
     def _run(self, F, spatial, tangent, out=None):
-        F, single = as_batch(F)
+        F, single = as_batch(F, self.dim)
         n = F.shape[0]
-        if out is None:
-            W = np.empty(n)
-            P = np.empty((n, 2, 2))
-            A = np.empty((n, 2, 2, 2, 2)) if tangent else np.empty((0, 2, 2, 2, 2))
-        else:
-            W, P, A = out
-            if not tangent:
-                A = np.empty((0, 2, 2, 2, 2))
+        W, P, A = tools.output_buffers(n, tangent, out, self.dim)
+        if A is None:
+            A = np.empty((0,) + (self.dim,) * 4)
         status = np.empty(n, dtype=np.int8)
         c = self.candidates
-        X, Y = c.components
-        taylor_kernel.evaluate_batch(
-            F,
-            X,
-            Y,
-            c.radius_sum,
-            c.ratio,
-            self._K,
-            self.min_stretch,
-            spatial,
-            tangent,
-            W,
-            P,
-            A,
-            status,
-        )
+        args = (c.radius_sum, c.ratio, self._K, self.min_stretch, spatial, tangent, W, P, A)
+        if self.dim == 2:
+            taylor_kernel.evaluate_batch(F, *c.components, *args, status)
+        else:
+            taylor_kernel_3d.evaluate_batch(F, *c.components, *args, status)
         if status.any():
             raise unsupported_deformation(F, status, self.min_stretch)
         if single:
@@ -208,50 +199,52 @@ class TaylorRVE:
         """Energy, first Piola stress and its tangent.
 
         Args:
-            F: (n, 2, 2) deformation gradients.
-            out: optional ``(W, P, A)`` C-contiguous arrays of shapes (n,), (n, 2, 2),
-                (n, 2, 2, 2, 2) to write into (e.g. views of DOLFINx quadrature data).
+            F: (n, d, d) deformation gradients.
+            out: optional ``(W, P, A)`` C-contiguous arrays of shapes (n,), (n, d, d),
+                (n, d, d, d, d) to write into (e.g. views of DOLFINx quadrature data).
 
         Returns:
-            ``(W, P, A)``: W (n,) energy density (eq. 7), P (n, 2, 2) first Piola stress (eq. 10),
-            A (n, 2, 2, 2, 2) with ``A[q, a, b, c, d] = dP_ab / dF_cd`` (eqs. 12-13), in Pa.
+            ``(W, P, A)``: W (n,) energy density (eq. 7), P (n, d, d) first Piola stress (eq. 10),
+            A (n, d, d, d, d) with ``A[q, a, b, c, d] = dP_ab / dF_cd`` (eqs. 12-13), in Pa.
         """
         return self._run(F, spatial=False, tangent=True, out=out)
 
     def stress(
         self, F: ArrayLike, out: tuple | None = None
     ) -> tuple[np.ndarray | float, np.ndarray]:
-        """Energy and first Piola stress, no tangent (cheaper): ``(W (n,), P (n, 2, 2))``."""
+        """Energy and first Piola stress, no tangent (cheaper): ``(W (n,), P (n, d, d))``."""
         W, P, _ = self._run(F, spatial=False, tangent=False, out=out)
         return W, P
 
     def energy(self, F: ArrayLike) -> np.ndarray | float:
-        """Energy density W (n,) per reference area (eq. 7), in Pa."""
+        """Energy density W (n,) per reference area (2-D) or volume (3-D) (eq. 7), in Pa."""
         return self.stress(F)[0]
 
     def cauchy(self, F: ArrayLike) -> np.ndarray:
-        """Cauchy stress sigma (n, 2, 2) (eq. 11), in Pa; symmetric by construction."""
+        """Cauchy stress sigma (n, d, d) (eq. 11), in Pa; symmetric by construction."""
         return self._run(F, spatial=True, tangent=False)[1]
 
     def spatial_tangent(self, F: ArrayLike) -> np.ndarray:
-        """Spatial tangent a (n, 2, 2, 2, 2) of eq. 14, in Pa: (1/J) F_bB F_dD A_aBcD."""
+        """Spatial tangent a (n, d, d, d, d) of eq. 14, in Pa: (1/J) F_bB F_dD A_aBcD."""
         return self._run(F, spatial=True, tangent=True)[2]
 
     def small_strain_modulus(self) -> np.ndarray:
-        """Linear modulus C (2, 2, 2, 2) of eq. 15 over the contacts active at F = I, in Pa.
+        """Linear modulus C (d, d, d, d) of eq. 15 over the contacts active at F = I, in Pa.
 
         C_abcd = (k_n / V) sum_c |L|² n_a n_b n_c n_d. It equals A(I) when the reference contacts
         are exactly touching (no prestress).
         """
-        L = self.candidates.branch[self.candidates.overlaps(np.eye(2))[1] >= 0.0]
+        L = self.candidates.branch[self.candidates.overlaps(np.eye(self.dim))[1] >= 0.0]
         w = self._K / np.einsum("ci,ci->c", L, L)
         return np.einsum("m,ma,mb,mc,md->abcd", w, L, L, L, L)
 
     def contacts(self, F: ArrayLike) -> ContactSet:
-        """Active contacts at a single F (2, 2): pairs, current branch vectors, overlaps, forces."""
+        """Active contacts at a single F (d, d): pairs, current branch vectors, overlaps,
+        forces."""
         F = np.asarray(F, dtype=np.float64)
-        if F.shape != (2, 2):
-            raise ValueError(f"contacts() takes one F of shape (2, 2), got {F.shape}")
+        d = self.dim
+        if F.shape != (d, d):
+            raise ValueError(f"contacts() takes one F of shape ({d}, {d}), got {F.shape}")
         self.stress(F)  # validates F with the kernel's own rule
         l, eps = self.candidates.overlaps(F)
         on = eps >= 0.0
@@ -264,7 +257,7 @@ class TaylorRVE:
         )
 
     def overlap_statistics(self, F: ArrayLike) -> validity.OverlapStatistics:
-        """The validity measure at F (n, 2, 2) (or (2, 2): scalars): ``(max_ratio (n,),
+        """The validity measure at F (n, d, d) (or (d, d): scalars): ``(max_ratio (n,),
         contacts (n,))``, the largest overlap of an active contact over the smaller radius of its
         two disks, and the number of active contacts (:mod:`~dolfinx_granular.laws.validity`)."""
         return validity.overlap_statistics(self, F)

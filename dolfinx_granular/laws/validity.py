@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from ..gathers import global_extremum
+from . import taylor_kernel_3d
 from .taylor_kernel import FASTMATH, OK, check_F
 from .tools import as_batch, unsupported_deformation
 
@@ -93,6 +94,31 @@ def _overlap_batch(F, X, Y, R, rho, inv_rmin, min_stretch, ratio, count, status)
             ratio[q], count[q] = _largest_ratio(F00, F01, F10, F11, X, Y, R, inv_rmin, n_visit)
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _largest_ratio_3d(F, X, Y, Z, R, inv_rmin, n_visit):
+    """:func:`_largest_ratio` of spheres: F (3, 3), the 3-D kernel's branch lengths."""
+    best = 0.0
+    active = 0
+    for c in range(n_visit):
+        eps = R[c] - taylor_kernel_3d.branch(F, X[c], Y[c], Z[c])
+        active += 1 if eps >= 0.0 else 0
+        best = max(best, eps * inv_rmin[c])
+    return best, active
+
+
+@njit(cache=True)
+def _overlap_batch_3d(F, X, Y, Z, R, rho, inv_rmin, min_stretch, ratio, count, status):
+    """:func:`_overlap_batch` of spheres: F (n, 3, 3)."""
+    for q in range(F.shape[0]):
+        code, limit = taylor_kernel_3d.stretch_bound(F[q], min_stretch)
+        status[q] = code
+        ratio[q] = 0.0
+        count[q] = 0
+        if code == OK:
+            n_visit = np.searchsorted(rho, limit, side="right")
+            ratio[q], count[q] = _largest_ratio_3d(F[q], X, Y, Z, R, inv_rmin, n_visit)
+
+
 def candidate_inverse_radius(law: Any) -> np.ndarray:
     """(M,) 1 / the smaller radius of the two disks of each candidate contact of a law with
     ``candidates`` (a TaylorRVE)."""
@@ -103,16 +129,19 @@ def overlap_statistics(
     law: Any, F: ArrayLike, inv_rmin: np.ndarray | None = None
 ) -> OverlapStatistics:
     """:class:`OverlapStatistics` of a law with ``candidates`` and ``min_stretch`` (a TaylorRVE)
-    at F (n, 2, 2) (or (2, 2): scalars); ``inv_rmin`` (M,) defaults to the candidates'
+    at F (n, d, d) (or (d, d): scalars); ``inv_rmin`` (M,) defaults to the candidates'
     :attr:`~dolfinx_granular.ContactCandidates.inverse_smaller_radius`. F outside the
     law's range raises UnsupportedDeformationError."""
-    Fb, single = as_batch(F)
     c = law.candidates
+    Fb, single = as_batch(F, c.dim)
     inv_rmin = c.inverse_smaller_radius if inv_rmin is None else inv_rmin
     n = Fb.shape[0]
     ratio, count, status = np.empty(n), np.empty(n, np.int64), np.empty(n, np.int8)
-    X, Y = c.components
-    _overlap_batch(Fb, X, Y, c.radius_sum, c.ratio, inv_rmin, law.min_stretch, ratio, count, status)
+    args = (c.radius_sum, c.ratio, inv_rmin, law.min_stretch, ratio, count, status)
+    if c.dim == 2:
+        _overlap_batch(Fb, *c.components, *args)
+    else:
+        _overlap_batch_3d(Fb, *c.components, *args)
     if status.any():
         raise unsupported_deformation(Fb, status, law.min_stretch)
     if single:

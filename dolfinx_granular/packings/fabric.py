@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .packing import Packing
+from .packing import Packing, require_disks
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -34,6 +34,7 @@ def contact_angles(packing: Packing, F: ArrayLike | None = None) -> np.ndarray:
     """
     from ..laws.taylor import TaylorRVE
 
+    require_disks(packing, "contact_angles")
     F = np.eye(2) if F is None else np.asarray(F, dtype=float)
     smin = float(np.linalg.svd(F, compute_uv=False).min()) if np.all(np.isfinite(F)) else 1.0
     rve = TaylorRVE(packing, 1.0, min_stretch=min(1.0, max(smin, 1e-3)))

@@ -56,7 +56,7 @@ import numpy as np
 from . import neighbours
 from .fire import candidates, minimise, virial_pressure
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
-from .packing import Packing
+from .packing import Packing, require_disks
 from .stress_free import StressFreeError, rattlers, stress_free
 
 if TYPE_CHECKING:
@@ -183,6 +183,7 @@ def network_stats(packing: Packing) -> NetworkStats:
     The contacts are those of ``TaylorRVE(packing, k).contacts(np.eye(2))`` (same pairs, same
     arithmetic), found in O(N) time.
     """
+    require_disks(packing, "network_stats")
     ij, _, eps = candidates(packing.centers, packing.radii, packing.box, 1.0 / 0.99)
     on = eps >= 0.0
     pairs, overlap = ij[on], eps[on]
@@ -308,7 +309,7 @@ def _attempt(rng, r0, box, pressure, delta, say):
     if n > CELL_ORDER_ABOVE:
         # the random centres numbered along the cells (the radii keep their random order:
         # the same distribution), so that FIRE's force loop finds neighbours near in memory
-        x = x[neighbours.cell_list(x, box, 2.0 * r0.max())[3]]
+        x = x[neighbours.cell_list(x, box, 2.0 * r0.max())[2]]
     x, scale, p = _jam(x, r0, box, pressure, float(2.0 * r0.mean()), say)
     say(
         "jamming",
@@ -350,6 +351,7 @@ def relax_overlaps(
     """
     if not isinstance(packing, Packing):
         raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
+    require_disks(packing, "relax_overlaps")
     _check_contact_overlap(contact_overlap)
     delta = contact_overlap * 2.0 * float(packing.radii.mean())
     say = _Reporter(progress)

@@ -1,8 +1,9 @@
-"""Periodic packings of disks: the microstructure of a representative volume element.
+"""Periodic packings of disks or spheres: the microstructure of a representative volume element.
 
-A :class:`Packing` is a rectangular periodic cell ``[0, Lx) x [0, Ly)`` holding N disks. It is
-plain data with validation and a versioned ``.npz`` file format; the mechanics live in
-:mod:`dolfinx_granular.laws.taylor`.
+A :class:`Packing` is a rectangular periodic cell ``[0, Lx) x [0, Ly)`` holding N disks (2-D), or
+a box ``[0, Lx) x [0, Ly) x [0, Lz)`` holding N spheres (3-D); the dimension is the centres'
+number of columns. It is plain data with validation and a versioned ``.npz`` file format; the
+mechanics live in :mod:`dolfinx_granular.laws.taylor`.
 """
 
 from __future__ import annotations
@@ -26,41 +27,47 @@ class PackingFileError(ValueError):
 
 
 class Packing:
-    """Disks in a periodic rectangular cell.
+    """Disks (2-D) or spheres (3-D) in a periodic rectangular cell.
 
     Args:
-        centers: (N, 2) disk centres; points outside ``[0, Lx) x [0, Ly)`` are wrapped into it.
-        radii: (N,) disk radii, > 0.
-        box: (Lx, Ly) cell lengths, > 0.
+        centers: (N, d) centres, d = 2 or 3; points outside the cell ``[0, box)`` are wrapped
+            into it.
+        radii: (N,) radii, > 0.
+        box: (d,) cell lengths (Lx, Ly) or (Lx, Ly, Lz), > 0.
 
     Attributes:
-        centers: (N, 2) float64, wrapped into the cell.
+        centers: (N, d) float64, wrapped into the cell.
         radii: (N,) float64.
-        box: (2,) float64.
+        box: (d,) float64.
 
     Raises:
         ValueError: naming the offending input (shape, count, non-finite value, non-positive radius
-            or box length, or a disk wide enough to touch its own periodic image).
+            or box length, or a particle wide enough to touch its own periodic image).
     """
 
     def __init__(self, centers: ArrayLike, radii: ArrayLike, box: ArrayLike) -> None:
         centers = _as_float_array(centers, "centers")
         radii = _as_float_array(radii, "radii")
         box = _as_float_array(box, "box")
-        if centers.ndim != 2 or centers.shape[1] != 2:
+        if centers.ndim != 2 or centers.shape[1] not in (2, 3):
             raise ValueError(
-                f"centers must have shape (N, 2), got {centers.shape}; pass one (x, y) row per disk"
+                f"centers must have shape (N, 2) (disks) or (N, 3) (spheres), got {centers.shape}; "
+                "pass one (x, y) or (x, y, z) row per particle"
             )
+        d = centers.shape[1]
         if radii.ndim != 1 or radii.shape[0] != centers.shape[0]:
             raise ValueError(
                 f"radii must have shape (N,) = ({centers.shape[0]},) to match centers, "
                 f"got {radii.shape}"
             )
-        if box.shape != (2,):
-            raise ValueError(f"box must be (Lx, Ly), got shape {box.shape}")
+        if box.shape != (d,):
+            names = "(Lx, Ly)" if d == 2 else "(Lx, Ly, Lz)"
+            raise ValueError(
+                f"box must be {names} for centres with {d} columns, got shape {box.shape}"
+            )
         n = centers.shape[0]
         if n < 2:
-            raise ValueError(f"a packing needs at least 2 disks, got {n}")
+            raise ValueError(f"a packing needs at least 2 particles, got {n}")
         for name, arr in (("centers", centers), ("radii", radii), ("box", box)):
             bad = np.flatnonzero(~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1))
             if bad.size:
@@ -73,15 +80,16 @@ class Packing:
         bad = np.flatnonzero(radii <= 0.0)
         if bad.size:
             raise ValueError(
-                f"radii must be > 0; disk(s) {bad[:5].tolist()} have radius "
+                f"radii must be > 0; particle(s) {bad[:5].tolist()} have radius "
                 f"{radii[bad[:5]].tolist()}"
             )
         too_big = np.flatnonzero(2.0 * radii >= box.min())
         if too_big.size:
             raise ValueError(
-                f"disk(s) {too_big[:5].tolist()} with radius {radii[too_big[:5]].tolist()} would "
-                f"touch their own periodic image in a cell of {box.tolist()}: every diameter must "
-                "be smaller than the shortest box length; enlarge the box or shrink the disks"
+                f"particle(s) {too_big[:5].tolist()} with radius {radii[too_big[:5]].tolist()} "
+                f"would touch their own periodic image in a cell of {box.tolist()}: every "
+                "diameter must be smaller than the shortest box length; enlarge the box or shrink "
+                "the particles"
             )
         self.centers = np.mod(centers, box)
         # np.mod can return exactly Lx for tiny negative inputs; keep the half-open interval.
@@ -91,22 +99,41 @@ class Packing:
 
     @property
     def n_particles(self) -> int:
-        """Number of disks N."""
+        """Number of particles N."""
         return self.radii.shape[0]
 
     @property
+    def dim(self) -> int:
+        """Spatial dimension d: 2 (disks) or 3 (spheres)."""
+        return self.box.shape[0]
+
+    @property
+    def volume(self) -> float:
+        """Reference cell measure V_rve = prod(box): the area Lx Ly (length², per unit
+        thickness) in 2-D, the volume Lx Ly Lz (length³) in 3-D."""
+        return float(np.prod(self.box))
+
+    @property
     def area(self) -> float:
-        """Reference cell area V_rve = Lx * Ly (length², per unit thickness)."""
-        return float(self.box[0] * self.box[1])
+        """Reference cell area V_rve = Lx * Ly of a 2-D packing (length², per unit thickness);
+        a 3-D packing has a :attr:`volume` instead."""
+        if self.dim != 2:
+            raise AttributeError(
+                "a 3-D packing has no area; its cell measure is Packing.volume (length³)"
+            )
+        return self.volume
 
     @property
     def volume_fraction(self) -> float:
-        """Area covered by the disks over the cell area (overlaps counted twice)."""
-        return float(np.pi * np.sum(self.radii**2) / self.area)
+        """Share of the cell the particles cover (overlaps counted twice): sum pi r² / area
+        (disks) or sum 4/3 pi r³ / volume (spheres)."""
+        if self.dim == 2:
+            return float(np.pi * np.sum(self.radii**2) / self.volume)
+        return float(4.0 / 3.0 * np.pi * np.sum(self.radii**3) / self.volume)
 
     def __repr__(self) -> str:
         return (
-            f"Packing(n_particles={self.n_particles}, box={self.box.tolist()}, "
+            f"Packing(n_particles={self.n_particles}, dim={self.dim}, box={self.box.tolist()}, "
             f"volume_fraction={self.volume_fraction:.4f})"
         )
 
@@ -172,6 +199,15 @@ class Packing:
             return cls(fields["centers"], fields["radii"], fields["box"])
         except ValueError as err:
             raise PackingFileError(f"{path!r} holds an invalid packing: {err}") from None
+
+
+def require_disks(packing: Packing, who: str) -> None:
+    """A ValueError unless ``packing`` is 2-D: ``who`` (a law, a tool) is built for disks."""
+    if packing.dim != 2:
+        raise ValueError(
+            f"{who} is built for disks (2-D); this packing holds spheres (dim {packing.dim}). "
+            "3-D packings take TaylorRVE"
+        )
 
 
 def _as_float_array(value, name: str) -> np.ndarray:
