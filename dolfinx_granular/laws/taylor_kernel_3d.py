@@ -61,16 +61,18 @@ def stretch_bound(F, min_stretch):
             if not np.isfinite(F[a, b]):
                 return NOT_FINITE, 0.0
     J = det(F)
-    C = np.empty((3, 3))
+    c = np.empty(6)  # C = F^T F: C00, C01, C02, C11, C12, C22
+    k = 0
     for a in range(3):
-        for b in range(3):
-            C[a, b] = F[0, a] * F[0, b] + F[1, a] * F[1, b] + F[2, a] * F[2, b]
-    if not (np.isfinite(J) and np.all(np.isfinite(C))):
+        for b in range(a, 3):
+            c[k] = F[0, a] * F[0, b] + F[1, a] * F[1, b] + F[2, a] * F[2, b]
+            k += 1
+    if not (np.isfinite(J) and np.all(np.isfinite(c))):
         return NOT_FINITE, 0.0  # entries so large that F^T F overflows
     if not J > 0.0:
         return NOT_ORIENTATION_PRESERVING, 0.0
-    lam1, lam3 = _extreme_eigenvalues(C)
-    lam2 = max(C[0, 0] + C[1, 1] + C[2, 2] - lam1 - lam3, lam3)
+    lam1, lam3 = _extreme_eigenvalues(c[0], c[1], c[2], c[3], c[4], c[5])
+    lam2 = max(c[0] + c[3] + c[5] - lam1 - lam3, lam3)
     # lam3 = J^2 / (lam1 lam2) is accurate where lam3 itself (a difference) is not
     smin = J / np.sqrt(lam1 * lam2) if lam2 > 0.0 else 0.0
     if smin < min_stretch * (1.0 - _STRETCH_RTOL):
@@ -89,18 +91,17 @@ def det(M):
 
 
 @njit(cache=True)
-def _extreme_eigenvalues(C):
-    """Largest and smallest eigenvalue of a symmetric C (3, 3) (the trigonometric formula)."""
-    q = (C[0, 0] + C[1, 1] + C[2, 2]) / 3.0
-    off = C[0, 1] ** 2 + C[0, 2] ** 2 + C[1, 2] ** 2
-    p2 = (C[0, 0] - q) ** 2 + (C[1, 1] - q) ** 2 + (C[2, 2] - q) ** 2 + 2.0 * off
+def _extreme_eigenvalues(c00, c01, c02, c11, c12, c22):
+    """Largest and smallest eigenvalue of the symmetric matrix C (3, 3) with those entries (the
+    trigonometric formula)."""
+    q = (c00 + c11 + c22) / 3.0
+    a, b, c = c00 - q, c11 - q, c22 - q  # the deviator C - q I
+    p2 = a * a + b * b + c * c + 2.0 * (c01 * c01 + c02 * c02 + c12 * c12)
     if p2 <= 0.0:
         return q, q
     p = np.sqrt(p2 / 6.0)
-    B = C / p
-    for a in range(3):
-        B[a, a] -= q / p
-    r = 0.5 * det(B)
+    detB = a * (b * c - c12 * c12) - c01 * (c01 * c - c12 * c02) + c02 * (c01 * c12 - b * c02)
+    r = 0.5 * detB / (p * p * p)
     phi = np.arccos(min(max(r, -1.0), 1.0)) / 3.0
     return q + 2.0 * p * np.cos(phi), q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
 
@@ -116,11 +117,11 @@ def branch(F, x, y, z):
 
 
 @njit(cache=True, fastmath=FASTMATH | {"contract"}, error_model="numpy")
-def moment_sums(F, X, Y, Z, R, n_visit, tangent, acc):
-    """Accumulate sum eps^2 (acc[0]), S (acc[1:7]) and, if ``tangent``, T (acc[7:22]) over the
-    active contacts among the first ``n_visit`` candidates (X, Y, Z, R of shape (M,))."""
+def stress_sums(F, X, Y, Z, R, n_visit, G, acc):
+    """Accumulate sum eps^2 (acc[0]) and S (acc[1:7]) over the active contacts among the first
+    ``n_visit`` candidates (X, Y, Z, R of shape (M,)), and write each one's weight of T,
+    g = R / d^3 (0 where inactive), into G (M,)."""
     e2 = s0 = s1 = s2 = s3 = s4 = s5 = 0.0
-    t0 = t1 = t2 = t3 = t4 = t5 = t6 = t7 = t8 = t9 = t10 = t11 = t12 = t13 = t14 = 0.0
     for c in range(n_visit):
         x = X[c]
         y = Y[c]
@@ -131,45 +132,59 @@ def moment_sums(F, X, Y, Z, R, n_visit, tangent, acc):
         on = 1.0 if eps >= 0.0 else 0.0  # selects vectorise; see taylor_kernel.moment_sums
         ee = eps if eps >= 0.0 else 0.0
         inv = on / d
+        b = ee * inv
+        G[c] = r * inv * inv * inv
+        e2 += ee * ee
+        s0 += b * x * x
+        s1 += b * x * y
+        s2 += b * x * z
+        s3 += b * y * y
+        s4 += b * y * z
+        s5 += b * z * z
+    acc[0] = e2
+    acc[1], acc[2], acc[3], acc[4], acc[5], acc[6] = s0, s1, s2, s3, s4, s5
+
+
+@njit(cache=True, fastmath=FASTMATH | {"contract"}, error_model="numpy")
+def tangent_sums(X, Y, Z, G, n_visit, acc):
+    """Accumulate T (acc[7:22]) = sum g L L L L over the first ``n_visit`` candidates with the
+    weights G of :func:`stress_sums`: the 15 monomials of degree 4 in the order of SYM4.
+
+    A loop of its own: without square roots and divisions, and with 15 accumulators instead of
+    22, it vectorises without spilling registers (1.5x faster P + A)."""
+    t0 = t1 = t2 = t3 = t4 = t5 = t6 = t7 = t8 = t9 = t10 = t11 = t12 = t13 = t14 = 0.0
+    for c in range(n_visit):
+        x = X[c]
+        y = Y[c]
+        z = Z[c]
+        g = G[c]
         xx = x * x
         xy = x * y
         xz = x * z
         yy = y * y
         yz = y * z
         zz = z * z
-        b = ee * inv
-        e2 += ee * ee
-        s0 += b * xx
-        s1 += b * xy
-        s2 += b * xz
-        s3 += b * yy
-        s4 += b * yz
-        s5 += b * zz
-        if tangent:  # the 15 monomials of degree 4, in the order of SYM4
-            g = r * inv * inv * inv
-            gxx = g * xx
-            gxy = g * xy
-            gxz = g * xz
-            gyy = g * yy
-            gyz = g * yz
-            gzz = g * zz
-            t0 += gxx * xx
-            t1 += gxx * xy
-            t2 += gxx * xz
-            t3 += gxx * yy
-            t4 += gxx * yz
-            t5 += gxx * zz
-            t6 += gxy * yy
-            t7 += gxy * yz
-            t8 += gxy * zz
-            t9 += gxz * zz
-            t10 += gyy * yy
-            t11 += gyy * yz
-            t12 += gyy * zz
-            t13 += gyz * zz
-            t14 += gzz * zz
-    acc[0] = e2
-    acc[1], acc[2], acc[3], acc[4], acc[5], acc[6] = s0, s1, s2, s3, s4, s5
+        gxx = g * xx
+        gxy = g * xy
+        gxz = g * xz
+        gyy = g * yy
+        gyz = g * yz
+        gzz = g * zz
+        t0 += gxx * xx
+        t1 += gxx * xy
+        t2 += gxx * xz
+        t3 += gxx * yy
+        t4 += gxx * yz
+        t5 += gxx * zz
+        t6 += gxy * yy
+        t7 += gxy * yz
+        t8 += gxy * zz
+        t9 += gxz * zz
+        t10 += gyy * yy
+        t11 += gyy * yz
+        t12 += gyy * zz
+        t13 += gyz * zz
+        t14 += gzz * zz
     acc[7], acc[8], acc[9], acc[10], acc[11] = t0, t1, t2, t3, t4
     acc[12], acc[13], acc[14], acc[15], acc[16] = t5, t6, t7, t8, t9
     acc[17], acc[18], acc[19], acc[20], acc[21] = t10, t11, t12, t13, t14
@@ -187,10 +202,10 @@ def piola(F, S, K, P):
 
 
 @njit(cache=True)
-def tangent_of(F, S, T, K, A):
+def tangent_of(F, S, T, K, A, G):
     """A (3, 3, 3, 3) = K [F_ae F_cf T_efbd - delta_ac S_bd] from the moment sums S (6,) and
-    T (15,)."""
-    G = np.empty((3, 3, 3, 3))  # G_afbd = F_ae T_efbd
+    T (15,); G (3, 3, 3, 3) is scratch."""
+    # G_afbd = F_ae T_efbd
     for a in range(3):
         for f in range(3):
             for b in range(3):
@@ -223,10 +238,10 @@ def cauchy_in_place(F, P):
 
 
 @njit(cache=True)
-def spatial_in_place(F, A):
-    """A (3, 3, 3, 3) -> a_abcd = F_bB F_dD A_aBcD / J (eq. 14)."""
+def spatial_in_place(F, A, H):
+    """A (3, 3, 3, 3) -> a_abcd = F_bB F_dD A_aBcD / J (eq. 14); H (3, 3, 3, 3) is scratch."""
     J = det(F)
-    H = np.empty((3, 3, 3, 3))  # H_abcD = F_bB A_aBcD
+    # H_abcD = F_bB A_aBcD
     for a in range(3):
         for b in range(3):
             for c in range(3):
@@ -262,6 +277,8 @@ def evaluate_batch(F, X, Y, Z, R, rho, K, min_stretch, spatial, tangent, W, P, A
         A then zero).
     """
     acc = np.empty(22)
+    G = np.empty(X.shape[0])
+    scratch = np.empty((3, 3, 3, 3))
     for q in range(F.shape[0]):
         code, limit = stretch_bound(F[q], min_stretch)
         status[q] = code
@@ -272,12 +289,13 @@ def evaluate_batch(F, X, Y, Z, R, rho, K, min_stretch, spatial, tangent, W, P, A
                 A[q] = 0.0
             continue
         n_visit = np.searchsorted(rho, limit, side="right")
-        moment_sums(F[q], X, Y, Z, R, n_visit, tangent, acc)
+        stress_sums(F[q], X, Y, Z, R, n_visit, G, acc)
         W[q] = 0.5 * K * acc[0]
         if tangent:  # before P turns into sigma: A is dP/dF at the material sums
-            tangent_of(F[q], acc[1:7], acc[7:22], K, A[q])
+            tangent_sums(X, Y, Z, G, n_visit, acc)
+            tangent_of(F[q], acc[1:7], acc[7:22], K, A[q], scratch)
             if spatial:
-                spatial_in_place(F[q], A[q])
+                spatial_in_place(F[q], A[q], scratch)
         piola(F[q], acc[1:7], K, P[q])
         if spatial:
             cauchy_in_place(F[q], P[q])

@@ -1,4 +1,9 @@
-"""Jammed periodic disk packings from a grain size distribution (paper section 4).
+"""Jammed periodic packings of disks (2-D) or spheres (3-D) from a grain size distribution (paper
+section 4).
+
+The steps below are written for disks; with ``dim=3`` every one holds for spheres: the passing is
+read as volume fraction, the cell is a box, a rattler has fewer than 4 contacts, the pressure is
+p d_mean / k_n (k_n in N/m), and a network is accepted from a mean coordination of 5.5.
 
 Algorithm (:func:`generate_packing`):
 
@@ -80,6 +85,13 @@ PROGRESS_INTERVAL = 1.0
 #: pass 10 % of a radius, outside the linear springs' range
 MAX_PRESSURE = 1e-2
 
+#: per dimension: the volume fraction the first cell is sized for, where the jamming search
+#: starts, and the least mean coordination of the non-rattlers a generated network must have
+#: (4 and 6 are isostatic; a jammed state above them has a few more)
+START_FRACTION = {2: 0.84, 3: 0.64}
+FIRST_GUESS = {2: 0.86, 3: 0.64}
+MIN_COORDINATION = {2: 3.8, 3: 5.5}
+
 
 # -- progress --------------------------------------------------------------------------------------
 
@@ -159,9 +171,10 @@ class NetworkStats:
     """Contact network of a packing at F = I under the kernel's rule eps >= 0.
 
     Attributes:
-        volume_fraction: disk area / cell area.
-        n_contacts: active contacts (periodic images included), all disks.
-        rattlers: (k,) indices of rattlers (fewer than 3 contacts, removed recursively).
+        volume_fraction: particle area / cell area (2-D), particle / cell volume (3-D).
+        n_contacts: active contacts (periodic images included), all particles.
+        rattlers: (k,) indices of rattlers (fewer than d + 1 contacts: 3 for disks, 4 for
+            spheres, removed recursively).
         rattler_fraction: k / N.
         coordination: mean contacts per non-rattler, counting contacts between non-rattlers.
         min_coordination: fewest contacts of a non-rattler (0 when all are rattlers).
@@ -183,12 +196,11 @@ def network_stats(packing: Packing) -> NetworkStats:
     The contacts are those of ``TaylorRVE(packing, k).contacts(np.eye(2))`` (same pairs, same
     arithmetic), found in O(N) time.
     """
-    require_disks(packing, "network_stats")
     ij, _, eps = candidates(packing.centers, packing.radii, packing.box, 1.0 / 0.99)
     on = eps >= 0.0
     pairs, overlap = ij[on], eps[on]
     n = packing.n_particles
-    rattler = rattlers(pairs, n)
+    rattler = rattlers(pairs, n, packing.dim)
     keep = ~(rattler[pairs[:, 0]] | rattler[pairs[:, 1]])
     counts = np.bincount(pairs[keep].ravel(), minlength=n)[~rattler]
     d_mean = 2.0 * packing.radii.mean()
@@ -215,25 +227,29 @@ def generate_packing(
     max_rattlers: float = 0.15,
     max_attempts: int = 5,
     progress: Callable[[ProgressLine], object] | None = None,
+    dim: int = 2,
 ) -> Packing:
-    """A jammed, stress-free periodic packing of disks sized by a sieve curve.
+    """A jammed, stress-free periodic packing of disks (``dim=2``) or spheres (``dim=3``) sized
+    by a sieve curve.
 
     See the module docstring for the algorithm (FIRE soft-disk jamming, O'Hern et al. 2003;
     Bitzek et al. 2006) and its references.
 
     Args:
-        n_particles: number of disks N >= 2.
+        n_particles: number of particles N >= 2.
         gsd: :class:`~dolfinx_granular.SieveCurve`, an ``(aperture_mm, passing_percent)``
             pair, or None for the shipped CEN standard sand.
         seed: seed of the random generator; equal arguments give identical arrays.
         d_min: cut size in mm; grains finer than this are left out (None: keep the whole curve).
             The default 0.5 mm keeps the CEN sand at a 4:1 size span.
-        aspect: cell height / width (1 = square).
-        pressure: target jamming pressure p / k_n (dimensionless) of stage 2, in (0, 1e-2].
+        aspect: cell height / width (1 = square); in 3-D the box's Lz / Lx (Ly = Lx).
+        pressure: target jamming pressure of stage 2, dimensionless, in (0, 1e-2]: p / k_n
+            in 2-D (k_n in N/m²), p d_mean / k_n in 3-D (k_n in N/m).
         contact_overlap: overlap of every contact in the returned packing, relative to the mean
             diameter, in (0, 1e-8].
         max_rattlers: acceptance limit on the rattler fraction. A jammed state with more
-            rattlers (or a mean coordination of the non-rattlers below 3.8) is rejected and the
+            rattlers (or a mean coordination of the non-rattlers below 3.8 in 2-D, 5.5 in 3-D;
+            :data:`MIN_COORDINATION`) is rejected and the
             disks are jammed again from new random centres, at most ``max_attempts`` times in
             all; the attempt with the fewest rattlers is returned. Small cells (N ~ 70)
             need a second attempt for a few percent of the seeds.
@@ -245,6 +261,7 @@ def generate_packing(
             minimisation of the jamming search, the jammed state, each rejected attempt, the
             end) and, during long minimisations and corrections, at most once per
             ``PROGRESS_INTERVAL`` (1 s) in between. It does not change the result.
+        dim: 2 (disks, the paper's RVE) or 3 (spheres).
 
     Returns:
         :class:`~dolfinx_granular.Packing` with radii in mm.
@@ -256,9 +273,11 @@ def generate_packing(
     n, curve = _check_arguments(
         n_particles, gsd, d_min, aspect, pressure, max_rattlers, max_attempts, contact_overlap
     )
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 (disks) or 3 (spheres), got {dim!r}")
     say = _Reporter(progress)
     rng = np.random.default_rng(_seed(seed))
-    r0, box = _radii_and_cell(curve, n, rng, d_min, aspect)
+    r0, box = _radii_and_cell(curve, n, rng, d_min, aspect, dim)
     delta = contact_overlap * float(2.0 * r0.mean())
     best = None
     for attempt in range(max_attempts):
@@ -266,7 +285,7 @@ def generate_packing(
         packing, stats = _attempt(rng, r0, box, pressure, delta, say)
         if best is None or stats.rattler_fraction < best[1].rattler_fraction:
             best = (packing, stats)
-        if stats.rattler_fraction <= max_rattlers and stats.coordination >= 3.8:
+        if stats.rattler_fraction <= max_rattlers and stats.coordination >= MIN_COORDINATION[dim]:
             break
         say(
             "checking",
@@ -278,23 +297,28 @@ def generate_packing(
     say(
         "done",
         1.0,
-        f"done: {n} disks, phi = {packing.volume_fraction:.4f}, "
+        f"done: {n} {'disks' if dim == 2 else 'spheres'}, phi = {packing.volume_fraction:.4f}, "
         f"{100 * stats.rattler_fraction:.1f} % rattlers ({say.elapsed():.1f} s)",
     )
     return packing
 
 
-def _radii_and_cell(curve, n, rng, d_min, aspect):
+def _radii_and_cell(curve, n, rng, d_min, aspect, dim):
     """Stage 1: the radii r0 (n,) in mm, sampled from the curve in a random order, and a cell
-    (2,) in mm sized for phi ~ 0.84 at them (stage 2 scales the radii, stage 3 scales back)."""
-    diam = curve.sample_diameters(n, rng, d_min=d_min)
+    (dim,) in mm sized for phi ~ :data:`START_FRACTION` at them (stage 2 scales the radii,
+    stage 3 scales back)."""
+    diam = curve.sample_diameters(n, rng, d_min=d_min, dim=dim)
     rng.shuffle(diam)
     r0 = 0.5 * diam
-    area = np.pi * np.sum(r0**2) / 0.84
-    box = np.array([np.sqrt(area / aspect), np.sqrt(area * aspect)])
+    V = _solid_measure(r0, dim) / START_FRACTION[dim]
+    if dim == 2:
+        box = np.array([np.sqrt(V / aspect), np.sqrt(V * aspect)])
+    else:
+        w = (V / aspect) ** (1.0 / 3.0)
+        box = np.array([w, w, w * aspect])
     if 2.0 * r0.max() >= 0.8 * box.min():
         raise ValueError(
-            f"{n} disks are too few for this size span: the largest grain "
+            f"{n} particles are too few for this size span: the largest grain "
             f"({2 * r0.max():.3g} mm) would span 80 % of the cell; use more particles or a "
             "narrower grading (larger d_min)"
         )
@@ -305,7 +329,7 @@ def _attempt(rng, r0, box, pressure, delta, say):
     """Stages 2 and 3 from new random centres: the stress-free packing and its
     :class:`NetworkStats`; ``delta`` is the contact overlap in mm."""
     n = r0.size
-    x = rng.random((n, 2)) * box
+    x = rng.random((n, box.size)) * box
     if n > CELL_ORDER_ABOVE:
         # the random centres numbered along the cells (the radii keep their random order:
         # the same distribution), so that FIRE's force loop finds neighbours near in memory
@@ -314,7 +338,7 @@ def _attempt(rng, r0, box, pressure, delta, say):
     say(
         "jamming",
         1.0,
-        f"jammed at phi = {np.pi * np.sum((scale * r0) ** 2) / box.prod():.4f}"
+        f"jammed at phi = {_solid_measure(scale * r0, box.size) / box.prod():.4f}"
         f", p/k = {p:.2e} ({say.elapsed():.1f} s)",
     )
     centers, radii, cell = stress_free(x / scale, r0.copy(), box / scale, delta, say)
@@ -421,25 +445,27 @@ def _seed(seed):
 
 
 def _jam(x, r0, box, p_target, d_mean, say):
-    """Scale radii and minimise until the pressure p / k is within a factor 1.5 of ``p_target``.
+    """Scale radii and minimise until the pressure (p / k, 3-D: p d_mean / k) is within a
+    factor 1.5 of ``p_target``.
 
     Args:
-        x: (N, 2) initial centres (mm); r0: (N,) radii (mm) at which the cell holds
-            phi0 = pi sum r0² / |box|; box: (2,) (mm); d_mean: mean diameter (mm);
+        x: (N, d) initial centres (mm); r0: (N,) radii (mm) at which the cell holds
+            phi0 (area or volume fraction); box: (d,) (mm); d_mean: mean diameter (mm);
         say: the :class:`_Reporter`.
 
     Returns:
-        ``(x, scale, p)`` with the jammed centres (N, 2) at radii ``scale * r0``.
+        ``(x, scale, p)`` with the jammed centres (N, d) at radii ``scale * r0``.
     """
-    phi0 = np.pi * np.sum(r0**2) / box.prod()
+    dim = box.size
+    phi0 = _solid_measure(r0, dim) / box.prod()
     skin = 0.3 * d_mean
     ftol = 1e-3 * p_target * d_mean
-    phi = 0.86
+    phi = FIRST_GUESS[dim]
     lo, hi = None, None  # (phi, p) bracket: unjammed / jammed
     jammed = []
     p = 0.0
     for it in range(60):
-        scale = np.sqrt(phi / phi0)
+        scale = (phi / phi0) ** (1.0 / dim)
         steps, p = _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, phi, it)
         say(
             "jamming",
@@ -456,9 +482,9 @@ def _jam(x, r0, box, p_target, d_mean, say):
             jammed.append((phi, p))
         if lo is not None and hi is not None and hi - lo < 1e-9:
             # p jumps across the target (small N): accept the jammed state at the upper bound
-            scale = np.sqrt(hi / phi0)
+            scale = (hi / phi0) ** (1.0 / dim)
             _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, hi, it)
-            return x, scale, virial_pressure(x, scale * r0, box)
+            return x, scale, virial_pressure(x, scale * r0, box) * d_mean ** (dim - 2)
         phi = _next_phi(phi, jammed, lo, hi, p_target)
     raise RuntimeError(f"jamming did not reach p/k = {p_target:g} (last p/k = {p:.3g})")
 
@@ -484,7 +510,13 @@ def _minimise_reporting(x, r, box, skin, ftol, d_mean, say, phi, it):
         )
 
     steps, vir = minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
-    return steps, vir / (2.0 * box.prod())
+    dim = box.size
+    return steps, vir / (dim * box.prod()) * d_mean ** (dim - 2)  # dimensionless
+
+
+def _solid_measure(r, dim):
+    """Area (2-D) or volume (3-D) of the particles of radii r (mm² or mm³)."""
+    return np.pi * np.sum(r**2) if dim == 2 else 4.0 / 3.0 * np.pi * np.sum(r**3)
 
 
 def _next_phi(phi, jammed, lo, hi, p_target):

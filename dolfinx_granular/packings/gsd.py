@@ -143,18 +143,25 @@ class SieveCurve:
         return lo, hi, dp / dp.sum()
 
     def number_fractions(
-        self, d_min: float | None = None
+        self, d_min: float | None = None, dim: int = 2
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(lo, hi, nfrac)``: class bounds (mm) and number fraction per class (sums to 1)."""
+        """``(lo, hi, nfrac)``: class bounds (mm) and number fraction per class (sums to 1), the
+        passing read as area (``dim`` 2, disks) or volume (``dim`` 3, spheres) fraction."""
+        k = _dimension(dim)
         lo, hi, share = self.classes(d_min)
-        mean_d2 = 2.0 * np.log(hi / lo) / (lo**-2 - hi**-2)
-        w = share / mean_d2
+        mean_dk = k * np.log(hi / lo) / (lo**-k - hi**-k)
+        w = share / mean_dk
         return lo, hi, w / w.sum()
 
     def sample_diameters(
-        self, n: int, rng: np.random.Generator | int | None = None, d_min: float | None = None
+        self,
+        n: int,
+        rng: np.random.Generator | int | None = None,
+        d_min: float | None = None,
+        dim: int = 2,
     ) -> np.ndarray:
-        """Draw ``n`` grain diameters (mm) whose area distribution follows the curve above d_min.
+        """Draw ``n`` grain diameters (mm) whose area (``dim`` 2, disks) or volume (``dim`` 3,
+        spheres) distribution follows the curve above d_min.
 
         Stratified sampling of the number distribution: the i-th diameter is the inverse number
         CDF at (i + U_i) / n, U_i uniform, so even 70 grains reproduce the grading closely.
@@ -163,6 +170,7 @@ class SieveCurve:
             n: number of grains, >= 1.
             rng: ``numpy.random.Generator`` or a seed.
             d_min: cut size in mm (fines below it are dropped), None keeps the whole curve.
+            dim: 2 (percent passing by area) or 3 (by volume).
 
         Returns:
             (n,) diameters in mm, ascending.
@@ -170,22 +178,25 @@ class SieveCurve:
         n = int(n)
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
+        k = _dimension(dim)
         rng = np.random.default_rng(rng)
-        lo, hi, nfrac = self.number_fractions(d_min)
+        lo, hi, nfrac = self.number_fractions(d_min, k)
         cdf = np.concatenate([[0.0], np.cumsum(nfrac)])
         cdf[-1] = 1.0
         u = (np.arange(n) + rng.random(n)) / n
-        k = np.clip(np.searchsorted(cdf, u, side="right") - 1, 0, lo.size - 1)
-        t = np.clip((u - cdf[k]) / nfrac[k], 0.0, 1.0)
-        # inverse of the class's number CDF (a^-2 - d^-2) / (a^-2 - b^-2)
-        return (lo[k] ** -2 - t * (lo[k] ** -2 - hi[k] ** -2)) ** -0.5
+        c = np.clip(np.searchsorted(cdf, u, side="right") - 1, 0, lo.size - 1)
+        t = np.clip((u - cdf[c]) / nfrac[c], 0.0, 1.0)
+        # inverse of the class's number CDF (a^-k - d^-k) / (a^-k - b^-k), k = dim
+        a, b = lo[c], hi[c]
+        return (a**-k - t * (a**-k - b**-k)) ** (-1.0 / k)
 
     @staticmethod
-    def area_passing(diameters: ArrayLike, d: ArrayLike) -> np.ndarray:
-        """Percent of the total grain area (disks) in grains smaller than ``d`` — the sieve curve
-        of a sample of ``diameters``. Both in mm; returns an array shaped like ``d``."""
+    def area_passing(diameters: ArrayLike, d: ArrayLike, dim: int = 2) -> np.ndarray:
+        """Percent of the total grain area (``dim`` 2, disks) or volume (``dim`` 3, spheres) in
+        grains smaller than ``d`` — the sieve curve of a sample of ``diameters``. Both in mm;
+        returns an array shaped like ``d``."""
         diam = np.sort(np.asarray(diameters, dtype=float))
-        area = np.cumsum(diam**2)
+        area = np.cumsum(diam ** _dimension(dim))
         idx = np.searchsorted(diam, np.asarray(d, dtype=float), side="right")
         return 100.0 * np.where(idx > 0, area[np.maximum(idx - 1, 0)], 0.0) / area[-1]
 
@@ -262,3 +273,10 @@ def _float_1d(value, name):
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} has non-finite values: {arr.tolist()}")
     return arr
+
+
+def _dimension(dim: int) -> int:
+    """``dim`` as 2 or 3; a ValueError that names it otherwise."""
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 (disks) or 3 (spheres), got {dim!r}")
+    return int(dim)

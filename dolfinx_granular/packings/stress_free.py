@@ -3,9 +3,10 @@
 
 The contact network of a jammed state is kept and its overlaps set exactly: a minimum-norm Newton
 correction of all centres and radii makes every contact between non-rattlers overlap by
-``delta`` and opens the contacts of rattlers (disks with fewer than 3 contacts, removed
-recursively) to a small gap. A contact is identified by its disks and their image shift between
-the unwrapped centres, so that a disk crossing the cell boundary keeps it.
+``delta`` and opens the contacts of rattlers (particles with fewer than d + 1 contacts: 3 for
+disks, 4 for spheres, removed recursively) to a small gap. A contact is identified by its
+particles and their image shift between the unwrapped centres, so that a particle crossing the
+cell boundary keeps it.
 """
 
 from __future__ import annotations
@@ -22,22 +23,26 @@ class StressFreeError(RuntimeError):
     """The minimum-norm correction of stage 3 found no stress-free state."""
 
 
-def rattlers(pairs, n):
-    """Boolean (n,) mask of disks with fewer than 3 contacts, removed recursively."""
+def rattlers(pairs, n, dim=2):
+    """Boolean (n,) mask of particles with fewer than dim + 1 contacts (3 for disks, 4 for
+    spheres: too few to be held in d dimensions), removed recursively."""
     rattler = np.zeros(n, bool)
     while True:
         keep = ~(rattler[pairs[:, 0]] | rattler[pairs[:, 1]])
         counts = np.bincount(pairs[keep].ravel(), minlength=n)
-        new = (counts < 3) & ~rattler
+        new = (counts < dim + 1) & ~rattler
         if not new.any():
             return rattler
         rattler |= new
 
 
 def _pair_keys(ij, shift, n):
-    """One int64 key per pair (i, j, shift) (M, 2) + (M, 2) of an N-disk packing."""
-    s = shift + 64  # |shift| <= 2 here: a disk spans less than 80 % of the cell
-    return ((ij[:, 0] * n + ij[:, 1]) * 129 + s[:, 0]) * 129 + s[:, 1]
+    """One int64 key per pair (i, j, shift) (M, 2) + (M, d) of an N-particle packing."""
+    s = shift + 64  # |shift| <= 2 here: a particle spans less than 80 % of the cell
+    key = ij[:, 0] * n + ij[:, 1]
+    for k in range(s.shape[1]):
+        key = key * 129 + s[:, k]
+    return key
 
 
 def stress_free(x, r, box, delta, say):
@@ -46,26 +51,26 @@ def stress_free(x, r, box, delta, say):
     Contacts between non-rattlers get eps = delta, contacts of rattlers a gap 1e5 * delta.
 
     Args:
-        x: (N, 2) jammed centres (mm); r: (N,) radii (mm); box: (2,) (mm); delta: overlap (mm);
+        x: (N, d) jammed centres (mm); r: (N,) radii (mm); box: (d,) (mm); delta: overlap (mm);
         say: the :class:`_Reporter`.
 
     Returns:
-        Wrapped ``(centers (N, 2), radii (N,), box (2,))``.
+        Wrapped ``(centers (N, d), radii (N,), box (d,))``.
     """
-    n = r.size
+    n, dim = x.shape
     gap = 1e5 * delta
     centers = Packing(x, r, box).centers
     net_keys = np.empty(0, np.int64)  # the network's pairs, in the order they joined it
     net_eps = np.empty(0)  # and their target overlaps
     # cells by which each disk has been wrapped since the start: a pair is keyed by its image
     # shift between the unwrapped centres, which a disk crossing the cell boundary keeps
-    wraps = np.zeros((n, 2), np.int64)
+    wraps = np.zeros((n, dim), np.int64)
     for rnd in range(10):
         ij, shift, eps = candidates(centers, r, box, 1.02)
         keys = _pair_keys(ij, shift + wraps[ij[:, 0]] - wraps[ij[:, 1]], n)
         if net_keys.size == 0:
             new = eps > 0.0
-            rattler = rattlers(ij[new], n)
+            rattler = rattlers(ij[new], n, dim)
         else:
             # pairs that closed during the last correction join the network
             new = (eps > -0.5 * gap) & ~np.isin(keys, net_keys)
@@ -103,9 +108,9 @@ def _newton(x, r, box, ij, shift, target, delta):
     """Minimum-norm Newton steps on (x, r) for eps_c(x, r) = target_c over the given pairs.
 
     Args:
-        x: (N, 2) centres (mm); r: (N,) radii (mm); box: (2,) (mm); ij, shift: (M, 2) pairs
-        and image shifts (cells); target: (M,) overlaps (mm); delta: the tolerance scale (mm):
-        stops when every |eps - target| <= 0.01 delta, or after 8 steps.
+        x: (N, d) centres (mm); r: (N,) radii (mm); box: (d,) (mm); ij, shift: (M, 2) pairs
+        and (M, d) image shifts (cells); target: (M,) overlaps (mm); delta: the tolerance scale
+        (mm): stops when every |eps - target| <= 0.01 delta, or after 8 steps.
 
     Returns:
         The corrected ``(x, r)``.
@@ -114,22 +119,29 @@ def _newton(x, r, box, ij, shift, target, delta):
     r = r.copy()
     i, j = ij[:, 0], ij[:, 1]
     m = i.size
-    n = r.size
+    n, dim = x.shape
     S = shift * box
-    rows = np.repeat(np.arange(m), 6)
+    rows = np.repeat(np.arange(m), 2 * dim + 2)
     for _ in range(8):
         L = x[j] + S - x[i]
-        d = np.sqrt(L[:, 0] * L[:, 0] + L[:, 1] * L[:, 1])
+        d2 = L[:, 0] * L[:, 0]
+        for k in range(1, dim):
+            d2 = d2 + L[:, k] * L[:, k]
+        d = np.sqrt(d2)
         if not np.all(d > 0.0):  # also NaN: the steps diverged
             raise ValueError("two disks of the contact network reached the same centre")
         g = r[i] + r[j] - d - target
         if np.all(np.abs(g) <= 0.01 * delta):
             break
         nv = L / d[:, None]
-        # unknowns: x (2n, interleaved) then r (n); deps/dx_i = n, deps/dx_j = -n, deps/dr = 1
-        cols = np.stack([2 * i, 2 * i + 1, 2 * j, 2 * j + 1, 2 * n + i, 2 * n + j], axis=1)
-        vals = np.stack([nv[:, 0], nv[:, 1], -nv[:, 0], -nv[:, 1], np.ones(m), np.ones(m)], axis=1)
-        J = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, 3 * n))
+        # unknowns: x (d n, interleaved) then r (n); deps/dx_i = n, deps/dx_j = -n, deps/dr = 1
+        a = np.arange(dim)
+        cols = np.concatenate(
+            [dim * i[:, None] + a, dim * j[:, None] + a, dim * n + np.stack([i, j], axis=1)],
+            axis=1,
+        )
+        vals = np.concatenate([nv, -nv, np.ones((m, 2))], axis=1)
+        J = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, (dim + 1) * n))
         JJt = (J @ J.T).tocsc()
         JJt = JJt + sp.identity(m, format="csc") * 1e-12 * JJt.diagonal().mean()
         # J J^T is symmetric positive definite: a symmetric fill-reducing order without pivoting
@@ -138,6 +150,6 @@ def _newton(x, r, box, ij, shift, target, delta):
             JJt, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
         )
         dz = J.T @ lu.solve(-g)
-        x += dz[: 2 * n].reshape(n, 2)
-        r += dz[2 * n :]
+        x += dz[: dim * n].reshape(n, dim)
+        r += dz[dim * n :]
     return x, r
