@@ -17,6 +17,7 @@ from dolfinx_granular import (
     UnsupportedDeformationError,
 )
 from dolfinx_granular.packings import neighbours
+from dolfinx_granular.packings.packing import LENGTH_UNIT
 
 import numpy as np
 import pytest
@@ -25,6 +26,7 @@ from helpers import fcc_lattice, random_spheres
 from reference import central_differences, reference, reference_modulus
 
 K_N = 1e5  # N/m
+KN_REF = K_N / LENGTH_UNIT  # the reference reads the packing's mm as m: k_n per mm
 
 
 def rel(a, b):
@@ -59,7 +61,7 @@ def test_the_kernel_is_the_paper(rve, packing, batch):
     W, P, A = rve.evaluate(batch)
     sigma, a = rve.cauchy(batch), rve.spatial_tangent(batch)
     for q, F in enumerate(batch):
-        Wr, Pr, Ar, sr, ar = reference(packing, K_N, F, images=1)
+        Wr, Pr, Ar, sr, ar = reference(packing, KN_REF, F, images=1)
         assert abs(W[q] - Wr) <= 1e-12 * Wr
         assert rel(P[q], Pr) <= 1e-12 and rel(A[q], Ar) <= 1e-12
         assert rel(sigma[q], sr) <= 1e-12 and rel(a[q], ar) <= 1e-12
@@ -91,7 +93,7 @@ def test_pruned_candidates_are_complete_under_strong_compression(packing):
         rve = TaylorRVE(packing, K_N, min_stretch=0.55, allow_overlaps=True)
     F = rotation([0.3, -1.0, 0.4], 0.5) @ np.diag([0.56, 1.2, 0.9])
     W, P, A = rve.evaluate(F)
-    Wr, Pr, Ar, _, _ = reference(packing, K_N, F, images=2)
+    Wr, Pr, Ar, _, _ = reference(packing, KN_REF, F, images=2)
     assert abs(W - Wr) <= 1e-12 * Wr and rel(P, Pr) <= 1e-12 and rel(A, Ar) <= 1e-12
 
 
@@ -121,8 +123,8 @@ def test_small_strain_modulus_of_the_fcc_lattice():
     p = fcc_lattice(3, overlap=1e-10)
     rve = TaylorRVE(p, K_N)
     C = rve.small_strain_modulus()
-    assert rel(C, reference_modulus(p, K_N, images=1)) <= 1e-13
-    C11 = np.sqrt(2.0) * K_N
+    assert rel(C, reference_modulus(p, KN_REF, images=1)) <= 1e-13
+    C11 = np.sqrt(2.0) * KN_REF  # the neighbour distance is 1 mm
     for idx in product(range(3), repeat=4):
         a, b, c, d = idx
         want = 0.0
@@ -134,7 +136,7 @@ def test_small_strain_modulus_of_the_fcc_lattice():
     bulk = np.einsum("iijj->", C) / 9.0
     shear = (np.einsum("ijij->", C) - np.einsum("iijj->", C) / 3.0) / 10.0
     phi, Z = np.pi / (3.0 * np.sqrt(2.0)), 12
-    assert bulk == pytest.approx(phi * Z * K_N / (3.0 * np.pi), rel=1e-9)
+    assert bulk == pytest.approx(phi * Z * KN_REF / (3.0 * np.pi), rel=1e-9)
     assert shear == pytest.approx(0.6 * bulk, rel=1e-12)
     # without prestress the tangent at F = I is that modulus
     assert rel(rve.evaluate(np.eye(3))[2], C) <= 1e-8
@@ -146,7 +148,7 @@ def test_contacts_carry_the_stress(rve, packing):
     assert cs.branch.shape == (len(cs.force), 3) and cs.shift.shape == (len(cs.force), 3)
     L = np.linalg.solve(F, cs.branch.T).T
     n = cs.branch / np.linalg.norm(cs.branch, axis=1)[:, None]
-    P_c = -np.einsum("m,ma,mb->ab", cs.force, n, L) / packing.volume
+    P_c = -np.einsum("m,ma,mb->ab", cs.force, n, L) / (packing.volume * LENGTH_UNIT)
     assert rel(P_c, rve.stress(F)[1]) <= 1e-12
     stats = rve.overlap_statistics(F)
     assert stats.contacts == len(cs.force)

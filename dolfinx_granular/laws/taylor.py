@@ -11,9 +11,11 @@ every formula holds with its indices running over d (the 3-D kernel is
 :mod:`~dolfinx_granular.laws.taylor_kernel_3d`).
 
 Units: ``normal_stiffness`` k_n in N/m² in 2-D (force per unit overlap per unit thickness) and in
-N/m in 3-D (force per unit overlap), lengths in the packing's units (m); energy density W and all
-stresses and tangents in Pa. The 2-D Taylor stress does not depend on the packing's absolute
-size; the 3-D one scales with 1 / size (k_n / V times length²).
+N/m in 3-D (force per unit overlap); the packing's lengths in mm
+(:data:`~dolfinx_granular.packings.packing.LENGTH_UNIT`); energy density W and all stresses and
+tangents in Pa. The 2-D Taylor stress does not depend on the packing's absolute size; the 3-D
+one scales with 1 / size (k_n / V times length²: a packing of 1 mm spheres at k_n = 1e5 N/m
+has moduli of the order of 1e8 Pa).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..packings.packing import Packing
+from ..packings.packing import LENGTH_UNIT, Packing
 from . import taylor_kernel, taylor_kernel_3d, tools, validity
 from .contacts import ContactCandidates
 from .tools import UnsupportedDeformationError, as_batch, to_float, unsupported_deformation
@@ -132,7 +134,8 @@ class TaylorRVE:
         self.min_stretch = s
         self.dim = packing.dim
         self.candidates = ContactCandidates.from_packing(packing, s)
-        self._K = k / packing.volume
+        # k_n / V in N/m² / length² (2-D) and N/m / m / length² (3-D: V in m³, lengths in mm)
+        self._K = k / (packing.volume * LENGTH_UNIT ** (packing.dim - 2))
         self._check_reference(bool(allow_overlaps))
 
     def _check_reference(self, allow_overlaps):

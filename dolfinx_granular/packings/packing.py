@@ -17,6 +17,11 @@ import numpy as np
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
+#: metres per unit of a packing's lengths: centres, radii and box are in mm, as sieve curves
+#: and the generator give them (the 2-D stress does not depend on it; the 3-D stress, k_n / V
+#: times length², does)
+LENGTH_UNIT = 1e-3
+
 # the file-format tag, kept from when the module was dolfinx_granular.packing: old files load
 FORMAT_NAME = "dolfinx_granular.packing"
 FORMAT_VERSION = 1
@@ -30,10 +35,10 @@ class Packing:
     """Disks (2-D) or spheres (3-D) in a periodic rectangular cell.
 
     Args:
-        centers: (N, d) centres, d = 2 or 3; points outside the cell ``[0, box)`` are wrapped
-            into it.
-        radii: (N,) radii, > 0.
-        box: (d,) cell lengths (Lx, Ly) or (Lx, Ly, Lz), > 0.
+        centers: (N, d) centres in mm, d = 2 or 3; points outside the cell ``[0, box)`` are
+            wrapped into it.
+        radii: (N,) radii in mm, > 0.
+        box: (d,) cell lengths (Lx, Ly) or (Lx, Ly, Lz) in mm, > 0.
 
     Attributes:
         centers: (N, d) float64, wrapped into the cell.
