@@ -1,10 +1,11 @@
 """The README's snippets of "Use it in your own DOLFINx model" run as printed (serial and MPI):
-the granular column, the granular layer on a linear elastic base, and the pyvista look at the
-slope's results."""
+the granular column, the granular layer on a linear elastic base, the 3-D column, and the
+pyvista look at the slope's results."""
 
 import os
 import re
 
+import numpy as np
 import pytest
 
 from helpers import ROOT, run_slope_demo
@@ -18,7 +19,7 @@ def readme_snippets():
     assert SECTION in text, f"README.md lost its section {SECTION!r}"
     section = text.split(SECTION, 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
-    assert len(blocks) == 3, "the section holds the column, the layered column and pyvista"
+    assert len(blocks) == 4, "the section holds the column, the layered column, 3-D and pyvista"
     return blocks
 
 
@@ -29,7 +30,7 @@ def run(code, capsys, namespace=None):
 
 
 def test_snippets_are_short():
-    assert [len(b.strip().splitlines()) <= 25 for b in readme_snippets()] == [True] * 3
+    assert [len(b.strip().splitlines()) <= 25 for b in readme_snippets()] == [True] * 4
 
 
 @pytest.mark.mpi
@@ -54,6 +55,17 @@ def test_layered_snippet_carries_the_load(capsys):
     assert namespace["rock"].cauchy()[:, 1, 1].max(initial=-1.0) < 0.0  # the base is compressed
 
 
+@pytest.mark.mpi
+def test_3d_snippet_converges(capsys):
+    namespace, out = run(readme_snippets()[2], capsys)
+    assert out.strip().endswith("converged: True"), out
+    assert namespace["material"].dim == 3 and namespace["material"].P.x.array.size
+    u = namespace["u"]
+    assert u.x.array[2::3].min(initial=0.0) <= 0.0  # the top settles
+    if u.x.array.size:
+        assert np.abs(u.x.array[0::3]).max() < np.abs(u.x.array[2::3]).max()
+
+
 def test_pyvista_snippet_reads_the_last_step(tmp_path):
     """Run as a post-processing script of its own (a separate process, as a user would)."""
     import subprocess
@@ -69,7 +81,7 @@ def test_pyvista_snippet_reads_the_last_step(tmp_path):
         "print('steps', reader.time_values, 'cells', len(vm), vm.min() > 0)\n"
     )
     script = tmp_path / "look.py"
-    script.write_text(readme_snippets()[2] + check)
+    script.write_text(readme_snippets()[3] + check)
     env = dict(os.environ, PYVISTA_OFF_SCREEN="true")
     if not env.get("DISPLAY"):  # headless: render through EGL as the package's figure does
         env["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkEGLRenderWindow"
