@@ -25,10 +25,13 @@ from .laws.taylor import ContactSet, TaylorRVE, UnsupportedDeformationError
 from .laws.validity import OVERLAP_THRESHOLD, OverlapMonitor, OverlapSummary, ValidityWarning
 from .packings.fabric import (
     anisotropy,
+    anisotropy_3d,
     contact_angles,
+    contact_normals,
     density_deviation,
     fabric_tensor,
     normal_density,
+    normal_density_sphere,
 )
 from .packings.generation import NetworkStats, generate_packing, network_stats, relax_overlaps
 from .packings.gsd import SieveCurve, cen_standard_sand
@@ -59,7 +62,10 @@ __all__ = [
     "NetworkStats",
     "relax_overlaps",
     "contact_angles",
+    "contact_normals",
     "normal_density",
+    "normal_density_sphere",
+    "anisotropy_3d",
     "fabric_tensor",
     "anisotropy",
     "density_deviation",
