@@ -39,6 +39,7 @@ from petsc4py import PETSc
 
 from ..fem.compat import SNES_NAN_REASON
 from ..fem.diagnose import singular_jacobian
+from . import linear_solver as linear
 from .convergence import CONVERGED, MAX_IT, NAN, ConvergenceTest
 from .convergence import STAGNATION as STAGNATION_VERDICT
 from .problem import GranularProblem, collect_garbage
@@ -139,8 +140,11 @@ class NewtonSolver:
             Newton step is taken as round-off (converged).
         max_it: most Newton steps per solve.
         prefix: PETSc options prefix of this solver.
+        linear_solver: ``"direct"`` (LU with MUMPS) or ``"iterative"`` (GMRES + GAMG with the
+            rigid-body modes, the Krylov tolerance tied to the Newton residual;
+            :mod:`~dolfinx_granular.drivers.linear_solver`).
         petsc_options: options set under ``prefix`` (defaults: newtonls, ``basic`` line search,
-            preonly + LU with MUMPS).
+            and those of ``linear_solver``); they override the defaults.
         verbose: print one line per Newton step on rank 0.
         stagnation_it: fail the solve (reason ``DIVERGED_STAGNATION``) when the residual norm has
             not gone below its smallest value since the first Newton step for this many
@@ -187,7 +191,10 @@ class NewtonSolver:
         verbose: bool = False,
         skip_final_tangent: bool = False,
         stagnation_it: int = 4,
+        linear_solver: str = "direct",
     ) -> None:
+        self.linear_solver = linear.check(linear_solver)
+        self._fnorm0 = 0.0  # |R| at the start of the solve (the iterative solver's forcing)
         self.problem = GranularProblem(
             residual, jacobian, u, bcs, materials, roundoff_scale=residual_rtol > 0.0
         )
@@ -207,6 +214,7 @@ class NewtonSolver:
         self.verbose = verbose
         # SNES's own vector x (line searches write trial points there) and work vectors
         self.b, self.x, self._x_prev, self._R_prev = (p.u_vec.duplicate() for _ in range(4))
+        linear.prepare(self.linear_solver, self.A, u.function_space)
         self.snes = self._create_snes(prefix, petsc_options)
 
     # the thresholds are the convergence test's (one copy)
@@ -243,14 +251,8 @@ class NewtonSolver:
         }
 
     def _create_snes(self, prefix, petsc_options):
-        opts = {
-            "snes_type": "newtonls",
-            "snes_linesearch_type": "basic",
-            "ksp_type": "preonly",
-            "pc_type": "lu",
-        }
-        if PETSc.Sys.hasExternalPackage("mumps"):
-            opts["pc_factor_mat_solver_type"] = "mumps"  # PETSc's own LU is serial only
+        opts = {"snes_type": "newtonls", "snes_linesearch_type": "basic"}
+        opts.update(linear.options(self.linear_solver))
         opts.update(petsc_options or {})
         snes = PETSc.SNES().create(self.comm)
         snes.setOptionsPrefix(prefix)
@@ -266,8 +268,10 @@ class NewtonSolver:
         snes.setMaxStepFailures(self.max_it)
         snes.setFromOptions()
         snes.getKSP().setFromOptions()
-        for key in opts:
-            db.delValue(prefix + key)
+        # a multigrid preconditioner reads its options at its first set-up: keep them till then
+        self._held_options = (prefix, opts) if self.linear_solver == "iterative" else None
+        if self._held_options is None:
+            linear.release(prefix, opts)
         return snes
 
     # -- the problem's methods, as before (ArcLength and users call them on the solver) --------
@@ -331,6 +335,9 @@ class NewtonSolver:
     def _jacobian(self, snes, x, A, P):
         with self._callback():
             self.problem.assemble_jacobian(x, A)
+            if self.linear_solver == "iterative":
+                rtol = linear.forcing(snes.getFunctionNorm(), self._fnorm0)
+                snes.getKSP().setTolerances(rtol=rtol)
 
     def _converged(self, snes, it, norms):
         with self._callback():
@@ -339,6 +346,8 @@ class NewtonSolver:
 
     def _test(self, snes, it, fnorm):
         x, R = snes.getSolution(), snes.getFunction()[0]
+        if it == 0:
+            self._fnorm0 = fnorm  # the Krylov tolerance of an iterative solver follows |R|
         verdict = self.test.check(it, fnorm, R, self._step_energy(x) if it > 0 else None)
         if self.verbose and self.comm.rank == 0:
             # iterate k: the residual after Newton step k (that of the start for k = 0) and the
@@ -449,6 +458,8 @@ class NewtonSolver:
         collect_garbage(self.comm)
         for obj in (self.snes, self.b, self.x, self._x_prev, self._R_prev):
             obj.destroy()
+        if self._held_options is not None:
+            linear.release(*self._held_options)
         self.problem.destroy()
         if hasattr(PETSc, "garbage_cleanup"):
             PETSc.garbage_cleanup(self.comm)

@@ -27,16 +27,17 @@ if TYPE_CHECKING:
 
 
 def von_mises(sigma: ArrayLike) -> np.ndarray:
-    """Von Mises stress (n,) in Pa of in-plane Cauchy stresses sigma (n, 2, 2).
+    """Von Mises stress (n,) in Pa of Cauchy stresses sigma (n, d, d), d = 2 or 3.
 
-    ``sqrt(3/2 s:s)`` with the 2-D deviator ``s = sigma - tr(sigma)/2 I`` (the Taylor RVE's
-    stress is a 2x2 tensor and has no out-of-plane component), i.e.
-    ``sqrt(3/4 (s11 - s22)^2 + 3/4 (s12 + s21)^2)``.
+    ``sqrt(3/2 s:s)`` with the deviator ``s = sigma - tr(sigma)/d I``. In 2-D that is the
+    in-plane deviator (the 2-D Taylor RVE's stress is a 2x2 tensor and has no out-of-plane
+    component), i.e. ``sqrt(3/4 (s11 - s22)^2 + 3/4 (s12 + s21)^2)``.
     """
     sigma = np.asarray(sigma, dtype=float)
-    if sigma.ndim != 3 or sigma.shape[1:] != (2, 2):
-        raise ValueError(f"sigma must have shape (n, 2, 2), got {sigma.shape}")
-    s = sigma - 0.5 * np.trace(sigma, axis1=1, axis2=2)[:, None, None] * np.eye(2)
+    if sigma.ndim != 3 or sigma.shape[1:] not in ((2, 2), (3, 3)):
+        raise ValueError(f"sigma must have shape (n, 2, 2) or (n, 3, 3), got {sigma.shape}")
+    d = sigma.shape[1]
+    s = sigma - np.trace(sigma, axis1=1, axis2=2)[:, None, None] / d * np.eye(d)
     return np.sqrt(1.5 * np.einsum("qij,qij->q", s, s))
 
 
@@ -82,7 +83,7 @@ def gather_mesh(
 ) -> tuple[np.ndarray, ...] | None:
     """Collect the owned cells of a first-order vector space on rank 0.
 
-    Returns on rank 0 ``(points (N, 3), cells (M, k), cell_types (M,), u (N, 2), values (M,))``
+    Returns on rank 0 ``(points (N, 3), cells (M, k), cell_types (M,), u (N, d), values (M,))``
     (reference coordinates; points on partition boundaries are duplicated), else ``None``.
     """
     from ..fem.compat import vtk_mesh
@@ -92,7 +93,7 @@ def gather_mesh(
     topology, cell_types, geometry = vtk_mesh(V)
     k = topology[0]
     cells = topology.reshape(-1, k + 1)[:n_owned, 1:]
-    uu = u.x.array.reshape(-1, 2)
+    uu = u.x.array.reshape(-1, msh.geometry.dim)
     parts = msh.comm.gather(
         (geometry, cells, cell_types[:n_owned], uu, np.asarray(cell_values)), root=0
     )

@@ -131,8 +131,37 @@ def build_gmsh_model(geometry: SlopeGeometry = SlopeGeometry(), name: str = "slo
     """
     import gmsh
 
-    g = geometry
     gmsh.model.add(name)
+    s = build_section(geometry)
+    _group(1, s.bottom, BOTTOM, "bottom")
+    _group(1, [s.vertical[0]], LEFT, "left")
+    _group(1, [s.vertical[-1]], RIGHT, "right")
+    _group(1, [c for c, f in zip(s.surface, s.on_footing) if f], FOOTING, "footing")
+    _group(1, [c for c, f in zip(s.surface, s.on_footing) if not f], SURFACE, "surface")
+    _group(2, s.faces, SOIL, "soil")
+    gmsh.model.mesh.generate(2)
+
+
+@dataclass(frozen=True)
+class Section:
+    """The gmsh entities of the slope's cross-section (one transfinite quadrilateral surface
+    per column): curve tags ``bottom``, ``surface`` (one per column) and ``vertical`` (one per
+    column boundary, left to right), surface tags ``faces``, and ``on_footing`` (bool per
+    column)."""
+
+    bottom: list
+    surface: list
+    vertical: list
+    faces: list
+    on_footing: np.ndarray
+
+
+def build_section(geometry: SlopeGeometry) -> Section:
+    """The cross-section in the current gmsh model (x to the right, y up, z = 0), its columns
+    meshed as ``rows`` x 1 transfinite quadrilaterals (synchronised; not yet meshed)."""
+    import gmsh
+
+    g = geometry
     geo = gmsh.model.geo
     xs = np.linspace(0.0, g.width, g.columns + 1)
     ys = g.surface_height(xs)
@@ -145,8 +174,9 @@ def build_gmsh_model(geometry: SlopeGeometry = SlopeGeometry(), name: str = "slo
     for i in range(g.columns):
         loop = geo.addCurveLoop([bottom[i], vert[i + 1], -surface[i], -vert[i]])
         faces.append(geo.addPlaneSurface([loop]))
-    geo.synchronize()
-    mesh = gmsh.model.mesh
+    # meshing constraints through the geo kernel: they survive later geo operations (an
+    # extrusion, whose layers copy these quadrilaterals into hexahedra) and synchronisations
+    mesh = geo.mesh
     for c in bottom + surface:
         mesh.setTransfiniteCurve(c, 2)
     for c in vert:
@@ -154,15 +184,10 @@ def build_gmsh_model(geometry: SlopeGeometry = SlopeGeometry(), name: str = "slo
     for f in faces:
         mesh.setTransfiniteSurface(f)
         mesh.setRecombine(2, f)
+    geo.synchronize()
     mid = 0.5 * (xs[:-1] + xs[1:])
     on_footing = (mid > g.footing_start) & (mid < g.footing_end)
-    _group(1, bottom, BOTTOM, "bottom")
-    _group(1, [vert[0]], LEFT, "left")
-    _group(1, [vert[-1]], RIGHT, "right")
-    _group(1, [c for c, f in zip(surface, on_footing) if f], FOOTING, "footing")
-    _group(1, [c for c, f in zip(surface, on_footing) if not f], SURFACE, "surface")
-    _group(2, faces, SOIL, "soil")
-    mesh.generate(2)
+    return Section(bottom, surface, vert, faces, on_footing)
 
 
 def _group(dim, entities, tag, name):
