@@ -17,6 +17,18 @@ def read_csv(path):
         return list(csv.DictReader(f))
 
 
+def check_footing3d(out, stdout):
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["completed"] and summary["cells"] == 120 and summary["points"] == 960
+    assert summary["settlement_m"] < 0.0 and summary["footing_load_N"] < 0.0
+    assert [s["phase"] for s in summary["steps"]] == ["gravity"] * 2 + ["footing"] * 4
+    rows = read_csv(out / "convergence.csv")
+    assert len(rows) == summary["newton_iterations"]
+    xdmf = (out / "footing3d.xdmf").read_text()
+    assert xdmf.count('Attribute Name="displacement"') == 6
+    assert is_png(out / "footing3d.png") and "settlement" in stdout
+
+
 def check_granular_column(out, stdout):
     summary = json.loads((out / "summary.json").read_text())
     rows = read_csv(out / "probe.csv")

@@ -66,6 +66,13 @@ class FootingGeometry:
         return self.footing_layers[0] * h, self.footing_layers[1] * h
 
     @property
+    def middle_z(self) -> float:
+        """The layer boundary nearest to the footing's middle in z (m): where the settlement
+        is read and the figure cuts the solid (a plane of nodes)."""
+        a, b = self.footing_layers
+        return round(0.5 * (a + b) + 1e-9) * self.depth / self.layers
+
+    @property
     def footing_area(self) -> float:
         """Footing area (m²)."""
         z0, z1 = self.footing_z

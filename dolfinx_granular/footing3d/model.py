@@ -43,7 +43,8 @@ class FootingModel:
     Attributes:
         mesh, facets, V, u, material, solver, bcs: the model's DOLFINx objects.
         gravity, footing: Constants multiplying the weight and the footing pressure.
-        edge: (3,) the middle of the footing's loaded edge (m), where the settlement is read.
+        edge: (3,) the node of the footing's loaded edge nearest its middle (m), where the
+            settlement is read.
     """
 
     def __init__(
@@ -74,9 +75,8 @@ class FootingModel:
         self.solver = NewtonSolver(
             residual, self.material.jacobian_form(du, v), self.u, self.bcs, self.material, **options
         )
-        z0, z1 = g.footing_z
         self.edge = np.array(
-            [sec.loaded_edge, float(sec.surface_height(sec.loaded_edge)), 0.5 * (z0 + z1)]
+            [sec.loaded_edge, float(sec.surface_height(sec.loaded_edge)), g.middle_z]
         )
         n_owned = self.V.dofmap.index_map.size_local
         x = self.V.tabulate_dof_coordinates()[:n_owned]
@@ -108,8 +108,7 @@ class FootingModel:
         return float(self.footing.value) * self.geometry.footing_load
 
     def settlement(self) -> float:
-        """Vertical displacement (m) at the middle of the footing's loaded edge, the same on
-        every rank."""
+        """Vertical displacement (m) at :attr:`edge`, the same on every rank."""
         local = [float(self.u.x.array[3 * d + 1]) for d in self._edge_node]
         return [s for part in self.comm.allgather(local) for s in part][0]
 

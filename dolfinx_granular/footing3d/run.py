@@ -125,8 +125,14 @@ def run_footing(comm: Comm, options: FootingOptions, out: str, overwrite: bool =
 
 def _prepare(comm, out, overwrite):
     """Create ``out``; refuse one that holds a run's files unless ``overwrite`` (nothing a user
-    computed is lost). Collective."""
+    computed is lost), and different folders on different ranks (the collective writes would
+    hang). Collective."""
     problem = None
+    if len(set(comm.allgather(os.path.abspath(out)))) > 1:
+        raise ValueError(
+            "run_footing was given different output folders on different ranks; pass every "
+            "rank the same folder (e.g. broadcast rank 0's)"
+        )
     if comm.rank == 0:
         found = [f for f in FILES if os.path.exists(os.path.join(out, f))]
         if found and not overwrite:

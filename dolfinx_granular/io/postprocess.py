@@ -354,13 +354,15 @@ def _headless_vtk():
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 
-def _colorbar(plotter, bounds, clim, title, n_ticks=5):
+def _colorbar(plotter, bounds, clim, title, n_ticks=5, z=0.0):
+    """A colour bar drawn as a mesh below ``bounds`` in the plane at ``z`` (the scalar bar
+    actor crashes in this VTK wheel)."""
     import pyvista as pv
 
     x0, x1, y0, y1 = bounds[0], bounds[1], bounds[2], bounds[3]
     h = 0.04 * (y1 - y0 + x1 - x0)
     bar = pv.Plane(
-        center=(0.5 * (x0 + x1), y0 - 2.2 * h, 0.0),
+        center=(0.5 * (x0 + x1), y0 - 2.2 * h, z),
         direction=(0, 0, 1),
         i_size=x1 - x0,
         j_size=h,
@@ -370,7 +372,7 @@ def _colorbar(plotter, bounds, clim, title, n_ticks=5):
     bar.point_data["c"] = clim[0] + (bar.points[:, 0] - x0) / (x1 - x0) * (clim[1] - clim[0])
     plotter.add_mesh(bar, scalars="c", cmap="turbo", n_colors=16, clim=clim, show_scalar_bar=False)
     ticks = np.linspace(clim[0], clim[1], n_ticks)
-    pts = np.c_[np.linspace(x0, x1, n_ticks), np.full(n_ticks, y0 - 3.4 * h), np.zeros(n_ticks)]
+    pts = np.c_[np.linspace(x0, x1, n_ticks), np.full(n_ticks, y0 - 3.4 * h), np.full(n_ticks, z)]
     plotter.add_point_labels(
         pts,
         [f"{t:.2f}" for t in ticks],
