@@ -125,6 +125,11 @@ class ArcLength:
         max_increments: int = 100,
         stop: Callable[[ArcLength], str | None] | None = None,
     ) -> None:
+        if getattr(solver, "linear_solver", "direct") != "direct":
+            raise ValueError(
+                "path following factorises the tangent and reads the sign of det K from its "
+                "LU factors: build the NewtonSolver with linear_solver='direct'"
+            )
         self.solver, self.load = solver, load
         # a NewtonSolver lends its problem, thresholds and LU solver; a bare problem gets its own
         self.problem = getattr(solver, "problem", solver)

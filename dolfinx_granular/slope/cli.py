@@ -27,7 +27,7 @@ from ..io.runwriter import RestartError
 from ..packings.packing import Packing, PackingFileError
 from .geometry import SlopeGeometry
 from .interrupt import RunInterrupted, StopRequest, exit_status
-from .options import K_N, RVES
+from .options import K_N, LINEAR_SOLVERS, RVES
 from .run import SlopeOptions, clear_run, is_complete, load_restart, run_files, run_slope
 
 if TYPE_CHECKING:
@@ -148,6 +148,13 @@ def _add_model(p: argparse.ArgumentParser) -> None:
         choices=["basic", "bt", "l2", "cp"],
         default="basic",
         help="SNES line search (default basic: full Newton steps)",
+    )
+    p.add_argument(
+        "--linear-solver",
+        choices=LINEAR_SOLVERS,
+        default="direct",
+        help="linear solver of Newton: direct (MUMPS LU, default) or iterative (GMRES with "
+        "algebraic multigrid; faster on fine meshes, not with --path-following)",
     )
     p.add_argument(
         "--friction",
@@ -273,6 +280,7 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
             geometry=geometry,
             allow_overlaps=a.allow_overlaps,
             rve=a.rve,
+            linear_solver=a.linear_solver,
             confinement=a.confinement,
         )
     except ValueError as err:

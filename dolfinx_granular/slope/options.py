@@ -7,6 +7,8 @@ import dataclasses
 import warnings
 from typing import TYPE_CHECKING, Any
 
+from ..drivers.linear_solver import LINEAR_SOLVERS  # noqa: F401  (the CLI reads it here)
+from ..drivers.linear_solver import check as check_linear_solver
 from ..laws.taylor import PrestressWarning, TaylorRVE
 from ..packings.generation import MAX_PRESSURE as MAX_CONFINEMENT
 from .geometry import SlopeGeometry
@@ -48,6 +50,9 @@ class SlopeOptions:
         rve: ``"taylor"`` (every disk follows F, the paper's model) or ``"relaxed"``
             (:class:`~dolfinx_granular.RelaxedRVE`: the disks in static equilibrium;
             frictionless, and only with a ``confinement``).
+        linear_solver: ``"direct"`` (MUMPS) or ``"iterative"`` (GMRES + GAMG;
+            :mod:`~dolfinx_granular.drivers.linear_solver`); path following needs the direct
+            one.
         confinement: confining pressure in Pa (0: none). The packing is compressed to it and
             relaxed (:func:`~dolfinx_granular.drivers.confinement.confined_packing`), and the
             slope's boundaries other than the fixed base carry the traction P(I) n that holds
@@ -71,9 +76,16 @@ class SlopeOptions:
     allow_overlaps: bool = False
     rve: str = "taylor"
     confinement: float = 0.0
+    linear_solver: str = "direct"
 
     def __post_init__(self):
         self._check_rve()
+        check_linear_solver(self.linear_solver)
+        if self.path_following and self.linear_solver != "direct":
+            raise ValueError(
+                "path following reads the sign of det K from the LU factorisation: drop "
+                "--linear-solver iterative, or --path-following"
+            )
         if self.path_following and self.unload:
             raise ValueError(
                 "path following ends past the limit load, where unloading has no "

@@ -189,7 +189,9 @@ class SlopeRun:
             lambda law, u: granular_material(law, u, stabilise=o.stabilise)
         )
         solver_factory = solver_factory or (
-            lambda *a: newton_solver(*a, petsc_options=o.petsc_options, verbose=verbose)
+            lambda *a: newton_solver(
+                *a, petsc_options=o.petsc_options, verbose=verbose, linear_solver=o.linear_solver
+            )
         )
         self.law = law_factory(packing, o.normal_stiffness) if law_factory else o.law(packing)
         self.model = SlopeModel(
