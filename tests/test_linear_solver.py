@@ -88,9 +88,7 @@ def test_the_slope_with_the_iterative_solver(tmp_path):
     args = ("--particles", "40", "--steps", "3", "--no-figure")
     _, direct = run_slope_demo(tmp_path / "direct", *args)
     _, iterative = run_slope_demo(tmp_path / "iterative", *args, "--linear-solver", "iterative")
-    assert iterative["footing_settlement"] == pytest.approx(
-        direct["footing_settlement"], rel=1e-10
-    )
+    assert iterative["footing_settlement"] == pytest.approx(direct["footing_settlement"], rel=1e-10)
     # the Krylov tolerance follows the residual: Newton takes the direct solver's steps, give
     # or take one where a step ends at the convergence threshold (measured: 7, 7, 5, 5 against
     # 7, 7, 6, 5)
