@@ -7,6 +7,7 @@ import pytest
 
 import friction_path
 import kernel
+import three_d
 
 
 def test_kernel_benchmark_runs(capsys):
@@ -62,3 +63,23 @@ def test_relaxed_bvp_benchmark_cases_run_and_make_a_section():
     text = relaxed_bvp.markdown(res, "python benchmarks/relaxed_bvp.py", 0.1)
     assert text.startswith(relaxed_bvp.BEGIN) and text.endswith(relaxed_bvp.END)
     assert "## 9. The relaxed RVE in boundary value problems" in text
+
+
+@pytest.mark.slow
+def test_three_d_benchmark_runs_and_writes_its_section(tmp_path):
+    pytest.importorskip("dolfinx")
+    doc = tmp_path / "performance.md"
+    res = three_d.main(["--quick", "--out", str(tmp_path / "out"), "--doc", str(doc)])
+    text = doc.read_text()
+    assert "## 10. Three dimensions" in text and text.count("<!-- begin: benchmarks/three_d.py")
+    for k in res["kernels"]:
+        assert k["phi"] >= 0.6 and k["z"] >= 5.5 and 0 < k["visited"] <= k["candidates"]
+        assert 0 < k["us_stress"] and 0 < k["us_evaluate"]
+        assert f"| {k['n']} | {k['generate_s']:.1f} |" in text
+    direct, iterative = res["footing"]["direct"], res["footing"]["iterative"]
+    assert iterative["settlement_m"] == pytest.approx(direct["settlement_m"], rel=1e-10)
+    assert f"| iterative | {iterative['settlement_m']:.6f} |" in text
+    assert set(res["sizes"]) == {100, 200} and all(len(r) == 2 for r in res["sizes"].values())
+    # a second run measures nothing again: everything comes from the stored JSON
+    again = three_d.main(["--quick", "--out", str(tmp_path / "out"), "--doc", str(doc)])
+    assert again == res

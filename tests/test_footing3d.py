@@ -13,6 +13,8 @@ from dolfinx_granular.slope.geometry import SlopeGeometry  # noqa: E402
 
 from mpi4py import MPI  # noqa: E402
 
+from helpers import run_demo  # noqa: E402
+
 TINY = G.FootingGeometry(SlopeGeometry(rows=3), depth=15.5, layers=2, footing_layers=(0, 1))
 
 
@@ -94,3 +96,16 @@ def test_an_existing_run_is_not_overwritten(runs):
         run_footing(MPI.COMM_WORLD, o, str(folder))
     assert (folder / "summary.json").read_text() == before
     assert json.loads(before)["settlement_m"] == summary["settlement_m"]
+
+
+def test_serial_and_two_ranks_agree(tmp_path):
+    """The demo's small run, serially and on 2 ranks: the same settlement, stress and steps."""
+    runs = {}
+    for ranks in (1, 2):
+        run_demo("footing3d", "--small", "--no-figure", "--out", tmp_path / str(ranks), ranks=ranks)
+        runs[ranks] = json.loads((tmp_path / str(ranks) / "summary.json").read_text())
+    one, two = runs[1], runs[2]
+    assert two["ranks"] == 2 and one["ranks"] == 1
+    assert two["settlement_m"] == pytest.approx(one["settlement_m"], rel=1e-10)
+    assert two["max_von_mises_Pa"] == pytest.approx(one["max_von_mises_Pa"], rel=1e-10)
+    assert [s["iterations"] for s in two["steps"]] == [s["iterations"] for s in one["steps"]]

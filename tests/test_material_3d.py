@@ -164,3 +164,37 @@ def test_a_column_converges_quadratically(rve, cell):
     assert energy[-2] <= 10 * energy[-3] ** 2, energy
     assert np.all(np.linalg.det(material.F) < 1.0)
     solver.destroy()
+
+
+@pytest.mark.mpi
+def test_arc_length_follows_the_3d_column_as_in_2d(rve):
+    """ArcLength on a 3-D mesh: every converged state is the equilibrium that Newton finds at
+    the same load (the drivers do not know the dimension)."""
+    from dolfinx_granular import ArcLength
+    from dolfinx_granular.drivers.pathrecords import load_reaches
+
+    msh = unit_cube(2, mesh.CellType.hexahedron)
+    V = vector_space(msh)
+    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
+    material = GranularMaterial(rve, u)
+    top = mesh.locate_entities_boundary(msh, 2, lambda x: np.isclose(x[2], 1))
+    ds = ufl.Measure("ds", msh, subdomain_data=mesh.meshtags(msh, 2, top, np.full_like(top, 1)))
+    x = ufl.SpatialCoordinate(msh)
+    load = fem.Constant(msh, 0.0)  # Pa
+    external = -(1 + 0.2 * x[0]) * v[2] * ds(1)  # downward pressure per unit load
+    bottom = mesh.locate_entities_boundary(msh, 2, lambda x: np.isclose(x[2], 0))
+    bcs = [fem.dirichletbc(np.zeros(3), fem.locate_dofs_topological(V, 2, bottom), V)]
+    residual = material.residual_form(v) - load * external
+    solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material, prefix="al3_")
+    states = []
+    path = ArcLength(solver, load, external, 1e-4)
+    ok = path.run(40, stop=load_reaches(1e5), on_converged=lambda inc: states.append(inc.lam))
+    assert ok and path.stopped and states[-1] >= 1e5 and np.all(np.diff(states) > 0)
+    u_path = u.x.array.copy()
+    u.x.array[:] = 0.0
+    load.value = states[-1]
+    result = solver.solve()  # Newton from u = 0 at the path's last load
+    assert result.converged, result
+    scale = MPI.COMM_WORLD.allreduce(np.abs(u_path).max(initial=0.0), op=MPI.MAX)
+    assert np.abs(u.x.array - u_path).max(initial=0.0) <= 1e-8 * scale
+    solver.destroy()

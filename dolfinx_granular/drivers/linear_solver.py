@@ -37,7 +37,9 @@ ITERATIVE = {
     "ksp_max_it": 500,
     "pc_type": "gamg",
     "pc_gamg_type": "agg",
-    "pc_gamg_agg_nsmooths": 1,
+    # plain aggregation: measured on the 3-D footing, 0.8x the linear solve time of smoothed
+    # aggregation
+    "pc_gamg_agg_nsmooths": 0,
     "pc_gamg_coarse_eq_limit": 1000,
     "mg_levels_ksp_type": "chebyshev",
     "mg_levels_pc_type": "jacobi",

@@ -78,9 +78,9 @@ def _draw(model, data, sites, path, deformation_scale):
         position="upper_left",
     )
     # y is up; the camera looks at the cut face (z = mid, facing +z) from the slope's side
-    centre = np.array(cut.center) - np.array([0.0, 0.15 * model.geometry.section.crest_height, 0])
+    centre = np.array(cut.center) - np.array([0.0, 0.22 * model.geometry.section.crest_height, 0])
     plotter.camera.focal_point = centre
-    plotter.camera.position = centre + 1.9 * width * np.array([0.45, 0.35, 1.0])
+    plotter.camera.position = centre + 2.0 * width * np.array([0.45, 0.35, 1.0])
     plotter.camera.up = (0.0, 1.0, 0.0)
     networks = [model.law.contacts(F) for *_, F in sites]
     fmax = max(float(c.force.max(initial=0.0)) for c in networks) or 1.0

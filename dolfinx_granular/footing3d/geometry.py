@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from ..slope.geometry import SlopeGeometry, build_section
+from ..slope.geometry import SlopeGeometry, build_section, gmsh_session
 
 if TYPE_CHECKING:
     from dolfinx.mesh import Mesh
@@ -148,21 +148,12 @@ def create_mesh(comm: Comm, geometry: FootingGeometry) -> tuple[Mesh, Any, Any]:
 
     from ..fem.compat import gmsh_model_to_mesh
 
-    initialized = getattr(gmsh, "isInitialized", lambda: False)()  # gmsh 4.8 has none
-    if not initialized:
-        gmsh.initialize()
-    gmsh.option.setNumber("General.Terminal", 0)
-    try:
+    with gmsh_session(comm):
         if comm.rank == 0:
             build_gmsh_model(geometry)
         msh, cell_tags, facet_tags = gmsh_model_to_mesh(gmsh.model, comm, 0, gdim=3)
-        msh.name = "footing3d"
-        return msh, cell_tags, facet_tags
-    finally:
-        if comm.rank == 0:
-            gmsh.model.remove()
-        if not initialized:
-            gmsh.finalize()
+    msh.name = "footing3d"
+    return msh, cell_tags, facet_tags
 
 
 def facet_area(msh: Mesh, facets: Any, tag: int) -> float:

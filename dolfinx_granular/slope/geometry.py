@@ -9,12 +9,15 @@ mapping is exactly bilinear and no node drifts off the evenly spaced rows.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
     from dolfinx.mesh import Mesh
     from mpi4py.MPI import Comm
     from numpy.typing import ArrayLike
@@ -248,17 +251,25 @@ def create_mesh(comm: Comm, geometry: SlopeGeometry = SlopeGeometry()) -> tuple[
     Returns:
         ``(mesh, cell_tags, facet_tags)`` (DOLFINx objects); facet tags as in this module.
     """
+    with gmsh_session(comm):
+        if comm.rank == 0:
+            build_gmsh_model(geometry)
+        return model_to_mesh(comm)
+
+
+@contextmanager
+def gmsh_session(comm: Comm) -> Iterator[None]:
+    """A gmsh session for building a model on rank 0: initialised here unless one is open
+    (gmsh 4.8 has no isInitialized(): then none is assumed), quiet, and the model removed (and
+    the session finalised, if opened here) on leaving."""
     import gmsh
 
-    # gmsh 4.8 has no isInitialized(); then assume nobody else holds a session.
     initialized = getattr(gmsh, "isInitialized", lambda: False)()
     if not initialized:
         gmsh.initialize()
     gmsh.option.setNumber("General.Terminal", 0)
     try:
-        if comm.rank == 0:
-            build_gmsh_model(geometry)
-        return model_to_mesh(comm)
+        yield
     finally:
         if comm.rank == 0:
             gmsh.model.remove()
