@@ -6,7 +6,8 @@
 
 * the usual API (:func:`warm_api`): ``generate_packing`` and ``relax_overlaps`` (generation
   kernels), ``TaylorRVE.evaluate`` / ``stress`` / ``cauchy`` / ``spatial_tangent`` /
-  ``overlap_statistics`` and ``FrictionalRVE.evaluate`` / ``stress`` on plain arrays;
+  ``overlap_statistics`` and ``FrictionalRVE.evaluate`` / ``stress`` on plain arrays, and the
+  3-D Taylor kernels on :data:`SPHERES` spheres;
 * the slope benchmark (:func:`warm_slope`): its gravity step, frictionless (the demo) and with
   friction, figure included: the material's kernel specialisations on DOLFINx quadrature data,
   and the slope's forms, elements and expressions (FFCx).
@@ -37,6 +38,8 @@ import numpy as np
 
 #: disks of the warm-up packing: the same kernels as any size, compiled in seconds of run time
 PARTICLES = 30
+#: spheres of the 3-D warm-up packing (fewer would not fit the sieve curve's largest grain)
+SPHERES = 100
 _PACKAGE = Path(__file__).resolve().parent
 
 
@@ -66,6 +69,11 @@ def warm_api(particles: int = PARTICLES) -> None:
         method(F, state)
     relaxed = RelaxedRVE(packing, 2.8e7)
     relaxed.evaluate(F, relaxed.initial_state(len(F)))
+    spheres = TaylorRVE(generate_packing(SPHERES, seed=0, dim=3), 1e5)  # the 3-D kernels
+    F3 = np.stack([np.diag([0.99, 1.0, 1.0]), np.eye(3) + 1e-3 * np.eye(3)[::-1]])
+    for method in (spheres.evaluate, spheres.stress, spheres.cauchy, spheres.spatial_tangent):
+        method(F3)
+    spheres.overlap_statistics(F3)
 
 
 def warm_slope(particles: int = PARTICLES) -> None:

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 if TYPE_CHECKING:  # (PETSc loads on use: the slope's options check a name without it)
     from collections.abc import Mapping
 
@@ -92,17 +94,17 @@ def rigid_body_modes(V: fem.FunctionSpace, A: PETSc.Mat) -> PETSc.NullSpace:
             f"rigid-body modes need a vector space with {gdim} components per node, got {bs}"
         )
     x = V.tabulate_dof_coordinates()[:n, :gdim]  # owned nodes; dof = bs * node + component
-    vecs = [A.createVecLeft() for _ in range(3 if gdim == 2 else 6)]
-    modes = []
-    for v in vecs:
-        a = v.getArray()
-        a[:] = 0.0
-        modes.append(a.reshape(n, bs))
+    modes = np.zeros((3 if gdim == 2 else 6, n, bs))
     for i in range(gdim):
         modes[i][:, i] = 1.0  # translations
     rotations = [(2, 0, 1)] if gdim == 2 else [(3, 0, 1), (4, 2, 0), (5, 1, 2)]
     for k, a, b in rotations:  # rotation in the (a, b) plane: u_a = -x_b, u_b = x_a
         modes[k][:, a], modes[k][:, b] = -x[:, b], x[:, a]
+    vecs = [A.createVecLeft() for _ in modes]
+    for v, mode in zip(vecs, modes):
+        # setArray, not writes into getArray(): newer PETSc caches norms, and a raw write
+        # leaves the cached norm of the zero vector (normalize() would then do nothing)
+        v.setArray(mode.ravel())
     for i, v in enumerate(vecs):  # modified Gram-Schmidt (collective dots)
         for w in vecs[:i]:
             v.axpy(-v.dot(w), w)

@@ -139,26 +139,31 @@ class TaylorRVE:
         self._check_reference(bool(allow_overlaps))
 
     def _check_reference(self, allow_overlaps):
-        """Refuse far-overlapping disks, report the prestress P(I) of overlapping ones."""
+        """Refuse far-overlapping particles, report the prestress P(I) of overlapping ones."""
         _, eps = self.candidates.overlaps(np.eye(self.dim))
         worst = float((eps / self.candidates.radius_sum).max()) if eps.size else 0.0
         self.max_reference_overlap = max(worst, 0.0)
+        # relax_overlaps is for disks; a sphere packing is made stress-free by generating it
+        fix = (
+            "dolfinx_granular.relax_overlaps(packing) (command line: python -m "
+            "dolfinx_granular relax IN.npz -o OUT.npz)"
+            if self.dim == 2
+            else "generate_packing(n, dim=3), whose spheres touch without stress,"
+        )
+        kind = "disks" if self.dim == 2 else "spheres"
         if worst > MAX_REFERENCE_OVERLAP and not allow_overlaps:
             raise ValueError(
-                f"the packing's disks overlap by up to {100 * worst:.3g} % of their radius sums at "
-                f"F = I (more than {100 * MAX_REFERENCE_OVERLAP:g} %): that is no contact network "
-                "but overlapping disks. Relax it first (dolfinx_granular.relax_overlaps(packing), "
-                "or on the command line 'python -m dolfinx_granular relax IN.npz -o OUT.npz'), "
+                f"the packing's {kind} overlap by up to {100 * worst:.3g} % of their radius sums "
+                f"at F = I (more than {100 * MAX_REFERENCE_OVERLAP:g} %): that is no contact "
+                f"network but overlapping {kind}. Make it stress-free first ({fix} makes one), "
                 "or use it as it is with allow_overlaps=True (the slope: --allow-overlaps)"
             )
         self.prestress = self.stress(np.eye(self.dim))[1]
         if self.prestress_ratio > PRESTRESS_WARNING:
             warnings.warn(
                 f"the reference state is prestressed: P(I) = {self.prestress.round(1).tolist()} Pa "
-                f"({self.prestress_ratio:.2g} of the modulus), from disks overlapping by up to "
-                f"{100 * self.max_reference_overlap:.3g} % at F = I; dolfinx_granular."
-                "relax_overlaps(packing) (command line: python -m dolfinx_granular relax IN.npz "
-                "-o OUT.npz) makes it stress-free",
+                f"({self.prestress_ratio:.2g} of the modulus), from {kind} overlapping by up to "
+                f"{100 * self.max_reference_overlap:.3g} % at F = I; {fix} makes it stress-free",
                 PrestressWarning,
                 stacklevel=_user_stacklevel(),
             )
