@@ -61,23 +61,27 @@ def stretch_bound(F, min_stretch):
             if not np.isfinite(F[a, b]):
                 return NOT_FINITE, 0.0
     J = det(F)
-    c = np.empty(6)  # C = F^T F: C00, C01, C02, C11, C12, C22
-    k = 0
-    for a in range(3):
-        for b in range(a, 3):
-            c[k] = F[0, a] * F[0, b] + F[1, a] * F[1, b] + F[2, a] * F[2, b]
-            k += 1
-    if not (np.isfinite(J) and np.all(np.isfinite(c))):
+    # C = F^T F (scalars: no allocation per point)
+    c00, c01, c02 = _ctc(F, 0, 0), _ctc(F, 0, 1), _ctc(F, 0, 2)
+    c11, c12, c22 = _ctc(F, 1, 1), _ctc(F, 1, 2), _ctc(F, 2, 2)
+    finite = np.isfinite(c00) and np.isfinite(c01) and np.isfinite(c02) and np.isfinite(c11)
+    if not (np.isfinite(J) and finite and np.isfinite(c12) and np.isfinite(c22)):
         return NOT_FINITE, 0.0  # entries so large that F^T F overflows
     if not J > 0.0:
         return NOT_ORIENTATION_PRESERVING, 0.0
-    lam1, lam3 = _extreme_eigenvalues(c[0], c[1], c[2], c[3], c[4], c[5])
-    lam2 = max(c[0] + c[3] + c[5] - lam1 - lam3, lam3)
+    lam1, lam3 = _extreme_eigenvalues(c00, c01, c02, c11, c12, c22)
+    lam2 = max(c00 + c11 + c22 - lam1 - lam3, lam3)
     # lam3 = J^2 / (lam1 lam2) is accurate where lam3 itself (a difference) is not
     smin = J / np.sqrt(lam1 * lam2) if lam2 > 0.0 else 0.0
     if smin < min_stretch * (1.0 - _STRETCH_RTOL):
         return BELOW_MIN_STRETCH, 0.0
     return OK, (1.0 + _PRUNE_MARGIN) / smin
+
+
+@njit(cache=True, inline="always")
+def _ctc(F, a, b):
+    """(F^T F)_ab of F (3, 3)."""
+    return F[0, a] * F[0, b] + F[1, a] * F[1, b] + F[2, a] * F[2, b]
 
 
 @njit(cache=True)
