@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..gathers import nearest_point
-from ..io.postprocess import _colorbar, _headless_vtk, gather_mesh
+from ..io.postprocess import colorbar_mesh, gather_mesh, headless_vtk
 
 if TYPE_CHECKING:
     from .model import FootingModel
@@ -40,7 +40,7 @@ def plot_footing(model: FootingModel, path: str, deformation_scale: float | None
 
 
 def _draw(model, data, sites, path, deformation_scale):
-    _headless_vtk()
+    headless_vtk()
     import pyvista as pv
 
     points, cells, cell_types, u, vm = data
@@ -70,7 +70,7 @@ def _draw(model, data, sites, path, deformation_scale):
         render_points_as_spheres=True,
     )  # fmt: skip
     z = model.edge[2]
-    _colorbar(plotter, cut.bounds, clim, "von Mises stress [MPa] (cell means)", z=z)
+    colorbar_mesh(plotter, cut.bounds, clim, "von Mises stress [MPa] (cell means)", z=z)
     plotter.add_text(
         f"footing on a 3-D slope, cut at its middle; displacements x {scale:.3g}\n"
         "insets: force networks, tube radius proportional to the normal contact force",

@@ -196,7 +196,7 @@ def plot_slope(
     Returns:
         The colour bar's range ``(min, max)`` in MPa.
     """
-    _headless_vtk()
+    headless_vtk()
     import pyvista as pv
 
     pv.OFF_SCREEN = True
@@ -255,7 +255,7 @@ def _slope_panel(plotter, mesh_data, markers, deformation_scale, value_range):
         grid, scalars="von Mises [MPa]", cmap="turbo", n_colors=16, clim=clim, show_scalar_bar=False
     )
     plotter.add_mesh(grid.extract_all_edges(), color="black", line_width=0.5, opacity=0.25)
-    _colorbar(
+    colorbar_mesh(
         plotter,
         grid.bounds,
         clim,
@@ -345,8 +345,9 @@ def plot_load_settlement(
     fig.savefig(path, dpi=110)
 
 
-def _headless_vtk():
-    # Without a display VTK tries X11 first and logs a warning; render through EGL if present.
+def headless_vtk():
+    """Render off screen through EGL where there is no display (call before importing
+    pyvista): without one VTK tries X11 first and logs a warning."""
     import ctypes.util
     import os
 
@@ -354,7 +355,7 @@ def _headless_vtk():
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 
-def _colorbar(plotter, bounds, clim, title, n_ticks=5, z=0.0):
+def colorbar_mesh(plotter, bounds, clim, title, n_ticks=5, z=0.0):
     """A colour bar drawn as a mesh below ``bounds`` in the plane at ``z`` (the scalar bar
     actor crashes in this VTK wheel)."""
     import pyvista as pv
