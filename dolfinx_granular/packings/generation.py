@@ -61,7 +61,7 @@ import numpy as np
 from . import neighbours
 from .fire import candidates, minimise, virial_pressure
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
-from .packing import Packing, require_disks
+from .packing import Packing, check_dimension, require_disks, solid_measure
 from .stress_free import StressFreeError, rattlers, stress_free
 
 if TYPE_CHECKING:
@@ -273,8 +273,7 @@ def generate_packing(
     n, curve = _check_arguments(
         n_particles, gsd, d_min, aspect, pressure, max_rattlers, max_attempts, contact_overlap
     )
-    if dim not in (2, 3):
-        raise ValueError(f"dim must be 2 (disks) or 3 (spheres), got {dim!r}")
+    dim = check_dimension(dim)
     say = _Reporter(progress)
     rng = np.random.default_rng(_seed(seed))
     r0, box = _radii_and_cell(curve, n, rng, d_min, aspect, dim)
@@ -310,7 +309,7 @@ def _radii_and_cell(curve, n, rng, d_min, aspect, dim):
     diam = curve.sample_diameters(n, rng, d_min=d_min, dim=dim)
     rng.shuffle(diam)
     r0 = 0.5 * diam
-    V = _solid_measure(r0, dim) / START_FRACTION[dim]
+    V = solid_measure(r0, dim) / START_FRACTION[dim]
     if dim == 2:
         box = np.array([np.sqrt(V / aspect), np.sqrt(V * aspect)])
     else:
@@ -338,7 +337,7 @@ def _attempt(rng, r0, box, pressure, delta, say):
     say(
         "jamming",
         1.0,
-        f"jammed at phi = {_solid_measure(scale * r0, box.size) / box.prod():.4f}"
+        f"jammed at phi = {solid_measure(scale * r0, box.size) / box.prod():.4f}"
         f", p/k = {p:.2e} ({say.elapsed():.1f} s)",
     )
     centers, radii, cell = stress_free(x / scale, r0.copy(), box / scale, delta, say)
@@ -457,7 +456,7 @@ def _jam(x, r0, box, p_target, d_mean, say):
         ``(x, scale, p)`` with the jammed centres (N, d) at radii ``scale * r0``.
     """
     dim = box.size
-    phi0 = _solid_measure(r0, dim) / box.prod()
+    phi0 = solid_measure(r0, dim) / box.prod()
     skin = 0.3 * d_mean
     ftol = 1e-3 * p_target * d_mean
     phi = FIRST_GUESS[dim]
@@ -512,11 +511,6 @@ def _minimise_reporting(x, r, box, skin, ftol, d_mean, say, phi, it):
     steps, vir = minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
     dim = box.size
     return steps, vir / (dim * box.prod()) * d_mean ** (dim - 2)  # dimensionless
-
-
-def _solid_measure(r, dim):
-    """Area (2-D) or volume (3-D) of the particles of radii r (mm² or mm³)."""
-    return np.pi * np.sum(r**2) if dim == 2 else 4.0 / 3.0 * np.pi * np.sum(r**3)
 
 
 def _next_phi(phi, jammed, lo, hi, p_target):

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .packing import check_dimension
+
 if TYPE_CHECKING:
     from os import PathLike
 
@@ -147,7 +149,7 @@ class SieveCurve:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(lo, hi, nfrac)``: class bounds (mm) and number fraction per class (sums to 1), the
         passing read as area (``dim`` 2, disks) or volume (``dim`` 3, spheres) fraction."""
-        k = _dimension(dim)
+        k = check_dimension(dim)
         lo, hi, share = self.classes(d_min)
         mean_dk = k * np.log(hi / lo) / (lo**-k - hi**-k)
         w = share / mean_dk
@@ -178,7 +180,7 @@ class SieveCurve:
         n = int(n)
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
-        k = _dimension(dim)
+        k = check_dimension(dim)
         rng = np.random.default_rng(rng)
         lo, hi, nfrac = self.number_fractions(d_min, k)
         cdf = np.concatenate([[0.0], np.cumsum(nfrac)])
@@ -196,7 +198,7 @@ class SieveCurve:
         grains smaller than ``d`` — the sieve curve of a sample of ``diameters``. Both in mm;
         returns an array shaped like ``d``."""
         diam = np.sort(np.asarray(diameters, dtype=float))
-        area = np.cumsum(diam ** _dimension(dim))
+        area = np.cumsum(diam ** check_dimension(dim))
         idx = np.searchsorted(diam, np.asarray(d, dtype=float), side="right")
         return 100.0 * np.where(idx > 0, area[np.maximum(idx - 1, 0)], 0.0) / area[-1]
 
@@ -273,10 +275,3 @@ def _float_1d(value, name):
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} has non-finite values: {arr.tolist()}")
     return arr
-
-
-def _dimension(dim: int) -> int:
-    """``dim`` as 2 or 3; a ValueError that names it otherwise."""
-    if dim not in (2, 3):
-        raise ValueError(f"dim must be 2 (disks) or 3 (spheres), got {dim!r}")
-    return int(dim)

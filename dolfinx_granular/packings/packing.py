@@ -132,9 +132,7 @@ class Packing:
     def volume_fraction(self) -> float:
         """Share of the cell the particles cover (overlaps counted twice): sum pi r² / area
         (disks) or sum 4/3 pi r³ / volume (spheres)."""
-        if self.dim == 2:
-            return float(np.pi * np.sum(self.radii**2) / self.volume)
-        return float(4.0 / 3.0 * np.pi * np.sum(self.radii**3) / self.volume)
+        return float(solid_measure(self.radii, self.dim) / self.volume)
 
     def __repr__(self) -> str:
         return (
@@ -204,6 +202,20 @@ class Packing:
             return cls(fields["centers"], fields["radii"], fields["box"])
         except ValueError as err:
             raise PackingFileError(f"{path!r} holds an invalid packing: {err}") from None
+
+
+def check_dimension(dim: int) -> int:
+    """``dim`` as 2 or 3; a ValueError that names it otherwise."""
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 (disks) or 3 (spheres), got {dim!r}")
+    return int(dim)
+
+
+def solid_measure(radii: np.ndarray, dim: int) -> float:
+    """Area (2-D: sum pi r²) or volume (3-D: sum 4/3 pi r³) of particles of ``radii`` (N,)."""
+    if dim == 2:
+        return np.pi * np.sum(radii**2)
+    return 4.0 / 3.0 * np.pi * np.sum(radii**3)
 
 
 def require_disks(packing: Packing, who: str) -> None:
