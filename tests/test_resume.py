@@ -167,11 +167,12 @@ def test_sigterm_under_mpi_marks_the_run_interrupted_and_resumes(tmp_path):
 
 @pytest.mark.slow
 def test_ctrl_c_while_the_packing_is_generated(tmp_path):
-    """SIGINT before any load step (rank 0 generating 5000 disks, which takes seconds): one
-    line, no traceback, exit status 130, nothing written."""
+    """SIGINT before any load step (rank 0 generating 20000 disks: 11200 take 21 s, so the
+    signal lands during generation even on a loaded machine, where with 5000 it once came
+    after): one line, no traceback, exit status 130, nothing written."""
     out = tmp_path / "run"
     proc = subprocess.Popen(
-        slope_command("--particles", "5000", "--out", str(out)),
+        slope_command("--particles", "20000", "--out", str(out)),
         cwd=ROOT,
         env=MPI_ENV,
         stdout=subprocess.PIPE,
