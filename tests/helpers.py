@@ -254,6 +254,7 @@ def taylor_remainders(L, a, u, direction, update, h0, halvings=5):
 
 #: every demo in demos/, each honouring ``--small`` and ``DEMO_SMALL=1`` (tests/test_demos.py)
 DEMOS = (
+    "fabric3d",
     "footing3d",
     "granular_column",
     "friction_study",

@@ -17,6 +17,25 @@ def read_csv(path):
         return list(csv.DictReader(f))
 
 
+def check_fabric3d(out, stdout):
+    rows = read_csv(out / "fabric3d.csv")
+    assert [r["case"].split()[0] for r in rows] == ["F", "compression", "shear"]
+    identity, compression, shear = rows
+    A = {k: {c: float(r[f"A_{c}"]) for c in ("xx", "yy", "zz", "xz")} for k, r in (
+        ("I", identity), ("c", compression), ("s", shear))}  # fmt: skip
+    # compression along z adds contacts whose normals lie near +-z: A_zz grows, A_xx, A_yy fall
+    assert int(compression["contacts"]) > int(identity["contacts"])
+    assert A["c"]["zz"] > A["I"]["zz"]
+    assert A["c"]["xx"] < A["I"]["xx"] and A["c"]["yy"] < A["I"]["yy"]
+    # shear F = I + gamma e_x e_z opens the contacts along the stretched (1, 0, 1) and keeps
+    # those along the compressed (1, 0, -1): n_x n_z < 0 on average, the major axis there
+    assert int(shear["contacts"]) < int(identity["contacts"])
+    assert A["s"]["xz"] < -0.1 < A["I"]["xz"]
+    axis = np.array([float(shear[f"axis_{c}"]) for c in "xyz"])
+    assert abs(axis @ np.array([1.0, 0.0, -1.0])) / np.sqrt(2.0) > 0.95
+    assert is_png(out / "fabric3d.png") and "anisotropy" in stdout
+
+
 def check_footing3d(out, stdout):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["completed"] and summary["cells"] == 120 and summary["points"] == 960

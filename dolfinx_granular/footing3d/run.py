@@ -48,7 +48,7 @@ class FootingOptions:
         refine: mesh refinement k (k³ x the 2280 hexahedra of the default scene).
         gravity_steps, footing_steps: nominal load steps of the two phases.
         footing_factor: the footing pressure reached, relative to the 2-D benchmark's.
-        linear_solver: "direct" (MUMPS) or "iterative" (CG + GAMG with the rigid-body modes).
+        linear_solver: "direct" (MUMPS) or "iterative" (GMRES + GAMG with the rigid-body modes).
         figure: draw the pyvista PNG.
         geometry: the scene (None: :class:`FootingGeometry` refined ``refine`` times).
     """

@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
 from matplotlib.ticker import FormatStrFormatter, LogLocator
 
-from ..packings.fabric import contact_angles, normal_density
+from ..packings.fabric import contact_angles, normal_density, normal_density_sphere
 from ..packings.gsd import SieveCurve
 from ..packings.packing import Packing
 
@@ -151,6 +151,41 @@ def plot_packings_and_densities(
         "RVEs and contact-normal densities 2π ρ_δ(θ) (fig. 3; dotted: isotropic)", fontsize=11
     )
     fig.tight_layout(rect=(0, 0.05, 1, 0.96))
+    return fig
+
+
+def plot_sphere_densities(
+    panels: Sequence[tuple[str, ArrayLike]], delta_deg: float = 15.0, n_lat: int = 60
+) -> Figure:
+    """Contact-normal densities on the sphere as maps (Mollweide projection), one per panel.
+
+    Args:
+        panels: ``(title, normals (N_c, 3))`` each: unit contact normals (or branch vectors).
+        delta_deg: half-angle of the cone of influence in degrees
+            (:func:`~dolfinx_granular.packings.fabric.normal_density_sphere`).
+        n_lat: latitude cells (longitude: twice as many).
+
+    Drawn is 4 pi rho, 1 for an isotropic set, on one colour scale for all panels; longitude 0
+    is the x axis, latitude +90° the z axis.
+    """
+    maps = []
+    for title, normals in panels:
+        lat, lon, rho = normal_density_sphere(normals, np.radians(delta_deg), n_lat, 2 * n_lat)
+        # longitudes [pi, 2 pi) are drawn at [-pi, 0): the x axis at the map's centre
+        maps.append((title, np.roll(4.0 * np.pi * rho, n_lat, axis=1)))
+    top = max(1.5, max(float(m.max()) for _, m in maps))
+    lon_edges = np.linspace(-np.pi, np.pi, 2 * n_lat + 1)
+    lat_edges = np.linspace(-0.5 * np.pi, 0.5 * np.pi, n_lat + 1)
+    fig = Figure(figsize=(4.6 * len(maps), 3.0))
+    for k, (title, m) in enumerate(maps):
+        ax = fig.add_subplot(1, len(maps), k + 1, projection="mollweide")
+        mesh = ax.pcolormesh(lon_edges, lat_edges, m, cmap="viridis", vmin=0.0, vmax=top)
+        ax.set_title(title, fontsize=10, pad=12)
+        ax.set_xticklabels([])
+        ax.tick_params(labelsize=7)
+        ax.grid(True, alpha=0.3)
+    bar = fig.colorbar(mesh, ax=fig.axes, orientation="horizontal", shrink=0.5, pad=0.08)
+    bar.set_label(f"4π ρ (1: isotropic), cone of influence δ = {delta_deg:g}°", fontsize=9)
     return fig
 
 
