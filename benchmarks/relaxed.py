@@ -13,7 +13,9 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
 - ``ratio``: relaxed over Taylor, per point, in this one run;
 - Newton steps, factorisations and FIRE steps per point, and the time of one contact state
   (overlaps, forces, rattlers) and one tangent (a factorisation and the condensation) at the
-  committed state: where the time goes.
+  committed state;
+- where the time goes: assembly, factorisations, solves, line search, FIRE and the tangent, in
+  ms per point over one more pass under cProfile.
 """
 
 import argparse
@@ -66,6 +68,42 @@ def per_point(rve, F0, F, state):
     return np.array(rows), np.array(rearranged)
 
 
+#: the micro solver's parts, by the function that does each (cumulative time under cProfile)
+PARTS = {
+    "assembly": relaxation._matrix,
+    "factorisation": relaxation._factorise,
+    "line search": relaxation._line_search,
+    "FIRE": relaxation.fire,
+    "tangent": relaxation.condensed_tangent,
+}
+
+
+def where_time_goes(rve, F, state):
+    """ms per point in each of :data:`PARTS` and SuperLU's solves over one pass of the points,
+    under cProfile (which slows the Python parts: read the shares, not the sum), and the
+    factorisations per point, the shifted tries included."""
+    import cProfile
+    import pstats
+
+    profile = cProfile.Profile()
+    profile.enable()
+    for q in range(F.shape[0]):
+        relaxation.relax(rve.cell, F[q], state.w[q], True, rve.settings)
+    profile.disable()
+    stats = pstats.Stats(profile).stats  # {(file, line, name): (cc, nc, tt, ct, callers)}
+    keys = {(f.__code__.co_filename, f.__code__.co_firstlineno, f.__name__): k
+            for k, f in PARTS.items()}  # fmt: skip
+    times, factorisations = {}, 0
+    for key, (_, nc, _, ct, _) in stats.items():
+        if key in keys:
+            times[keys[key]] = ct
+            factorisations += nc if keys[key] == "factorisation" else 0
+        elif key[2] == "<method 'solve' of 'SuperLU' objects>":
+            times["solves"] = times.get("solves", 0.0) + ct
+    n = F.shape[0]
+    return {k: 1e3 * v / n for k, v in times.items()}, factorisations / n
+
+
 def phases(rve, F0, state):
     """Seconds of one contact state and one tangent (the network's factorisation and the
     condensation) at the committed state."""
@@ -109,6 +147,14 @@ def main(argv=None):
         f"one contact state {1e3 * t_state:.3f} ms, one tangent (factorisation and "
         f"condensation) {1e3 * t_tangent:.3f} ms"
     )
+    parts, factorisations = where_time_goes(rve, F, state)
+    print(
+        f"where the time goes (ms per point under cProfile; {factorisations:.1f} "
+        "factorisations per point, the shifted tries included):"
+    )
+    print("  " + ", ".join(f"{k} {v:.1f}" for k, v in parts.items()))
+    print("  (the tangent holds its own assembly and factorisation; the line search the contact")
+    print("  states of its tries)")
 
 
 if __name__ == "__main__":

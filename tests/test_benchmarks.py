@@ -7,6 +7,7 @@ import pytest
 
 import friction_path
 import kernel
+import relaxed
 import three_d
 
 
@@ -15,6 +16,15 @@ def test_kernel_benchmark_runs(capsys):
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.strip().startswith("70 ")]
     assert len(rows) == 1 and rows[0].endswith("x")
+
+
+def test_relaxed_benchmark_runs_and_says_where_the_time_goes(capsys):
+    relaxed.main(["--points", "3", "--particles", "70"])
+    out = capsys.readouterr().out
+    assert "relaxed P+A" in out and "ratio" in out
+    parts = out.split("where the time goes")[1]
+    for part in ("assembly", "factorisation", "solves", "line search", "tangent"):
+        assert f"{part} " in parts, part
 
 
 def test_kernel_comparison_agrees_and_times_every_implementation():

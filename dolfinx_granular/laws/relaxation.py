@@ -171,6 +171,7 @@ class _Stepper:
         self.cell, self.settings = cell, settings
         self.lu = self.key = None
         self.last = np.inf
+        self.mu = 0.0  # the last shift that made H positive definite (0: none needed)
 
     def direction(self, F, s, g, residual):
         """Direction (N, 2) for the gradient g (N, 2) at state s; ``(delta, factorised,
@@ -199,16 +200,21 @@ class _Stepper:
         H = H + diags(shift, format="csc")
         self.lu, pd = _factorise(H)
         if pd:
+            self.mu = 0.0
             return False
         diag = H.diagonal()
         scale = diag[diag > 0].mean() if np.any(diag > 0) else cell.K
-        mu = 1e-8 * scale
-        while not pd:
+        # the shift a buckling network needs changes little from one step to the next: start
+        # a decade below the last one (each try is a factorisation)
+        mu = max(1e-8 * scale, 0.1 * self.mu)
+        while True:
             if mu > 1e6 * scale:
                 raise RelaxationError("the shifted stiffness never became positive definite")
             self.lu, pd = _factorise(H + diags(np.full(n, mu), format="csc"))
+            if pd:
+                self.mu = mu
+                return True
             mu *= 10.0
-        return True
 
 
 def _gather(g, dof, n):
