@@ -113,7 +113,7 @@ def moduli_row(packing, seed, pressure):
     t = time.perf_counter()
     try:
         # (the driver's strain steps capped at ten times the strain the pressure asks for)
-        r = compress(point, pressure * K_N, max_increment=10 * pressure)
+        r = compress(point, pressure * K_N, max_increment=10 * pressure, isotropic=True)
     except (ControlError, LawEvaluationError) as err:  # e.g. a cell that unjams: report it
         keys = ("p_over_kn", "B_relaxed", "G_relaxed", "B_taylor", "G_taylor", "G_ratio", "z",
                 "rattlers", "fluctuation")  # fmt: skip

@@ -4,7 +4,10 @@ the relaxed and the Taylor law alike; and the slope options that use it."""
 import warnings
 
 from dolfinx_granular import RelaxedRVE, TaylorRVE, generate_packing
-from dolfinx_granular.drivers.confinement import confined_packing
+from dolfinx_granular.drivers.confinement import compress, confined_packing
+from dolfinx_granular.drivers.material_point import MaterialPoint
+from dolfinx_granular.laws import relaxation
+from dolfinx_granular.laws.relaxed_cell import ContactState
 from dolfinx_granular.slope.options import SlopeOptions
 
 import numpy as np
@@ -88,3 +91,30 @@ def test_the_slope_law_is_built_on_the_confined_packing(packings):
     np.testing.assert_allclose(
         taylor.stress(np.eye(2))[1], law.stress(np.eye(2), law.initial_state(1))[1], rtol=1e-12
     )
+
+
+def test_isotropic_compression_near_jamming_ends_in_equilibrium():
+    # jammed at p / k_n = 1e-4, compressed along F = lam I to it: the mean pressure is met and
+    # the disks are at rest there (net forces <= 1e-9 of the mean contact force)
+    p = 1e-4
+    rve = RelaxedRVE(generate_packing(70, seed=1, pressure=p), K_N)
+    point = MaterialPoint(rve)
+    result = compress(point, p * K_N, max_increment=10 * p, isotropic=True)
+    assert result.F[0, 0] == result.F[1, 1] and result.F[0, 1] == result.F[1, 0] == 0.0
+    assert -np.trace(result.sigma) / 2 == pytest.approx(p * K_N, rel=1e-8)
+    x = rve.positions(result.F, point.state)[0]
+    f, mean = net_forces(rve.packing, x, result.F)
+    assert np.linalg.norm(f, axis=1).max() <= 1e-9 * mean
+
+
+def test_equilibrium_is_judged_against_the_round_off_of_tiny_overlaps():
+    # at 1e-7 compression the overlaps are ~1e-7 of the radii, so the contact forces carry a
+    # round-off of ~eps R / e of themselves: the solver stops there, not at force_tol
+    rve = RelaxedRVE(generate_packing(70, seed=1, pressure=1e-3), K_N)
+    F = (1.0 - 1e-7) * np.eye(2)
+    eq = relaxation.relax(rve.cell, F, rve.initial_state(1).w[0], False, rve.settings)
+    s = ContactState(rve.cell, F, eq.w)
+    on = s.on
+    expected = np.finfo(float).eps * rve.cell.R[: s.m][on].mean() / s.e[on].mean()
+    assert s.resolution(rve.cell) == pytest.approx(expected, rel=1e-12)
+    assert 1e-10 < expected and eq.residual <= relaxation.RESOLVED * expected

@@ -7,6 +7,7 @@ from dolfinx_granular.drivers.material_point import (
     ControlError,
     MaterialPoint,
     solve_point,
+    solve_pressure,
     stress_tangent,
 )
 
@@ -100,6 +101,27 @@ def test_pure_stress_control_of_a_linear_law_is_its_closed_form():
     np.testing.assert_allclose(step.F, expected, rtol=0, atol=1e-12)
     assert step.iterations == 1  # linear, no step cap: Newton is exact in one step
     assert step.P[0, 1] == pytest.approx(p21)
+
+
+def test_isotropic_pressure_control_of_a_linear_law_is_its_closed_form():
+    # F = (1 + h) I: P = 2 (lam + mu) h I, sigma = P / (1 + h), so -tr(sigma) / 2 = p at
+    # h = -p / (2 (lam + mu) + p)
+    law, p = LinearLaw(), 1e5
+    step = solve_pressure(law, p, max_increment=1.0)
+    h = -p / (2.0 * (law.lam + law.mu) + p)
+    np.testing.assert_allclose(step.F, (1.0 + h) * np.eye(2), rtol=0, atol=1e-12)
+    assert -np.trace(step.sigma) / 2 == pytest.approx(p, rel=1e-8)
+
+
+def test_isotropic_pressure_control_of_taylor_commits_an_isotropic_f(packing):
+    point = MaterialPoint(TaylorRVE(packing, K_N))
+    for p in (2e4, PRESSURE):  # the second starts from the first's lam
+        step = point.compress(p)
+        assert step.F[0, 1] == step.F[1, 0] == 0.0 and step.F[0, 0] == step.F[1, 1] < 1.0
+        assert -np.trace(step.sigma) / 2 == pytest.approx(p, rel=1e-8)
+        np.testing.assert_array_equal(point.F, step.F)
+    with pytest.raises(ValueError, match="pressure must be > 0"):
+        point.compress(0.0)
 
 
 def test_biaxial_compression_under_lateral_pressure(packing):

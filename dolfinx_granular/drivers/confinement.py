@@ -51,11 +51,21 @@ def ramp(
     :class:`~dolfinx_granular.drivers.material_point.PointResult` list; with ``partial``,
     ``(results, error)``: those up to a step that failed even so, and its error (None if none).
     """
+
+    def advance(v):
+        F, stress = load(v, point.F.copy())
+        return point.step(F, stress, max_increment=max_increment)
+
+    return _halving(values, advance, start, partial)
+
+
+def _halving(values, advance, start, partial):
+    """``advance(v)`` (commits, or raises and changes nothing) through ``values``, halving a
+    step that fails: :func:`ramp`'s stepping."""
     targets, done, cuts, results = list(values), start, 0, []
     while targets:
-        F, stress = load(targets[0], point.F.copy())
         try:
-            results.append(point.step(F, stress, max_increment=max_increment))
+            results.append(advance(targets[0]))
         except (ControlError, LawEvaluationError) as err:
             if cuts == MAX_HALVINGS:
                 if partial:
@@ -68,16 +78,23 @@ def ramp(
     return (results, None) if partial else results
 
 
-def compress(point: MaterialPoint, pressure: float, max_increment: float) -> PointResult:
+def compress(
+    point: MaterialPoint, pressure: float, max_increment: float, isotropic: bool = False
+) -> PointResult:
     """Ramp sigma_11 = sigma_22 = -``pressure`` (Pa) in :data:`RAMP` geometric steps from 1 %
     of it; the unknowns are F11 and F22 (F12 = F21 = 0). ``max_increment`` caps the driver's
-    strain steps: near jamming the relaxed tangent is nearly singular in shear. Returns the
-    last result (committed)."""
+    strain steps: near jamming the relaxed tangent is nearly singular in shear. With
+    ``isotropic``, F = lam I instead and the mean pressure -tr(sigma) / 2 is ramped
+    (:meth:`MaterialPoint.compress`): the way to compress a packing near jamming, where mixed
+    control takes the nearly free deviatoric steps. Returns the last result (committed)."""
+    levels = np.geomspace(0.01, 1.0, RAMP) * pressure
+    if isotropic:
+        advance = lambda p: point.compress(p, max_increment=max_increment)  # noqa: E731
+        return _halving(levels, advance, 0.0, False)[-1]
 
     def load(p, F):
         return F, {(0, 0): -p, (1, 1): -p}
 
-    levels = np.geomspace(0.01, 1.0, RAMP) * pressure
     return ramp(point, levels, load, max_increment)[-1]
 
 

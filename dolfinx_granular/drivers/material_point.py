@@ -161,6 +161,44 @@ def solve_point(
     )
 
 
+def solve_pressure(law, pressure, state=None, lam=1.0, rtol=1e-8, max_iter=50, max_increment=0.02):
+    """Solve F = lam I (an isotropic strain path) for the mean pressure -tr(sigma) / d =
+    ``pressure`` (Pa), from ``state`` and the guess ``lam``.
+
+    Near jamming a frictionless packing has almost no shear stiffness, so mixed control of
+    sigma_11 = sigma_22 (:func:`solve_point`) takes large deviatoric steps; along F = lam I the
+    only unknown is the volume, and the deviatoric stress is what the packing gives. Newton on
+    h = lam - 1, kept inside the bracket of the root found so far. ``rtol``: the pressure is good
+    to eps R / e of itself (R a radius, e an overlap), ~1e-9 at 1e-7 of the radii.
+
+    Returns:
+        :class:`PointResult`; :class:`ControlError` when not converged (nothing committed).
+    """
+    if not pressure > 0.0:
+        raise ValueError(f"pressure must be > 0 Pa, got {pressure!r}")
+    h, lo, hi, residuals = float(lam) - 1.0, -np.inf, np.inf, []
+    d = int(getattr(law, "dim", 2))
+    for it in range(max_iter + 1):
+        F = (1.0 + h) * np.eye(d)
+        W, P, A, new = _evaluate(law, F, state)
+        sigma = P @ F.T / np.linalg.det(F)
+        r = -np.trace(sigma) / d - pressure  # falls as h grows (less compression)
+        residuals.append(float(r))
+        if abs(r) <= rtol * pressure:
+            return PointResult(F, W, P, sigma, new, it, tuple(residuals))
+        T = stress_tangent(F, P, A)
+        slope = -np.einsum("iikk->", T) / d  # d(-tr sigma / d) / dh along dF = dh I
+        lo, hi = (h, hi) if r > 0.0 else (lo, h)
+        step = -r / slope if slope < 0.0 else np.sign(r) * max_increment
+        h += float(np.clip(step, -max_increment, max_increment))
+        if not lo < h < hi:
+            h = 0.5 * (lo + hi)  # (only the finite far bound can be crossed)
+    raise ControlError(
+        f"material point: mean pressure off by {abs(residuals[-1]):.3e} Pa > {rtol:.0e} x "
+        f"{pressure:.6g} Pa after {max_iter} iterations along F = lam I; state not committed"
+    )
+
+
 def _newton_step(K, r, max_increment):
     """Newton's increment -K^-1 r scaled to |dx|_max <= max_increment; without stiffness (no
     contact yet, or a singular K) a step of max_increment against the residual's sign."""
@@ -203,6 +241,14 @@ class MaterialPoint:
     def step(self, F, stress=None, **options) -> PointResult:
         """Solve (:func:`solve_point`) and commit; on :class:`ControlError` nothing changes."""
         result = self.trial(F, stress, **options)
+        self.commit(result)
+        return result
+
+    def compress(self, pressure, **options) -> PointResult:
+        """Solve F = lam I for the mean pressure (:func:`solve_pressure`, from the committed
+        F's lam) and commit; on :class:`ControlError` nothing changes."""
+        lam = float(np.trace(self.F)) / self.F.shape[0]
+        result = solve_pressure(self.law, pressure, self.state, lam, **options)
         self.commit(result)
         return result
 

@@ -52,6 +52,10 @@ FIRE_CHUNK = 200
 ROUND_OFF = 1e-12
 #: longest move of a disk in one step, relative to the smallest radius sum
 MAX_STEP = 0.1
+#: equilibrium also when the net forces are within this many times the round-off of the
+#: contact forces (:meth:`ContactState.resolution`): near F = I the overlaps are so small
+#: that no position resolves a net force of ``force_tol`` (Newton stalls at ~4 times it)
+RESOLVED = 30.0
 
 
 class RigidityLostError(RelaxationError):
@@ -66,7 +70,8 @@ class Settings:
 
     Attributes:
         force_tol: equilibrium when every disk's net force is at most this times the mean
-            contact force.
+            contact force, or :data:`RESOLVED` times the round-off of the contact forces
+            where that is larger (overlaps below ~1e-5 of the radii).
         max_iterations: Newton steps before FIRE takes over (and again after it).
         fire_tol, fire_steps: FIRE stops at this largest net force relative to the mean
             contact force, or fails after that many steps.
@@ -241,10 +246,12 @@ def _residual(cell, F, s):
     return _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
 
 
-def _line_search(cell, F, w, s, delta, g):
+def _line_search(cell, F, w, s, delta, g, expand=False):
     """Backtracking (Armijo) on the energy, from a step that moves no disk by more than
     ``MAX_STEP`` of the smallest radius sum; ``(w, state, cut)``, cut the factor the line
-    search took off that first step."""
+    search took off that first step. With ``expand`` (a shifted step, whose length says little)
+    a first step that is taken whole is doubled while the energy keeps falling (:func:`_expand`):
+    a buckling network leaves its saddle in a few steps, not in many short ones."""
     E0 = s.energy(cell, s.on)
     r0 = _residual(cell, F, s)
     slope = float((g * delta).sum())
@@ -258,6 +265,8 @@ def _line_search(cell, F, w, s, delta, g):
             continue
         E = trial.energy(cell, trial.on)
         if E <= E0 + 1e-4 * alpha * slope:
+            if expand and alpha == first:
+                return _expand(cell, F, w, delta, alpha, trial, E, longest)
             return w + alpha * delta, trial, alpha / first
         # where the decrease a step promises is below the energy's round-off, the energy
         # cannot tell: take the step if it lowers the largest force
@@ -265,6 +274,22 @@ def _line_search(cell, F, w, s, delta, g):
             return w + alpha * delta, trial, alpha / first
         alpha *= 0.5
     raise RelaxationError("the line search found no lower energy")
+
+
+def _expand(cell, F, w, delta, alpha, state, E, longest):
+    """Double the step alpha delta (taken, energy E at ``state``) while the energy falls and no
+    disk moves by more than ``MAX_STEP`` of the smallest radius sum; ``(w, state, cut)``."""
+    first = alpha
+    while 2.0 * alpha * longest <= MAX_STEP * cell.R.min():
+        try:
+            trial = ContactState(cell, F, w + 2.0 * alpha * delta)
+        except RelaxationError:
+            break
+        E2 = trial.energy(cell, trial.on)
+        if not E2 < E:
+            break
+        alpha, state, E = 2.0 * alpha, trial, E2
+    return w + alpha * delta, state, alpha / first
 
 
 def _newton(cell, F, w, settings, budget, stall=True):
@@ -278,7 +303,7 @@ def _newton(cell, F, w, settings, budget, stall=True):
             raise RigidityLostError("no two disks touch (the cell has come apart)")
         g, f = s.forces(cell, F, s.on)
         residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
-        if residual <= settings.force_tol:
+        if residual <= max(settings.force_tol, RESOLVED * s.resolution(cell)):
             return w, s, residual, steps, factorisations, shifted
         if steps == budget or (stall and steps >= STALLED_AFTER and residual > STALLED_ABOVE):
             raise RelaxationError(
@@ -286,7 +311,7 @@ def _newton(cell, F, w, settings, budget, stall=True):
                 f"{residual:.3g} of the mean contact force)"
             )
         delta, factorised, was_shifted = stepper.direction(F, s, g, residual)
-        w, s, _ = _line_search(cell, F, w, s, delta, g)
+        w, s, _ = _line_search(cell, F, w, s, delta, g, expand=was_shifted)
         steps, factorisations = steps + 1, factorisations + factorised
         shifted += was_shifted
 

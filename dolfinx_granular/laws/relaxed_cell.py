@@ -182,6 +182,16 @@ class ContactState:
         """Energy of the contacts ``use`` (Pa)."""
         return rk.energy(self.e, cell.K, use)
 
+    def resolution(self, cell: Cell) -> float:
+        """The net force, relative to the mean contact force, below which (F, w) resolve no
+        more: an overlap is the difference of lengths of the order of R, good to eps R, so a
+        contact force is good to eps R / e of itself (~ eps mean R / mean e; inf without
+        contacts)."""
+        if not self.on.any():
+            return np.inf
+        e = float(self.e[self.on].mean())
+        return float(np.finfo(float).eps * cell.R[: self.m][self.on].mean() / e)
+
     def force_scale(self, cell: Cell) -> float:
         """Mean contact force K e over the contacts (K times length; 0 without contacts)."""
         return float(cell.K * self.e[self.on].mean()) if self.on.any() else 0.0
