@@ -26,9 +26,10 @@ the (serial) study and the other ranks exit.
 * packings: ``generate_packing(n, seed, pressure=p)`` for each target pressure p / k_n: the
   contact network jammed at that pressure, so that compressing it to p keeps its network
   (``--small``: 70 disks, one seed, two pressures);
-* each packing is compressed isotropically, sigma_11 = sigma_22 = -p, in pressure steps (the
-  material-point driver, warm-started from step to step); there the relaxed and the Taylor
-  tangents are taken at the same F;
+* each packing is compressed along F = lam I to the mean pressure -tr(sigma) / 2 = p, in
+  pressure steps (the material-point driver, warm-started from step to step; near jamming
+  controlling sigma_11 = sigma_22 instead takes nearly free deviatoric steps, and the
+  relaxations fail); there the relaxed and the Taylor tangents are taken at the same F;
 * moduli from the spatial tangent a_abcd = F_bB F_dD A_aBcD / J (what the tangent of Cauchy's
   stress gives, its stress terms included): B = (a_1111 + a_2222 + a_1122 + a_2211) / 4, and G
   the average over the plane's orientations of the shear modulus,
@@ -75,7 +76,8 @@ SHEAR_PRESSURE, MAX_SHEAR = 1e-3, 0.02
 # ## Packings jammed at each pressure, compressed to it
 #
 # ``compress`` and ``ramp`` (:mod:`dolfinx_granular.drivers.confinement`) step the material
-# point in geometric pressure steps, halving a step where the network rearranges.
+# point in geometric pressure steps, halving a step where the network rearranges; the moduli
+# rows compress along F = lam I (``isotropic=True``), the shear keeps sigma_22 = -p.
 
 
 # %%
