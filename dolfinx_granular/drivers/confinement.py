@@ -61,8 +61,11 @@ def ramp(
 
 def _halving(values, advance, start, partial):
     """``advance(v)`` (commits, or raises and changes nothing) through ``values``, halving a
-    step that fails: :func:`ramp`'s stepping."""
+    step that fails: :func:`ramp`'s stepping. Each value gets :data:`MAX_HALVINGS` halvings in
+    all, those whose midpoints were reached included (else a value that never converges, while
+    every point short of it does, would be approached without end)."""
     targets, done, cuts, results = list(values), start, 0, []
+    n_values = len(targets)
     while targets:
         try:
             results.append(advance(targets[0]))
@@ -74,7 +77,9 @@ def _halving(values, advance, start, partial):
             targets.insert(0, 0.5 * (done + targets[0]))
             cuts += 1
             continue
-        done, cuts = targets.pop(0), 0
+        done = targets.pop(0)
+        if len(targets) < n_values:  # one of ``values`` reached: the next gets its halvings
+            n_values, cuts = len(targets), 0
     return (results, None) if partial else results
 
 
