@@ -3,8 +3,8 @@ the relaxed and the Taylor law alike; and the slope options that use it."""
 
 import warnings
 
-from dolfinx_granular import RelaxedRVE, TaylorRVE, generate_packing
-from dolfinx_granular.drivers.confinement import compress, confined_packing
+from dolfinx_granular import LawEvaluationError, RelaxedRVE, TaylorRVE, generate_packing
+from dolfinx_granular.drivers.confinement import MAX_HALVINGS, compress, confined_packing, ramp
 from dolfinx_granular.drivers.material_point import MaterialPoint
 from dolfinx_granular.laws import relaxation
 from dolfinx_granular.laws.relaxed_cell import ContactState
@@ -118,3 +118,28 @@ def test_equilibrium_is_judged_against_the_round_off_of_tiny_overlaps():
     expected = np.finfo(float).eps * rve.cell.R[: s.m][on].mean() / s.e[on].mean()
     assert s.resolution(rve.cell) == pytest.approx(expected, rel=1e-12)
     assert 1e-10 < expected and eq.residual <= relaxation.RESOLVED * expected
+
+
+class FailsAtTheEnd:
+    """Linear law that fails at F_11 <= 0.98 and nowhere short of it; counts its calls."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def evaluate(self, F):
+        self.calls += 1
+        F = np.asarray(F)
+        if F[0, 0] <= 0.98:
+            raise LawEvaluationError("fails at the end")
+        return 0.0, 1e6 * (F - np.eye(2)), np.zeros((2, 2, 2, 2))
+
+
+def test_a_load_value_gets_its_halvings_in_all():
+    # every point short of the value converges, the value never does: the halvings stop after
+    # MAX_HALVINGS in all (reset at every reached midpoint they would creep up on it for long)
+    law = FailsAtTheEnd()
+    point = MaterialPoint(law)
+    with pytest.raises(LawEvaluationError, match="fails at the end"):
+        ramp(point, [0.02], lambda v, F: (np.diag([1.0 - v, 1.0]), {}), 0.1)
+    assert law.calls == 2 * MAX_HALVINGS + 1
+    assert 0.98 < point.F[0, 0] < 0.99  # the last midpoint reached is committed
