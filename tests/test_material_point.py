@@ -76,6 +76,8 @@ def test_cauchy_tangent_is_the_derivative_of_the_cauchy_stress(packing):
 class LinearLaw:
     """P = lam tr(H) I + mu (H + H^T), H = F - I: linear in F, its tangent constant (Pa)."""
 
+    dim = 2
+
     def __init__(self, lam=2e6, mu=1e6):
         self.lam, self.mu = lam, mu
         I = np.eye(2)

@@ -94,7 +94,10 @@ def compress(
     control takes the nearly free deviatoric steps. Returns the last result (committed)."""
     levels = np.geomspace(0.01, 1.0, RAMP) * pressure
     if isotropic:
-        advance = lambda p: point.compress(p, max_increment=max_increment)  # noqa: E731
+
+        def advance(p):
+            return point.compress(p, max_increment=max_increment)
+
         return _halving(levels, advance, 0.0, False)[-1]
 
     def load(p, F):

@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from ..laws.protocol import law_dimension
+
 #: default tolerance: |s_ij - target_ij| <= RTOL * stress scale at every stress-controlled ij
 RTOL = 1e-10
 MEASURES = ("cauchy", "piola")
@@ -161,38 +163,40 @@ def solve_point(
     )
 
 
-def solve_pressure(law, pressure, state=None, lam=1.0, rtol=1e-8, max_iter=50, max_increment=0.02):
+def solve_pressure(
+    law, pressure, state=None, lam=1.0, rtol=1e-8, max_iter=50, max_increment=0.02, dim=None
+):
     """Solve F = lam I (an isotropic strain path) for the mean pressure -tr(sigma) / d =
     ``pressure`` (Pa), from ``state`` and the guess ``lam``.
 
     Near jamming a frictionless packing has almost no shear stiffness, so mixed control of
     sigma_11 = sigma_22 (:func:`solve_point`) takes large deviatoric steps; along F = lam I the
     only unknown is the volume, and the deviatoric stress is what the packing gives. Newton on
-    h = lam - 1, kept inside the bracket of the root found so far. ``rtol``: the pressure is good
-    to eps R / e of itself (R a radius, e an overlap), ~1e-9 at 1e-7 of the radii.
+    h = lam - 1, kept inside the bracket of the root found so far, as :func:`solve_point` does
+    for one unknown; ``residuals`` are the mean stress minus its target -``pressure``.
+    ``rtol``: the pressure is good to eps R / e of itself (R a radius, e an overlap), ~1e-9 at
+    1e-7 of the radii. ``dim``: d (default :func:`~dolfinx_granular.law_dimension`).
 
     Returns:
         :class:`PointResult`; :class:`ControlError` when not converged (nothing committed).
     """
     if not pressure > 0.0:
         raise ValueError(f"pressure must be > 0 Pa, got {pressure!r}")
-    h, lo, hi, residuals = float(lam) - 1.0, -np.inf, np.inf, []
-    d = int(getattr(law, "dim", 2))
+    d = law_dimension(law) if dim is None else int(dim)
+    x, lo, hi, residuals = np.array([float(lam) - 1.0]), -np.inf, np.inf, []
     for it in range(max_iter + 1):
-        F = (1.0 + h) * np.eye(d)
+        F = (1.0 + x[0]) * np.eye(d)
         W, P, A, new = _evaluate(law, F, state)
         sigma = P @ F.T / np.linalg.det(F)
-        r = -np.trace(sigma) / d - pressure  # falls as h grows (less compression)
-        residuals.append(float(r))
-        if abs(r) <= rtol * pressure:
+        r = np.array([np.trace(sigma) / d + pressure])  # mean stress - its target -pressure
+        residuals.append(float(r[0]))
+        if abs(r[0]) <= rtol * pressure:
             return PointResult(F, W, P, sigma, new, it, tuple(residuals))
-        T = stress_tangent(F, P, A)
-        slope = -np.einsum("iikk->", T) / d  # d(-tr sigma / d) / dh along dF = dh I
-        lo, hi = (h, hi) if r > 0.0 else (lo, h)
-        step = -r / slope if slope < 0.0 else np.sign(r) * max_increment
-        h += float(np.clip(step, -max_increment, max_increment))
-        if not lo < h < hi:
-            h = 0.5 * (lo + hi)  # (only the finite far bound can be crossed)
+        K = np.einsum("iikk->", stress_tangent(F, P, A)) / d  # d(tr sigma / d) / dh, dF = dh I
+        lo, hi = (x[0], hi) if r[0] < 0.0 else (lo, x[0])
+        x = x + _newton_step(np.array([[K]]), r, max_increment)
+        if not lo < x[0] < hi:
+            x = np.array([0.5 * (lo + hi)])  # (only the finite far bound can be crossed)
     raise ControlError(
         f"material point: mean pressure off by {abs(residuals[-1]):.3e} Pa > {rtol:.0e} x "
         f"{pressure:.6g} Pa after {max_iter} iterations along F = lam I; state not committed"
@@ -248,7 +252,7 @@ class MaterialPoint:
         """Solve F = lam I for the mean pressure (:func:`solve_pressure`, from the committed
         F's lam) and commit; on :class:`ControlError` nothing changes."""
         lam = float(np.trace(self.F)) / self.F.shape[0]
-        result = solve_pressure(self.law, pressure, self.state, lam, **options)
+        result = solve_pressure(self.law, pressure, self.state, lam, dim=self.F.shape[0], **options)
         self.commit(result)
         return result
 

@@ -170,7 +170,7 @@ def plot_sphere_densities(
     """
     maps = []
     for title, normals in panels:
-        lat, lon, rho = normal_density_sphere(normals, np.radians(delta_deg), n_lat, 2 * n_lat)
+        *_, rho = normal_density_sphere(normals, np.radians(delta_deg), n_lat, 2 * n_lat)
         # longitudes [pi, 2 pi) are drawn at [-pi, 0): the x axis at the map's centre
         maps.append((title, np.roll(4.0 * np.pi * rho, n_lat, axis=1)))
     top = max(1.5, max(float(m.max()) for _, m in maps))
