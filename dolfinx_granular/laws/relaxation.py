@@ -8,8 +8,9 @@ line search on the energy:
 
 * between non-rattlers the stiffness is exact; a contact that touches a rattler (fewer than 3
   contacts, removed recursively) enters by its positive part K n n^T, and the rattlers'
-  unknowns get a small extra diagonal, so that a rattler is pushed out of its overlaps (it ends
-  force-free) and one without contacts stays where it is;
+  unknowns get an extra diagonal, their net force over :data:`RATTLER_REACH` mean overlaps
+  (a small floor where that is smaller), so that a rattler is pushed out of its overlaps (it
+  ends force-free) without flying across its cage, and one without contacts stays where it is;
 * where the stiffness is not positive definite (the network buckles: a rearrangement), the step
   is taken on H + mu I (Levenberg-Marquardt, in effect a trust region), mu growing until the
   factorisation is positive definite; the next step tries plain Newton again;
@@ -56,6 +57,10 @@ MAX_STEP = 0.1
 #: contact forces (:meth:`ContactState.resolution`): near F = I the overlaps are so small
 #: that no position resolves a net force of ``force_tol`` (Newton stalls at ~4 times it)
 RESOLVED = 30.0
+#: a rattler's Newton move is at most about this many mean overlaps: its unknowns are shifted
+#: by its net force over that length (a disk squeezed between two partners has no stiffness
+#: across them, and one such disk moving far would cut the whole network's line search)
+RATTLER_REACH = 30.0
 
 
 class RigidityLostError(RelaxationError):
@@ -75,8 +80,8 @@ class Settings:
         max_iterations: Newton steps before FIRE takes over (and again after it).
         fire_tol, fire_steps: FIRE stops at this largest net force relative to the mean
             contact force, or fails after that many steps.
-        rattler_shift: extra diagonal of the rattlers' unknowns, relative to K (a rattler
-            without contacts stays where it is).
+        rattler_shift: least extra diagonal of the rattlers' unknowns, relative to K (a
+            rattler without contacts stays where it is).
         chord_rate: a factorisation is reused while the largest force falls at least by this
             factor per step and the contacts stay the same.
     """
@@ -184,13 +189,13 @@ class _Stepper:
         key = np.packbits(s.keep).tobytes()
         factorised = shifted = False
         if self.lu is None or key != self.key or residual > self.settings.chord_rate * self.last:
-            shifted = self._factorise(F, s)
+            shifted = self._factorise(F, s, g)
             factorised, self.key = True, key
         self.last = residual
         v = -self.lu.solve(_gather(g, self.dof, self.n))
         return _scatter(v, self.dof, g.shape[0]), factorised, shifted
 
-    def _factorise(self, F, s):
+    def _factorise(self, F, s, g):
         """Factorise the stiffness; True if it had to be shifted."""
         cell = self.cell
         self.dof = dof = np.arange(cell.n_disks, dtype=np.int64)
@@ -201,7 +206,11 @@ class _Stepper:
         H = _matrix(cell, F, s, s.on, s.network, dof, n)
         shift = np.zeros(n)
         r = np.flatnonzero(~s.keep)
-        shift[2 * dof[r]] = shift[2 * dof[r] + 1] = self.settings.rattler_shift * cell.K
+        reach = RATTLER_REACH * float(s.e[s.on].mean())
+        force = np.sqrt((g[r] ** 2).sum(axis=1))
+        shift[2 * dof[r]] = shift[2 * dof[r] + 1] = np.maximum(
+            self.settings.rattler_shift * cell.K, force / reach
+        )
         H = H + diags(shift, format="csc")
         self.lu, pd = _factorise(H)
         if pd:
