@@ -44,7 +44,7 @@ from .relaxed_cell import Cell, ContactState, RelaxationError
 
 #: Newton counts as stalled (FIRE takes over) when after this many steps the largest force is
 #: still above this part of the mean contact force
-STALLED_AFTER, STALLED_ABOVE = 20, 1e-2
+STALLED_AFTER, STALLED_ABOVE = 40, 1e-2
 #: FIRE counts the cell as unjammed once its energy falls below this part of the start's
 UNJAMMED = 1e-12
 #: FIRE steps between two updates of the candidate list
@@ -89,7 +89,7 @@ class Settings:
     force_tol: float = 1e-10
     max_iterations: int = 60
     fire_tol: float = 1e-5
-    fire_steps: int = 20_000
+    fire_steps: int = 100_000
     rattler_shift: float = 1e-8
     chord_rate: float = 0.2
 
