@@ -12,7 +12,7 @@ either problem unjams RVEs.
 
 - column: the README's 10 m x 10 m column (8 x 8 Q1 cells, rollers on the sides, fixed base),
   70 disks of seed 1, confined at ``COLUMN_CONFINEMENT``; a top load ``COLUMN_LOAD`` added in
-  ``COLUMN_STEPS`` steps (load stepping, ``COLUMN_CUTBACKS`` cut-back in a row at most);
+  ``COLUMN_STEPS`` steps (load stepping, ``COLUMN_CUTBACKS`` cut-backs in a row at most);
 - slope: the slope benchmark on its 2-row mesh (40 cells, 160 RVEs), 70 disks of seed 0,
   confined at ``SLOPE_CONFINEMENT``, the gravity phase in 20 steps, until it stops (the relaxed
   slope's limit) or carries the whole weight; the first ``SPEEDUP_STEPS`` gravity steps serial
@@ -38,7 +38,7 @@ from sections import command_line, markers, write_section
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BEGIN, END = markers("relaxed_bvp.py")
 K_N = 2.8e7
-COLUMN_CONFINEMENT, COLUMN_LOAD, COLUMN_STEPS, COLUMN_CUTBACKS = 1e5, 1e5, 5, 1
+COLUMN_CONFINEMENT, COLUMN_LOAD, COLUMN_STEPS, COLUMN_CUTBACKS = 1e5, 1e5, 5, 6
 SLOPE_CONFINEMENT, SLOPE_GRAVITY_STEPS, SPEEDUP_STEPS = 2.8e5, 20, 2
 LAWS = ("taylor", "relaxed")
 
@@ -220,7 +220,7 @@ jammed at the confining pressure, compressed to it and relaxed, the boundaries h
 stress (`--confinement`, [slope](slope.md#the-relaxed-rve-a-confined-slope)).
 
 **Column** (the README's 8 x 8 mesh, seed 1, confined at {COLUMN_CONFINEMENT:.0e} Pa, a top
-load of {COLUMN_LOAD:.0e} Pa added in {COLUMN_STEPS} steps, {COLUMN_CUTBACKS} cut-back in a row at
+load of {COLUMN_LOAD:.0e} Pa added in {COLUMN_STEPS} steps, {COLUMN_CUTBACKS} cut-backs in a row at
 most; serial):
 
 {head}
