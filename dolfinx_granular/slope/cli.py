@@ -16,6 +16,7 @@ import argparse
 import os
 import signal
 import sys
+import tempfile
 import time
 from typing import TYPE_CHECKING
 
@@ -313,10 +314,10 @@ def _check_out(out):
     """Create ``out`` and prove that a file can be written there (before any work is done)."""
     try:
         os.makedirs(out, exist_ok=True)
-        probe = os.path.join(out, f".write-test-{os.getpid()}")
-        with open(probe, "w"):
+        # an unnamed file (O_TMPFILE on Linux): nothing is left in out if the run is
+        # interrupted right here
+        with tempfile.TemporaryFile(dir=out):
             pass
-        os.remove(probe)
     except OSError as err:
         raise UserError(
             f"--out {out!r} cannot be written ({err.strerror or err}); choose a writable folder"
