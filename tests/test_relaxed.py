@@ -17,6 +17,8 @@ from dolfinx_granular import (
 from dolfinx_granular.laws import relaxation
 from dolfinx_granular.laws.relaxation import RigidityLostError
 from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
+from dolfinx_granular.laws.relaxed_cell import ContactState
+from dolfinx_granular.laws.relaxed_path import predicted, substeps
 from dolfinx_granular.packings.reference_packing import reference_packing
 
 import numpy as np
@@ -74,6 +76,12 @@ def test_the_state_round_trips_through_arrays_and_selection(relaxed):
     state = relaxed[3]
     again = RelaxedState.from_arrays(state.to_arrays())
     np.testing.assert_array_equal(again.w, state.w)
+    np.testing.assert_array_equal(again.sensitivity, state.sensitivity)
+    # a state saved before the sensitivities were kept: no predictor
+    old = RelaxedState.from_arrays(
+        {k: v for k, v in state.to_arrays().items() if k != "sensitivity"}
+    )
+    assert old.sensitivity.shape == state.w.shape + (4,) and not old.sensitivity.any()
     both = RelaxedState.concatenate([state.take([1]), state.take([0])])
     np.testing.assert_array_equal(both.w[0], state.w[1])
     assert both.n_points == 2
@@ -108,7 +116,7 @@ def test_P_is_the_derivative_of_the_relaxed_energy(rve, relaxed):
 
 def test_A_is_the_derivative_of_P_where_the_contacts_stay(rve, relaxed):
     _, P, A, state = relaxed
-    h = 1e-8
+    h = 1e-7  # (P is good to ~1e-10 of itself: the equilibrium tolerance)
     for c in range(2):
         for d in range(2):
             (_, Pp, netp), (_, Pm, netm) = _step(rve, F_TEST, state, h, c, d)
@@ -116,6 +124,46 @@ def test_A_is_the_derivative_of_P_where_the_contacts_stay(rve, relaxed):
             np.testing.assert_allclose(
                 (Pp - Pm) / (2 * h), A[..., c, d], rtol=1e-5, atol=1e-6 * np.abs(A).max()
             )
+
+
+def test_the_sensitivities_are_the_derivative_of_the_relaxed_positions(rve, relaxed):
+    """dw/dF in the state (the warm start's predictor) against central differences of w,
+    relaxed from the committed positions without it, over the non-rattlers (rattlers have
+    none; the pinned disk stays put in both)."""
+    _, _, _, state = relaxed
+    h = 1e-6
+    for q, F in enumerate(F_TEST):
+        keep = ContactState(rve.cell, F, state.w[q]).keep
+        dw = state.sensitivity[q]
+        assert np.abs(dw[keep]).max() > 0 and np.abs(dw[~keep]).max() == 0
+        for k in range(4):
+            E = np.zeros(4)
+            E[k] = h
+            wp, wm = (
+                relaxation.relax(rve.cell, F + s * E.reshape(2, 2), state.w[q], False,
+                                 rve.settings).w
+                for s in (1.0, -1.0)
+            )  # fmt: skip
+            fd = (wp - wm)[keep] / (2 * h)
+            np.testing.assert_allclose(fd, dw[keep][..., k], atol=1e-5 * np.abs(dw).max())
+
+
+def test_a_rotation_predicts_no_move(rve, relaxed):
+    """The warm start's predictor changes the positions with C = F^T F only, and the path is
+    measured in the right stretch: a finite rotation of the committed F starts from the
+    committed positions, in one step."""
+    state = relaxed[3]
+    t = 0.7
+    Q = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    for q, F in enumerate(F_TEST):
+        w, dw = state.w[q], state.sensitivity[q]
+        np.testing.assert_allclose(predicted(w, dw, F, Q @ F), w, atol=1e-12 * np.abs(w).max())
+        assert substeps(F, Q @ F) == []
+    assert np.abs(predicted(state.w[0], state.sensitivity[0], F_TEST[0], 1.001 * F_TEST[0])
+                  - state.w[0]).max() > 0  # fmt: skip
+    # 1 % more stretch: |dU| = 0.01 |U| = 0.014, 15 steps of at most MAX_SUBSTEP = 1e-3
+    path = substeps(F_TEST[0], 1.01 * F_TEST[0])
+    assert len(path) == 14 and np.allclose(path[0], (1 + 0.01 / 15) * F_TEST[0])
 
 
 def test_W_and_P_are_taylors_at_the_relaxed_positions_and_A_lies_below(packing, rve, relaxed):
@@ -241,3 +289,24 @@ def test_small_steps_from_an_equilibrium_need_no_fire():
         eq = relaxation.relax(rve.cell, F0 + 1e-4 * d[q], w0, False, rve.settings)
         assert eq.fire_steps == 0, f"point {q} went through FIRE"
         assert eq.residual <= 1e-9, f"point {q}: net force {eq.residual:.3g} of the mean"
+
+
+def test_a_big_step_follows_the_quasi_static_path():
+    """Near jamming a cell has several equilibria at one F. One evaluate over 1 % strain from
+    a confined packing (jammed and compressed at p / k_n = 1e-2) ends where 50 committed steps
+    of 0.02 % end, in 8 directions; a relaxation from the committed positions carried
+    affinely lands elsewhere in one of them (W 549.1 Pa against 557.8)."""
+    from dolfinx_granular.drivers.confinement import confined_packing
+
+    packing = confined_packing(generate_packing(70, seed=0, pressure=1e-2), 2.8e7, 1e-2)
+    rve = RelaxedRVE(packing, 2.8e7)
+    _, _, _, start = rve.evaluate(np.eye(2)[None], rve.initial_state(1))
+    d = np.random.default_rng(1).normal(size=(8, 2, 2))
+    d /= np.linalg.norm(d, axis=(1, 2))[:, None, None]
+    for k in range(8):
+        W, P, _, _ = rve.evaluate((np.eye(2) + 0.01 * d[k])[None], start)
+        state = start
+        for step in range(1, 51):
+            Wp, Pp, _, state = rve.evaluate((np.eye(2) + 0.01 * d[k] * step / 50)[None], state)
+        np.testing.assert_allclose(W, Wp, rtol=1e-9)
+        np.testing.assert_allclose(P, Pp, rtol=1e-7, atol=1e-9 * np.abs(Pp).max())

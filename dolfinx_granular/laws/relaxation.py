@@ -100,7 +100,8 @@ class Equilibrium:
 
     Attributes:
         w: (N, 2) fluctuations. W: energy (Pa). P: (2, 2) first Piola stress (Pa).
-        A: (2, 2, 2, 2) tangent dP/dF (Pa) or None. network: candidate indices of the
+        A: (2, 2, 2, 2) tangent dP/dF (Pa) or None. sensitivity: (N, 2, 4) dw/dF
+        (:func:`condensation`) with A, else None. network: candidate indices of the
         contacts between non-rattlers. rattlers: their number. steps: Newton steps,
         factorisations: stiffness factorisations for them, shifted: of which shifted.
         fire_steps: FIRE steps before Newton took up again (0: Newton alone).
@@ -111,6 +112,7 @@ class Equilibrium:
     W: float
     P: np.ndarray
     A: np.ndarray | None
+    sensitivity: np.ndarray | None
     network: np.ndarray
     rattlers: int
     steps: int
@@ -241,8 +243,8 @@ def _gather(g, dof, n):
 
 
 def _scatter(v, dof, N):
-    """A vector (n,) on the unknowns ``dof`` as (N, 2), zero at the fixed disks."""
-    x = np.zeros((N, 2))
+    """Values (n, ...) on the unknowns ``dof`` as (N, 2, ...), zero at the fixed disks."""
+    x = np.zeros((N, 2) + v.shape[1:])
     k = dof >= 0
     x[k, 0] = v[2 * dof[k]]
     x[k, 1] = v[2 * dof[k] + 1]
@@ -350,10 +352,10 @@ def _equilibrium(cell, F, w, s, tangent, residual, *counts):
     shifted, fire_steps)."""
     if not s.keep.any():
         raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
-    A = condensed_tangent(cell, F, s) if tangent else None
+    A, dw = condensation(cell, F, s) if tangent else (None, None)
     W, P = stress(cell, F, s)
     network = np.flatnonzero(s.network)
-    return Equilibrium(w, W, P, A, network, int((~s.keep).sum()), *counts, residual)
+    return Equilibrium(w, W, P, A, dw, network, int((~s.keep).sum()), *counts, residual)
 
 
 def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibrium:
@@ -400,10 +402,18 @@ def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
 def condensed_tangent(cell: Cell, F: np.ndarray, s: ContactState) -> np.ndarray:
     """(2, 2, 2, 2) tangent of the relaxed response at an equilibrium s;
     :class:`RigidityLostError` where the network's stiffness is not positive definite."""
+    return condensation(cell, F, s)[0]
+
+
+def condensation(cell: Cell, F: np.ndarray, s: ContactState) -> tuple:
+    """``(A, dw)`` at an equilibrium s: the tangent A (2, 2, 2, 2) and the sensitivities
+    dw/dF = -W_ww^-1 W_wF (N, 2, 4) of the fluctuations (F flattened row-major; zero for the
+    rattlers and the pinned disk), both from one factorisation of the network's stiffness;
+    :class:`RigidityLostError` where it is not positive definite."""
     A = _affine(cell, F, s)
     net = _Network(cell, F, s)
     if net.n == 0:
-        return A
+        return A, np.zeros((cell.n_disks, 2, 4))
     if not net.pd:
         raise RigidityLostError(
             "the non-rattlers' stiffness (one disk pinned) is not positive definite"
@@ -424,7 +434,8 @@ def condensed_tangent(cell: Cell, F: np.ndarray, s: ContactState) -> np.ndarray:
         net.dof,
         net.n,
     )
-    return A - (B.T @ net.lu.solve(B)).reshape(2, 2, 2, 2)
+    X = net.lu.solve(B)
+    return A - (B.T @ X).reshape(2, 2, 2, 2), _scatter(-X, net.dof, cell.n_disks)
 
 
 def _affine(cell, F, s):

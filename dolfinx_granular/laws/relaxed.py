@@ -4,7 +4,10 @@ Under the Taylor assumption every disk follows F (an upper bound of the response
 disks move to the minimum of the contact energy in the cell spanned by F, and the tangent is the
 exact derivative of that relaxed response (:mod:`~dolfinx_granular.laws.relaxation`). The state
 of a point is where its disks are: fluctuations w (N, 2) in the reference frame, x_i =
-F (X_i + w_i), so that a new F carries them with fixed fractional coordinates (the warm start).
+F (X_i + w_i), so that a new F carries them with fixed fractional coordinates. A new F is
+reached along the quasi-static path (:mod:`~dolfinx_granular.laws.relaxed_path`), each
+relaxation warm-started by the first-order change dw/dF that the last tangent computed (the
+committed one's sensitivities are kept in the state).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..packings.packing import Packing, require_disks
-from . import relaxation
+from . import relaxation, relaxed_path
 from .contacts import ContactCandidates
 from .relaxed_cell import Cell, ContactState, RelaxationError
 from .taylor import ContactSet
@@ -27,7 +30,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike
 
-_KEYS = ("w", "F", "fluctuation", "rearranged", "network")
+_KEYS = ("w", "F", "fluctuation", "rearranged", "network", "sensitivity")
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,6 +44,9 @@ class RelaxedState:
             radius: how far the point moved from the affine positions.
         rearranged: (n,) bool, the non-rattlers' contact set changed during the last increment.
         network: (n,) uint64 fingerprint of the non-rattlers' contact set.
+        sensitivity: (n, N, 2, 4) dw/dF at these positions (F flattened row-major; zero for
+            rattlers, and where no tangent was computed): the warm start's first-order
+            predictor.
     """
 
     w: np.ndarray
@@ -48,6 +54,7 @@ class RelaxedState:
     fluctuation: np.ndarray
     rearranged: np.ndarray
     network: np.ndarray
+    sensitivity: np.ndarray
 
     @property
     def n_points(self) -> int:
@@ -67,7 +74,7 @@ class RelaxedState:
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, ArrayLike]) -> RelaxedState:
-        missing = [k for k in _KEYS if k not in arrays]
+        missing = [k for k in _KEYS if k not in arrays and k != "sensitivity"]
         if missing:
             raise ValueError(f"RelaxedState arrays lack {', '.join(missing)}")
         w = np.asarray(arrays["w"], dtype=np.float64)
@@ -76,12 +83,17 @@ class RelaxedState:
             raise ValueError(f"RelaxedState: w must be (n, N, 2) and F (n, 2, 2), got {w.shape}")
         if not np.isfinite(w).all():
             raise ValueError("RelaxedState.w has NaN or inf entries")
+        # (a state saved before the sensitivities were kept: no predictor)
+        dw = np.asarray(arrays.get("sensitivity", np.zeros(w.shape + (4,))), dtype=np.float64)
+        if dw.shape != w.shape + (4,):
+            raise ValueError(f"RelaxedState: sensitivity must be {w.shape + (4,)}, got {dw.shape}")
         return cls(
             w,
             np.asarray(arrays["F"], dtype=np.float64),
             np.asarray(arrays["fluctuation"], dtype=np.float64),
             np.asarray(arrays["rearranged"], dtype=bool),
             np.asarray(arrays["network"], dtype=np.uint64),
+            dw,
         )
 
 
@@ -152,8 +164,14 @@ class RelaxedRVE:
         """n points at F = I in the stress-free packing (no fluctuation)."""
         N = self.packing.radii.shape[0]
         eye = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+        zeros = np.zeros
         return RelaxedState(
-            np.zeros((n, N, 2)), eye, np.zeros(n), np.zeros(n, bool), np.zeros(n, np.uint64)
+            zeros((n, N, 2)),
+            eye,
+            zeros(n),
+            zeros(n, bool),
+            zeros(n, np.uint64),
+            zeros((n, N, 2, 4)),
         )
 
     def _run(self, F, state, tangent, out=None):
@@ -162,7 +180,7 @@ class RelaxedRVE:
         if state.n_points != n:
             raise ValueError(f"state has {state.n_points} points, F has {n}")
         W, P, A = output_buffers(n, tangent, out)
-        w = np.empty_like(state.w)
+        w, dw = np.empty_like(state.w), np.zeros_like(state.sensitivity)
         moved, rearranged, network = np.empty(n), np.empty(n, bool), np.empty(n, np.uint64)
         mean_radius = float(self.packing.radii.mean())
         for q in range(n):
@@ -170,17 +188,20 @@ class RelaxedRVE:
                 if np.array_equal(F[q], state.F[q]):  # the committed positions are at rest
                     eq = relaxation.at_rest(self.cell, F[q], state.w[q], tangent)
                 else:
-                    eq = relaxation.relax(self.cell, F[q], state.w[q], tangent, self.settings)
+                    eq = relaxed_path.follow(
+                        self.cell, F[q], state.w[q], state.sensitivity[q], state.F[q], tangent,
+                        self.settings,
+                    )  # fmt: skip
             except RelaxationError as err:
                 raise type(err)(f"point {q}: {err}", np.array([q])) from None
             W[q], P[q], w[q] = eq.W, eq.P, eq.w
             if tangent:
-                A[q] = eq.A
+                A[q], dw[q] = eq.A, eq.sensitivity
             u = eq.w @ F[q].T
             moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / mean_radius
             network[q] = _fingerprint(self.cell.pair_keys(eq.network))
             rearranged[q] = network[q] != state.network[q]
-        new = RelaxedState(w, F.copy(), moved, rearranged, network)
+        new = RelaxedState(w, F.copy(), moved, rearranged, network, dw)
         if single:
             return W[0], P[0], (A[0] if tangent else None), new
         return W, P, A, new
