@@ -328,17 +328,29 @@ def _newton(cell, F, w, settings, budget, stall=True):
 
 
 def relax(
-    cell: Cell, F: np.ndarray, w0: np.ndarray, tangent: bool, settings: Settings
+    cell: Cell,
+    F: np.ndarray,
+    w0: np.ndarray,
+    tangent: bool,
+    settings: Settings,
+    fallback: np.ndarray | None = None,
 ) -> Equilibrium:
-    """Relax one cell at F (2, 2) from the fluctuations w0 (N, 2): an :class:`Equilibrium`."""
+    """Relax one cell at F (2, 2) from the fluctuations w0 (N, 2): an :class:`Equilibrium`.
+    Where Newton stalls, it starts again from ``fallback`` (N, 2) if given, and then FIRE
+    relaxes the cell from there (from w0 without it) before Newton takes up again."""
     w0 = np.array(w0, dtype=np.float64)
     fire_steps = 0
-    try:
-        w, s, residual, steps, factorisations, shifted = _newton(
-            cell, F, w0, settings, settings.max_iterations
-        )
-    except RelaxationError:  # FIRE from where Newton started, not from where it strayed
-        w, fire_steps = fire(cell, F, w0, settings)
+    starts = [w0] if fallback is None else [w0, np.array(fallback, dtype=np.float64)]
+    for start in starts:
+        try:
+            w, s, residual, steps, factorisations, shifted = _newton(
+                cell, F, start, settings, settings.max_iterations
+            )
+            break
+        except RelaxationError:
+            continue
+    else:  # FIRE from where Newton last started, not from where it strayed
+        w, fire_steps = fire(cell, F, starts[-1], settings)
         w, s, residual, steps, factorisations, shifted = _newton(
             cell, F, w, settings, settings.max_iterations, stall=False
         )

@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from . import relaxation
-from .relaxed_cell import RelaxationError
 
 #: longest substep |U_k+1 - U_k| (Frobenius norm of the right stretch)
 MAX_SUBSTEP = 1e-3
@@ -54,10 +53,9 @@ def follow(cell, F, w, dw, Fc, tangent, settings) -> relaxation.Equilibrium:
 
 
 def _step(cell, F, w, dw, Fc, tangent, settings):
-    """Relax at F from the predicted positions; where that fails, from w as it is."""
-    try:
-        return relaxation.relax(cell, F, predicted(w, dw, Fc, F), tangent, settings)
-    except RelaxationError:
-        if not dw.any():
-            raise
-    return relaxation.relax(cell, F, w, tangent, settings)
+    """Relax at F from the predicted positions; where Newton stalls from there, from w as it
+    is (carried affinely), and FIRE from that."""
+    if not dw.any():
+        return relaxation.relax(cell, F, w, tangent, settings)
+    start = predicted(w, dw, Fc, F)
+    return relaxation.relax(cell, F, start, tangent, settings, fallback=w)
