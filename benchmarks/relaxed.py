@@ -22,7 +22,7 @@ import argparse
 import time
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.laws import relaxation, relaxed_path
+from dolfinx_granular.laws import relaxation
 from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
 from dolfinx_granular.laws.relaxed_cell import ContactState
 
@@ -55,12 +55,6 @@ def steps(F0, n, size, seed=0):
     return F0[None] + size * d
 
 
-def follow(rve, F, state, q):
-    """Point q of ``state`` relaxed at F (2, 2) as ``RelaxedRVE.evaluate`` does it."""
-    w, dw, Fc = state.w[q], state.sensitivity[q], state.F[q]
-    return relaxed_path.follow(rve.cell, F, w, dw, Fc, True, rve.settings)
-
-
 def per_point(rve, F0, F, state):
     """Time (s), steps, factorisations and FIRE steps of each point, and whether its network
     (the contacts between non-rattlers) differs from the committed one at F0."""
@@ -68,7 +62,7 @@ def per_point(rve, F0, F, state):
     rows, rearranged = [], []
     for q in range(F.shape[0]):
         t = time.perf_counter()
-        eq = follow(rve, F[q], state, q)
+        eq = rve.equilibrium(F[q], state, q)
         rows.append((time.perf_counter() - t, eq.steps, eq.factorisations, eq.fire_steps))
         rearranged.append(not np.array_equal(eq.network, committed))
     return np.array(rows), np.array(rearranged)
@@ -94,7 +88,7 @@ def where_time_goes(rve, F, state):
     profile = cProfile.Profile()
     profile.enable()
     for q in range(F.shape[0]):
-        follow(rve, F[q], state, q)
+        rve.equilibrium(F[q], state, q)
     profile.disable()
     stats = pstats.Stats(profile).stats  # {(file, line, name): (cc, nc, tt, ct, callers)}
     keys = {(f.__code__.co_filename, f.__code__.co_firstlineno, f.__name__): k
@@ -115,7 +109,7 @@ def phases(rve, F0, state):
     condensation) at the committed state."""
     w = state.w[0]
     t_state, s = best_time(lambda: ContactState(rve.cell, F0, w), 20)
-    t_tangent, _ = best_time(lambda: relaxation.condensed_tangent(rve.cell, F0, s), 5)
+    t_tangent, _ = best_time(lambda: relaxation.condensation(rve.cell, F0, s), 5)
     return t_state, t_tangent
 
 

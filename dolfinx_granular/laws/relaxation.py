@@ -208,7 +208,7 @@ class _Stepper:
         H = _matrix(cell, F, s, s.on, s.network, dof, n)
         shift = np.zeros(n)
         r = np.flatnonzero(~s.keep)
-        reach = RATTLER_REACH * float(s.e[s.on].mean())
+        reach = RATTLER_REACH * s.mean_overlap
         force = np.sqrt((g[r] ** 2).sum(axis=1))
         shift[2 * dof[r]] = shift[2 * dof[r] + 1] = np.maximum(
             self.settings.rattler_shift * cell.K, force / reach
@@ -409,12 +409,6 @@ def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
         if status == rk.FIRE_CONVERGED:
             return u @ Finv.T, steps
     raise RelaxationError(f"FIRE did not relax the cell in {settings.fire_steps} steps")
-
-
-def condensed_tangent(cell: Cell, F: np.ndarray, s: ContactState) -> np.ndarray:
-    """(2, 2, 2, 2) tangent of the relaxed response at an equilibrium s;
-    :class:`RigidityLostError` where the network's stiffness is not positive definite."""
-    return condensation(cell, F, s)[0]
 
 
 def condensation(cell: Cell, F: np.ndarray, s: ContactState) -> tuple:

@@ -164,15 +164,8 @@ class RelaxedRVE:
         """n points at F = I in the stress-free packing (no fluctuation)."""
         N = self.packing.radii.shape[0]
         eye = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
-        zeros = np.zeros
-        return RelaxedState(
-            zeros((n, N, 2)),
-            eye,
-            zeros(n),
-            zeros(n, bool),
-            zeros(n, np.uint64),
-            zeros((n, N, 2, 4)),
-        )
+        w, dw = np.zeros((n, N, 2)), np.zeros((n, N, 2, 4))
+        return RelaxedState(w, eye, np.zeros(n), np.zeros(n, bool), np.zeros(n, np.uint64), dw)
 
     def _run(self, F, state, tangent, out=None):
         F, single = as_batch(F)
@@ -185,13 +178,7 @@ class RelaxedRVE:
         mean_radius = float(self.packing.radii.mean())
         for q in range(n):
             try:
-                if np.array_equal(F[q], state.F[q]):  # the committed positions are at rest
-                    eq = relaxation.at_rest(self.cell, F[q], state.w[q], tangent)
-                else:
-                    eq = relaxed_path.follow(
-                        self.cell, F[q], state.w[q], state.sensitivity[q], state.F[q], tangent,
-                        self.settings,
-                    )  # fmt: skip
+                eq = self.equilibrium(F[q], state, q, tangent)
             except RelaxationError as err:
                 raise type(err)(f"point {q}: {err}", np.array([q])) from None
             W[q], P[q], w[q] = eq.W, eq.P, eq.w
@@ -205,6 +192,17 @@ class RelaxedRVE:
         if single:
             return W[0], P[0], (A[0] if tangent else None), new
         return W, P, A, new
+
+    def equilibrium(
+        self, F: np.ndarray, state: RelaxedState, q: int, tangent: bool = True
+    ) -> relaxation.Equilibrium:
+        """Point q of ``state`` relaxed at F (2, 2) along its quasi-static path (the
+        :class:`~dolfinx_granular.laws.relaxation.Equilibrium`, with the solver's counts): what
+        :meth:`evaluate` does for each point. A committed F is not relaxed again."""
+        if np.array_equal(F, state.F[q]):  # the committed positions are at rest
+            return relaxation.at_rest(self.cell, F, state.w[q], tangent)
+        w, dw, Fc = state.w[q], state.sensitivity[q], state.F[q]
+        return relaxed_path.follow(self.cell, F, w, dw, Fc, tangent, self.settings)
 
     def evaluate(self, F: ArrayLike, state: RelaxedState, out: tuple | None = None) -> tuple:
         """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F relaxed from

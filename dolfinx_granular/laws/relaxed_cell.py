@@ -152,6 +152,7 @@ class ContactState:
         qx, qy, lx, ly, d, e: (m,) relaxed reference branch Q, current branch l = F Q, |l| and
             the overlap e = R - |l|.
         on: (m,) contacts, e > 0.
+        mean_overlap: mean e over the contacts (0 without contacts).
         keep: (N,) the non-rattlers.
         network: (m,) contacts between two non-rattlers.
         rattling: (m,) contacts that touch a rattler.
@@ -163,6 +164,7 @@ class ContactState:
             F, w, cell.pi, cell.pj, cell.X, cell.Y, cell.R, m
         )
         self.on = self.e > 0.0
+        self.mean_overlap = float(self.e[self.on].mean()) if self.on.any() else 0.0
         self.keep = rk.non_rattlers(cell.pi, cell.pj, self.e, cell.n_disks, MIN_CONTACTS)
         both = self.both(cell, self.keep)
         self.network = self.on & both
@@ -189,9 +191,8 @@ class ContactState:
         contacts)."""
         if not self.on.any():
             return np.inf
-        e = float(self.e[self.on].mean())
-        return float(np.finfo(float).eps * cell.R[: self.m][self.on].mean() / e)
+        return float(np.finfo(float).eps * cell.R[: self.m][self.on].mean() / self.mean_overlap)
 
     def force_scale(self, cell: Cell) -> float:
         """Mean contact force K e over the contacts (K times length; 0 without contacts)."""
-        return float(cell.K * self.e[self.on].mean()) if self.on.any() else 0.0
+        return cell.K * self.mean_overlap
