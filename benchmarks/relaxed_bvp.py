@@ -15,8 +15,9 @@ either problem unjams RVEs.
   ``COLUMN_STEPS`` steps (load stepping, ``COLUMN_CUTBACKS`` cut-backs in a row at most);
 - slope: the slope benchmark on its 2-row mesh (40 cells, 160 RVEs), 70 disks of seed 0,
   confined at ``SLOPE_CONFINEMENT``, the gravity phase in 20 steps, until it stops (the relaxed
-  slope's limit) or carries the whole weight; the first ``SPEEDUP_STEPS`` gravity steps serial
-  and on 2 ranks.
+  slope's limit) or carries the whole weight; the relaxed slope's weight also by path following
+  (``path_following="gravity"``, first increment 1/``SLOPE_PATH_STEPS`` of the weight); the first
+  ``SPEEDUP_STEPS`` gravity steps serial and on 2 ranks.
 
 Writes section 9 of ``OUT/performance.md`` (between its markers; ``report.py`` keeps it).
 """
@@ -40,6 +41,9 @@ BEGIN, END = markers("relaxed_bvp.py")
 K_N = 2.8e7
 COLUMN_CONFINEMENT, COLUMN_LOAD, COLUMN_STEPS, COLUMN_CUTBACKS = 1e5, 1e5, 5, 6
 SLOPE_CONFINEMENT, SLOPE_GRAVITY_STEPS, SPEEDUP_STEPS = 2.8e5, 20, 2
+#: the path's first increment is 1/SLOPE_PATH_STEPS of the weight (with 1/20 its corrector
+#: stagnates at 0.0976 x the weight, at a rearrangement, before the peak)
+SLOPE_PATH_STEPS = 10
 LAWS = ("taylor", "relaxed")
 
 
@@ -113,9 +117,9 @@ def column_case(law_name):
     return dict(steps=steps, failed=failed, rve=rve, wall=time.perf_counter() - t0)
 
 
-def slope_case(law_name, stop_after):
-    """The confined slope on the 2-row mesh: gravity in steps, until it stops or has the whole
-    weight (``stop_after`` steps at most)."""
+def slope_case(law_name, stop_after, path=False):
+    """The confined slope on the 2-row mesh: gravity in steps (by arc length with ``path``),
+    until it stops or has the whole weight (``stop_after`` steps at most)."""
     from dolfinx_granular import generate_packing
     from dolfinx_granular.slope.geometry import SlopeGeometry
     from dolfinx_granular.slope.run import SlopeOptions, run_slope
@@ -126,8 +130,9 @@ def slope_case(law_name, stop_after):
     options = SlopeOptions(
         rve=law_name,
         confinement=SLOPE_CONFINEMENT,
-        gravity_steps=SLOPE_GRAVITY_STEPS,
+        gravity_steps=SLOPE_PATH_STEPS if path else SLOPE_GRAVITY_STEPS,
         geometry=SlopeGeometry(rows=2),
+        path_following="gravity" if path else None,
     )
     packing = generate_packing(70, seed=0, pressure=SLOPE_CONFINEMENT / K_N)
     comm = MPI.COMM_WORLD
@@ -139,7 +144,7 @@ def slope_case(law_name, stop_after):
             out=out,
             figure=False,
             verbose=False,
-            stop_after=stop_after or SLOPE_GRAVITY_STEPS,
+            stop_after=stop_after or (None if path else SLOPE_GRAVITY_STEPS),
         )
     steps = [
         dict(gravity=i["gravity"], settlement=i["settlement"], iterations=n)
@@ -148,19 +153,29 @@ def slope_case(law_name, stop_after):
     failed = s["failed"]["reason"] if s["failed"] else None
     # the law's seconds on the slowest rank
     rve = s["time_rve_kernel"]
-    return dict(steps=steps, failed=failed, rve=rve, wall=time.perf_counter() - t0)
+    path = s["path_following"] or {}
+    return dict(
+        steps=steps,
+        failed=failed,
+        rve=rve,
+        wall=time.perf_counter() - t0,
+        stopped=path.get("stopped"),
+        critical=[c["kind"] for c in path.get("critical_points", [])],
+    )
 
 
 # -- the driver: every case in its own process -------------------------------------------------
 
 
-def run_case(case, law_name, ranks, stop_after=None):
+def run_case(case, law_name, ranks, stop_after=None, path=False):
     """One case in a subprocess on ``ranks`` ranks; its record (rank 0's JSON line)."""
     from dolfinx_granular.fem.compat import mpi_command
 
     cmd = [sys.executable, os.path.abspath(__file__), "--case", case, "--law", law_name]
     if stop_after:
         cmd += ["--stop-after", str(stop_after)]
+    if path:
+        cmd += ["--path"]
     if ranks > 1:
         cmd = [*mpi_command(ranks), *cmd]
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
@@ -175,6 +190,7 @@ def measure():
     for law_name in LAWS:
         res[("column", law_name, 1)] = run_case("column", law_name, 1)
         res[("slope", law_name, 2)] = run_case("slope", law_name, 2)
+    res[("slope path", "relaxed", 2)] = run_case("slope", "relaxed", 2, path=True)
     for ranks in (1, 2):
         res[("speedup", "relaxed", ranks)] = run_case("slope", "relaxed", ranks, SPEEDUP_STEPS)
     return res
@@ -187,15 +203,28 @@ def _row(name, r, x_key, x_unit):
     """One table row of a case's record."""
     steps = r["steps"]
     its = [s["iterations"] for s in steps]
-    last = steps[-1] if steps else None
-    reached = f"{last[x_key]:.4g} {x_unit}" if last else "none"
-    found = f"{last['settlement'] * 1e3:.2f} mm" if last else "-"
+    # the largest load (the last one under load control; a path may turn back after it)
+    top = max(steps, key=lambda s: abs(s[x_key]), default=None)
+    reached = f"{top[x_key]:.4g} {x_unit}" if top else "none"
+    found = f"{top['settlement'] * 1e3:.2f} mm" if top else "-"
     # (the reason's kind only: its text holds |R|, which a table cell cannot)
     stop = "completed" if r["failed"] is None else f"stops: {r['failed'].split(':')[0]}"
     per_step = f"{np.mean(its):.1f} ({min(its)}-{max(its)})" if its else "-"
     return (
         f"| {name} | {len(steps)} | {reached} | {found} | {per_step} | {r['rve']:.1f} | "
         f"{r['wall']:.1f} | {stop} |"
+    )
+
+
+def _ending(r):
+    """How a path's record ended, in words."""
+    top = max(s["gravity"] for s in r["steps"]) if r["steps"] else 0.0
+    crossed = ", ".join(r.get("critical") or []) or "none"
+    if r["failed"] is not None:
+        return f"at {top:.4g} x the weight: {r['failed']} (critical points crossed: {crossed})"
+    return (
+        f"after {len(r['steps'])} increments with a peak of {top:.4g} x the weight (critical "
+        f"points crossed, by the sign of det K: {crossed}); {r.get('stopped')}"
     )
 
 
@@ -206,6 +235,10 @@ def markdown(res, command, minutes):
     )
     column = [_row(law, res[("column", law, 1)], "load", "Pa") for law in LAWS]
     slope = [_row(f"{law}, 2 ranks", res[("slope", law, 2)], "gravity", "x weight") for law in LAWS]
+    slope.append(
+        _row("relaxed, path following, 2 ranks", res[("slope path", "relaxed", 2)], "gravity",
+             "x weight")
+    )  # fmt: skip
     s1, s2 = res[("speedup", "relaxed", 1)], res[("speedup", "relaxed", 2)]
     first = {law: res[("slope", law, 2)]["steps"][0] for law in LAWS}
     mm = {law: f"{first[law]['settlement'] * 1e3:.1f} mm" for law in LAWS}
@@ -233,7 +266,9 @@ gravity in {SLOPE_GRAVITY_STEPS} steps):
 {chr(10).join(slope)}
 
 At the first gravity step ({first["relaxed"]["gravity"]:g} x the weight) the relaxed slope
-settles {mm["relaxed"]}, Taylor's {mm["taylor"]}.
+settles {mm["relaxed"]}, Taylor's {mm["taylor"]}. By path following (arc length on the weight's
+factor, the first increment 1/{SLOPE_PATH_STEPS} of it, `--path-following gravity`) the
+relaxed slope ends {_ending(res[("slope path", "relaxed", 2)])}.
 
 **2 ranks**: the first {SPEEDUP_STEPS} gravity steps of the relaxed slope take
 {s1["rve"]:.1f} s of RVE updates serial and {s2["rve"]:.1f} s on 2 ranks (slowest rank):
@@ -249,11 +284,15 @@ def main(argv=None):
     p.add_argument("--case", choices=("column", "slope"), help=argparse.SUPPRESS)
     p.add_argument("--law", choices=LAWS, help=argparse.SUPPRESS)
     p.add_argument("--stop-after", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--path", action="store_true", help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.case:
         from mpi4py import MPI
 
-        r = column_case(a.law) if a.case == "column" else slope_case(a.law, a.stop_after)
+        if a.case == "column":
+            r = column_case(a.law)
+        else:
+            r = slope_case(a.law, a.stop_after, a.path)
         if MPI.COMM_WORLD.rank == 0:
             print(json.dumps(r))
         return r

@@ -68,7 +68,7 @@ def test_relaxed_bvp_benchmark_cases_run_and_make_a_section():
     slope = relaxed_bvp.slope_case("taylor", stop_after=1)
     assert len(slope["steps"]) == 1 and slope["steps"][0]["settlement"] < 0.0
     res = {(case, law, n): (column if case == "column" else slope)
-           for case in ("column", "slope", "speedup") for law in relaxed_bvp.LAWS
+           for case in ("column", "slope", "speedup", "slope path") for law in relaxed_bvp.LAWS
            for n in (1, 2)}  # fmt: skip
     text = relaxed_bvp.markdown(res, "python benchmarks/relaxed_bvp.py", 0.1)
     assert text.startswith(relaxed_bvp.BEGIN) and text.endswith(relaxed_bvp.END)

@@ -50,6 +50,8 @@ def test_out_that_holds_a_run_is_refused(old_run):
         (["--resume", "x", "--out", "y"], ["--resume", "drop --out"]),
         (["--resume", "x", "--steps", "20"], ["drop --steps"]),  # even the default value
         (["--max-increments", "5"], ["--max-increments", "--path-following"]),
+        (["--path-following", "gravity", "--steps", "3"], ["gravity", "drop --steps"]),
+        (["--path-following", "sideways"], ["invalid choice: 'sideways'"]),
         (["--rve", "relaxed"], ["confining pressure", "--confinement"]),
         (["--rve", "relaxed", "--confinement", "1e5", "--friction", "0.5"], ["frictionless"]),
         (["--confinement", "1e6"], ["confinement", "280000"]),

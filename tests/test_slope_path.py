@@ -8,12 +8,19 @@ import pytest
 from helpers import read_outputs, run_slope_demo
 
 SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure", "--path-following"]
+PATH_GRAVITY = ["--path-following", "gravity"]
 
 
 def demo(out, *args, ranks=1, status=0):
     """The small path-following run in ``out``, which must exit with ``status``: its stdout,
     summary and convergence rows."""
-    proc, _ = run_slope_demo(out, *SMALL, *args, ranks=ranks, timeout=900, check=False)
+    return demo_run(out, *SMALL, *args, ranks=ranks, status=status)
+
+
+def demo_run(out, *args, ranks=1, status=0):
+    """``demos/slope.py *args`` in ``out``, which must exit with ``status``: its stdout,
+    summary and convergence rows."""
+    proc, _ = run_slope_demo(out, *args, ranks=ranks, timeout=900, check=False)
     assert proc.returncode == status, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout, *read_outputs(out)
 
@@ -97,3 +104,49 @@ def test_uplift_stops_where_no_equilibrium_path_continues(tmp_path):
     assert 0 < -path["peak"]["load_factor"] < 0.05  # an uplift: a negative load factor
     assert path["critical_points"][0]["kind"] == "limit"
     assert abs(footing_path(s)[-1, 0]) < abs(path["peak"]["footing_load"])
+
+
+@pytest.mark.slow
+def test_the_weight_by_path_following_is_the_weight_by_load_control(tmp_path):
+    """--path-following gravity (the Taylor slope, elastic: one equilibrium per load): the path
+    carries the weight and stops there, without a footing phase, and its last state is the
+    load-controlled equilibrium at the same gravity factor; a resumed run ends where the whole
+    run ends."""
+    from dolfinx_granular.slope.cli import make_packing
+    from dolfinx_granular.slope.model import SlopeModel
+    from dolfinx_granular.slope.run import SlopeOptions
+
+    from mpi4py import MPI
+
+    args = [
+        "--particles",
+        "70",
+        "--seed",
+        "1",
+        "--no-figure",
+        "--gravity-steps",
+        "3",
+        *PATH_GRAVITY,
+    ]
+    stdout, s, _ = demo_run(tmp_path / "path", *args)
+    path = s["path_following"]
+    assert s["status"] == "converged" and path["phase"] == "gravity" and path["failed"] is None
+    assert "reached" in path["stopped"] and "peak gravity factor" in stdout
+    assert {i["phase"] for i in s["step_info"]} == {"gravity"} and len(path["path"]) >= 3
+    lam, settlement = path["path"][-1]["gravity"], path["path"][-1]["settlement"]
+    assert lam >= 1.0 and lam == path["peak"]["gravity"] and settlement < 0.0
+    assert path["critical_points"] == []  # the Taylor slope carries its weight: no limit point
+    o = SlopeOptions()
+    model = SlopeModel(MPI.COMM_SELF, o.law(make_packing(70, 1)), o.geometry)
+    model.set_gravity(lam)
+    assert model.solver.solve().converged
+    assert model.settlement() == pytest.approx(settlement, rel=1e-8)
+    model.solver.destroy()
+    out = tmp_path / "resumed"
+    demo_run(out, *args, "--stop-after", "2")
+    run_slope_demo(None, "--resume", out, "--no-figure", timeout=900)
+    resumed, _ = read_outputs(out)
+    assert resumed["resumed_from"] == 2 and resumed["status"] == "converged"
+    assert resumed["path_following"]["path"][-1]["settlement"] == pytest.approx(
+        settlement, rel=1e-12
+    )

@@ -28,7 +28,7 @@ from ..io.runwriter import RestartError
 from ..packings.packing import Packing, PackingFileError
 from .geometry import SlopeGeometry
 from .interrupt import RunInterrupted, StopRequest, exit_status
-from .options import K_N, LINEAR_SOLVERS, RVES
+from .options import K_N, LINEAR_SOLVERS, PHASES, RVES
 from .run import SlopeOptions, clear_run, is_complete, load_restart, run_files, run_slope
 
 if TYPE_CHECKING:
@@ -204,9 +204,13 @@ def _add_path_and_run(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--path-following",
-        action="store_true",
-        help="take the footing load by arc length (Riks/Crisfield): through the limit "
-        "load and down the softening branch to 0.9 x the peak",
+        nargs="?",
+        const="footing",
+        choices=PHASES,
+        metavar="PHASE",
+        help="take the footing load (PHASE footing, the default) or the weight (gravity: "
+        "the run ends there) by arc length (Riks/Crisfield): through the limit load and down "
+        "the softening branch to 0.9 x the peak",
     )
     p.add_argument(
         "--max-increments",
@@ -259,6 +263,14 @@ def check_combination(a: argparse.Namespace, given: set[str]) -> None:
         raise UserError(
             "--max-increments applies to --path-following only (load control takes --steps "
             "steps): add --path-following or drop --max-increments"
+        )
+    elif a.path_following == "gravity" and given & {"steps", "load_factor"}:
+        names = ", ".join(
+            "--" + d.replace("_", "-") for d in sorted(given & {"steps", "load_factor"})
+        )
+        raise UserError(
+            f"--path-following gravity ends the run with the weight (no footing load): drop "
+            f"{names}, or follow the footing's path with --path-following footing"
         )
 
 

@@ -72,6 +72,8 @@ class SlopeModel:
     Attributes:
         mesh, facets, V, u, material, solver, bcs: the model's DOLFINx objects.
         gravity, footing: Constants multiplying the weight and the footing load.
+        gravity_pattern, footing_pattern: the weight and the footing load per unit factor
+            (linear forms).
         edge: (2,) the loaded footing edge (m), where the settlement is measured.
     """
 
@@ -98,10 +100,8 @@ class SlopeModel:
         q = g.footing_pressure_on_strip(ufl.SpatialCoordinate(self.mesh)[0])
         ds = ufl.Measure("ds", domain=self.mesh, subdomain_data=self.facets)
         self.footing_pattern = q * v[1] * ds(FOOTING)  # the footing load per unit factor
-        self.f_ext = (
-            self.gravity * (-g.density * g.gravity) * v[1] * ufl.dx
-            + self.footing * self.footing_pattern
-        )
+        self.gravity_pattern = (-g.density * g.gravity) * v[1] * ufl.dx  # the weight
+        self.f_ext = self.gravity * self.gravity_pattern + self.footing * self.footing_pattern
         if confined:
             P0 = fem.Constant(self.mesh, PETSc.ScalarType(self.material.reference_stress()))
             traction = ufl.dot(P0, ufl.FacetNormal(self.mesh))

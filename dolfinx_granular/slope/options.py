@@ -42,9 +42,12 @@ class SlopeOptions:
         friction: Coulomb coefficient mu of the contacts (0: frictionless, the paper's model).
         tangential_stiffness: k_t in N/m² (None: k_n where friction > 0).
         unload: after the footing phase, remove the footing load in as many steps.
-        path_following: take the footing phase by arc length (past a limit load): it stops
-            once the load has fallen to ``unload_fraction`` of its peak, once the full load is
-            carried, or after ``max_increments``; ``steps`` sets the first increment.
+        path_following: the phase taken by arc length (past a limit load), ``"footing"``
+            (``True`` says the same) or ``"gravity"`` (the weight's factor is the load: the
+            run ends with that phase); None (``False``): load control. The path stops once
+            the load has fallen to ``unload_fraction`` of its peak, once the full load is
+            carried, or after ``max_increments``; ``steps`` (``gravity_steps``) sets the
+            first increment.
         allow_overlaps: accept a packing whose disks overlap far (``allow_overlaps`` of
             :class:`~dolfinx_granular.TaylorRVE`), prestressed as it is.
         rve: ``"taylor"`` (every disk follows F, the paper's model) or ``"relaxed"``
@@ -70,7 +73,7 @@ class SlopeOptions:
     friction: float = 0.0
     tangential_stiffness: float | None = None
     unload: bool = False
-    path_following: bool = False
+    path_following: str | bool | None = None
     max_increments: int = 100
     unload_fraction: float = 0.9
     allow_overlaps: bool = False
@@ -80,6 +83,7 @@ class SlopeOptions:
 
     def __post_init__(self):
         self._check_rve()
+        self._check_path()
         check_linear_solver(self.linear_solver)
         if self.path_following and self.linear_solver != "direct":
             raise ValueError(
@@ -90,6 +94,18 @@ class SlopeOptions:
             raise ValueError(
                 "path following ends past the limit load, where unloading has no "
                 "meaning: choose --path-following or --unload"
+            )
+
+    def _check_path(self):
+        # (a bool is how restart files before "gravity" stored the footing path)
+        if self.path_following is True:
+            self.path_following = "footing"
+        elif self.path_following is False:
+            self.path_following = None
+        if self.path_following not in (None, *PHASES):
+            raise ValueError(
+                f"path_following is one of {PHASES} (the phase taken by arc length) or None, "
+                f"got {self.path_following!r}"
             )
 
     def _check_rve(self):
@@ -116,7 +132,10 @@ class SlopeOptions:
 
     @property
     def phases(self) -> tuple:
-        """The load phases: gravity, footing and (``unload``) unloading."""
+        """The load phases: gravity, footing and (``unload``) unloading; gravity alone when
+        it is taken by arc length."""
+        if self.path_following == "gravity":
+            return PHASES[:1]
         return PHASES + (("unloading",) if self.unload else ())
 
     def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE | RelaxedRVE:

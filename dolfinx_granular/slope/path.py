@@ -1,13 +1,17 @@
-"""The footing phase by path following: past the slope's limit load and down its softening branch.
+"""A load phase by path following: past the slope's limit load and down its softening branch.
 
-With ``SlopeOptions.path_following`` the footing load is an unknown of arc-length continuation
-(:class:`~dolfinx_granular.ArcLength`) instead of a prescribed sequence: the load
-parameter lam is the footing Constant (lam = ``load_factor`` is the nominal load times the load
-factor), the load pattern the footing pressure. The path stops once the load has fallen to
-``unload_fraction`` of its peak after a limit point, or once the full load (lam = load_factor) is
-carried without one, or after ``max_increments``. Every converged increment is recorded and
-written like a load step; a restart continues the path (the last increment Du is the difference
-of the last two stored displacement fields).
+With ``SlopeOptions.path_following`` one phase's load is an unknown of arc-length continuation
+(:class:`~dolfinx_granular.ArcLength`) instead of a prescribed sequence:
+
+- ``"footing"``: the load parameter lam is the footing Constant (lam = ``load_factor`` is the
+  nominal load times the load factor), the load pattern the footing pressure;
+- ``"gravity"``: lam is the factor of the weight (1: the slope's own weight), the pattern the
+  weight; the run ends with this phase (a slope that cannot stand gets no footing).
+
+The path stops once the load has fallen to ``unload_fraction`` of its peak after a limit point,
+or once the full load is carried without one, or after ``max_increments``. Every converged
+increment is recorded and written like a load step; a restart continues the path (the last
+increment Du is the difference of the last two stored displacement fields).
 """
 
 from __future__ import annotations
@@ -38,27 +42,32 @@ def _stop(load_factor, fraction):
     return stop
 
 
-def footing_path(
+def load_path(
     model: SlopeModel,
     options: Any,
     say: Callable[[str], object],
     restart_state: dict | None = None,
     du_prev: PETSc.Vec | None = None,
 ) -> ArcLength:
-    """The arc-length driver of the footing phase of ``model`` from its converged state (the
-    footing load set), for ``options`` (a :class:`~dolfinx_granular.slope.run.SlopeOptions`);
-    ``restart_state`` and ``du_prev`` (:func:`last_increment`) continue a stored path."""
+    """The arc-length driver of the phase ``options.path_following`` of ``model`` from its
+    converged state (that phase's load set), for ``options`` (a
+    :class:`~dolfinx_granular.slope.run.SlopeOptions`); ``restart_state`` and ``du_prev``
+    (:func:`last_increment`) continue a stored path."""
     o = options
+    if o.path_following == "gravity":
+        load, pattern, full, steps = model.gravity, model.gravity_pattern, 1.0, o.gravity_steps
+    else:
+        load, pattern, full, steps = model.footing, model.footing_pattern, o.load_factor, o.steps
     al = ArcLength(
         model.solver,
-        model.footing,
-        model.footing_pattern,
-        dlam=o.load_factor / o.steps,
-        direction=np.sign(o.load_factor) or 1.0,
+        load,
+        pattern,
+        dlam=full / steps,
+        direction=np.sign(full) or 1.0,
         max_it=15,
         peak_refinement=16.0,
         log=lambda line: say("  " + line),
-        stop=_stop(o.load_factor, o.unload_fraction),
+        stop=_stop(full, o.unload_fraction),
     )
     al.ds_max = al.ds  # the arc of the first (nominal) step at most: the softening branch bends
     if restart_state is not None:
@@ -94,39 +103,41 @@ def last_increment(
 
 
 def path_summary(
-    al: ArcLength | None, step_info: Sequence[Mapping[str, Any]], nominal_load: float
+    al: ArcLength | None,
+    step_info: Sequence[Mapping[str, Any]],
+    nominal_load: float,
+    phase: str = "footing",
 ) -> dict | None:
-    """The path's record for summary.json: the peak (footing load in N/m, settlement in m,
-    step), the critical points crossed, how it stopped; None without a path (``al`` None).
-    ``step_info``: the run's records of its steps; ``nominal_load``: the footing load (N/m)."""
+    """The path's record for summary.json: its ``phase``, the peak (footing load in N/m or the
+    weight's factor ``gravity``, settlement in m, step), the critical points crossed, how it
+    stopped; None without a path (``al`` None). ``step_info``: the run's records of its steps;
+    ``nominal_load``: the footing load (N/m)."""
     if al is None:
         return None
-    footing = [s for s in step_info if s["phase"] == "footing"]
-    peak = max(footing, key=lambda s: abs(s["footing_load"]), default=None)
-    estimate = al.peak_estimate()
+    load = "gravity" if phase == "gravity" else "footing_load"
+    steps = [s for s in step_info if s["phase"] == phase]
+    peak = max(steps, key=lambda s: abs(s[load]), default=None)
+    if peak is not None:
+        peak = {load: peak[load], "settlement": peak["settlement"], "step": peak["step"]}
+        if phase == "footing":
+            peak["load_factor"] = peak["footing_load"] / nominal_load
     return {
+        "phase": phase,
         "increments": len(al.path),
         "stopped": al.stopped,
         "failed": al.failed["reason"] if al.failed else None,
-        # the parabola through the sampled peak and its neighbours: the peak footing load
-        # between the samples, in units of the nominal load (lam is the footing Constant)
-        "peak_estimate": estimate,
-        "peak": None
-        if peak is None
-        else {
-            "footing_load": peak["footing_load"],
-            "settlement": peak["settlement"],
-            "step": peak["step"],
-            "load_factor": peak["footing_load"] / nominal_load,
-        },
+        # the parabola through the sampled peak and its neighbours: the peak load between the
+        # samples, in units of lam (the nominal footing load, or the weight)
+        "peak_estimate": al.peak_estimate(),
+        "peak": peak,
         "critical_points": [c.as_dict() for c in al.critical],
         "path": [
             {
-                "footing_load": s["footing_load"],
+                load: s[load],
                 "settlement": s["settlement"],
                 "non_elliptic_points": s["non_elliptic_points"],
                 "open_points": s["open_points"],
             }
-            for s in footing
+            for s in steps
         ],
     }

@@ -37,7 +37,7 @@ from .model import SlopeModel, granular_material, newton_solver
 from .options import K_N as K_N
 from .options import PHASES as PHASES
 from .options import SlopeOptions
-from .path import footing_path, last_increment, path_failure, path_summary
+from .path import last_increment, load_path, path_failure, path_summary
 from .summary import draw_figure, draw_load_settlement, report_stop, summarise
 
 if TYPE_CHECKING:
@@ -238,6 +238,8 @@ class SlopeRun:
     def n_nominal(self) -> int:
         """Nominal load steps: the gravity steps, the footing steps and as many to unload."""
         o = self.options
+        if o.path_following == "gravity":
+            return o.max_increments
         if o.path_following:
             return o.gravity_steps + o.max_increments
         return o.gravity_steps + o.steps * (len(o.phases) - 1)
@@ -492,21 +494,21 @@ class SlopeRun:
         """The driver of phase i from the converged state at t0 (its loads set), and the map
         from its increments to the phase's t."""
         o, m = self.options, self.model
-        if i == 1 and o.path_following:
+        setter = (m.set_gravity, m.set_footing, lambda t: m.set_footing(1.0 - t))[i]
+        setter(t0)  # the loads of the converged state the phase starts from
+        if o.phases[i] == o.path_following:
             stored = None
             if self.restart is not None and i == self._start[0]:
                 stored = self.restart["state"].get("arclength")
-            m.set_footing(t0)  # the loads of the converged state: the weight and the footing
-            self.arclength = footing_path(
+            self.arclength = load_path(
                 m,
                 o,
                 self.say,
                 stored,
                 None if stored is None else last_increment(self.restart, self.nodes, m.V),
             )
-            return self.arclength, lambda inc: inc.lam / o.load_factor
-        setter = (m.set_gravity, m.set_footing, lambda t: m.set_footing(1.0 - t))[i]
-        setter(t0)  # the loads of the converged state the phase starts from
+            full = 1.0 if i == 0 else o.load_factor
+            return self.arclength, lambda inc: inc.lam / full
         increment = 1.0 / (o.gravity_steps if i == 0 else o.steps)
         return self.stepper.phase(o.phases[i], setter, increment, t0, dt), lambda inc: inc.t
 
@@ -514,8 +516,9 @@ class SlopeRun:
         """The run's ``failed`` record of phase i's driver."""
         if driver is not self.arclength:
             return driver.failed
-        lam = self.arclength.lam / self.options.load_factor
-        return failure("footing", self.step + 1, lam, path_failure(self.model, driver.failed))
+        o = self.options
+        lam = self.arclength.lam / (1.0 if i == 0 else o.load_factor)
+        return failure(o.phases[i], self.step + 1, lam, path_failure(self.model, driver.failed))
 
 
 def _overlap_note(info):
@@ -555,7 +558,9 @@ def run_slope(
         f"{comm.allreduce(m.material.n_points)} {'' if o.rve == 'taylor' else o.rve + ' '}RVEs "
         f"of {packing.n_particles} particles"
         + (f" confined at {o.confinement:g} Pa" if o.confinement else "")
-        + f", {comm.size} rank(s), {run.n_nominal} load steps, footing load x{o.load_factor:g}"
+        + f", {comm.size} rank(s), {run.n_nominal} load steps"
+        + (f", footing load x{o.load_factor:g}" if "footing" in o.phases else "")
+        + (f", the {o.path_following} by path following" if o.path_following else "")
         + (f", stabiliser {o.stabilise:g}" if o.stabilise else "")
     )
     if getattr(run.law, "prestress", None) is not None:
@@ -568,7 +573,9 @@ def run_slope(
     if run.stop_request is not None:
         run.stop_request.on_signal = None  # the load path is done: a signal now changes nothing
     figure = figure and not run.interrupted  # (asked to stop: no figure of a partial run)
-    path = path_summary(run.arclength, run.step_info, o.geometry.footing_load)
+    path = path_summary(
+        run.arclength, run.step_info, o.geometry.footing_load, o.path_following or "footing"
+    )
     report_stop(run, path)
     extremes = m.extremes()
     probes = m.probes(extremes[1][1])

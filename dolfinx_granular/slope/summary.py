@@ -56,10 +56,15 @@ def report_stop(run: Any, path: dict | None) -> None:
     failed = run.failed
     if path is not None and path["peak"] is not None:
         peak = path["peak"]
+        load = (
+            f"peak gravity factor {peak['gravity']:.4g} (x the weight)"
+            if path["phase"] == "gravity"
+            else f"peak footing load {abs(peak['footing_load']):.4g} N/m "
+            f"({abs(peak['load_factor']):.4g} x the nominal load)"
+        )
         run.say(
-            f"slope: path: {len(run.arclength.path)} increments, peak footing load "
-            f"{abs(peak['footing_load']):.4g} N/m ({abs(peak['load_factor']):.4g} x the "
-            f"nominal load) at a settlement of {peak['settlement']:.4f} m"
+            f"slope: path: {len(run.arclength.path)} increments, {load} at a settlement of "
+            f"{peak['settlement']:.4f} m"
             + (f"; stopped: {path['stopped']}" if path["stopped"] else "")
         )
     if failed is not None:
@@ -97,7 +102,7 @@ def summarise(
     ``probes`` from :class:`~dolfinx_granular.slope.model.SlopeModel`, the figure's time and
     colour range from :func:`draw_figure`, ``path`` from
     :func:`~dolfinx_granular.slope.path.path_summary` (computed here if not given)."""
-    m, comm, stepper = run.model, run.comm, run.stepper
+    m, comm, stepper, o = run.model, run.comm, run.stepper, run.options
     _, (vmax, xmax), (vmin, xmin) = extremes
     failed = run.failed
     footing_load = limit_footing_load(failed, run)
@@ -164,7 +169,9 @@ def summarise(
         "figure_colour_range": colour_range,
         "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()} for label, xp, Fp, *_ in probes},
         # path following (SlopeOptions.path_following): the peak, the critical points, the path
-        "path_following": path_summary(run.arclength, info, run.options.geometry.footing_load)
+        "path_following": path_summary(
+            run.arclength, info, o.geometry.footing_load, o.path_following or "footing"
+        )
         if path is None
         else path,
     }
