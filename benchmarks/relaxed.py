@@ -15,7 +15,11 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
   (overlaps, forces, rattlers) and one tangent (a factorisation and the condensation) at the
   committed state;
 - where the time goes: assembly, factorisations, solves, line search, FIRE and the tangent, in
-  ms per point over one more pass under cProfile.
+  ms per point over one more pass under cProfile;
+- one factorisation of the network's stiffness at the committed state by other sparse
+  libraries, where they are installed (none is a dependency): QDLDL (``pip install qdldl``) and
+  CHOLMOD (``pip install scikit-sparse`` on SuiteSparse's headers), each refactorising on a
+  symbolic analysis done once, the least any of them could cost per factorisation.
 """
 
 import argparse
@@ -155,6 +159,36 @@ def main(argv=None):
     print("  " + ", ".join(f"{k} {v:.1f}" for k, v in parts.items()))
     print("  (the tangent holds its own assembly and factorisation; the line search the contact")
     print("  states of its tries)")
+    n, libraries = factorisation_libraries(rve, F0, state)
+    print(
+        f"one factorisation of the network's stiffness ({n} unknowns), ms: "
+        + ", ".join(f"{k} {v:.2f}" for k, v in libraries.items())
+    )
+
+
+def factorisation_libraries(rve, F0, state):
+    """ms of one factorisation of the network's stiffness at the committed state: SuperLU as
+    the micro solver calls it, and QDLDL's and CHOLMOD's refactorisations (their symbolic
+    analysis reused) where the libraries are installed."""
+    s = ContactState(rve.cell, F0, state.w[0])
+    net = relaxation._Network(rve.cell, F0, s)
+    H = relaxation._matrix(rve.cell, F0, s, s.network, s.network, net.dof, net.n)
+    times = {"SuperLU": best_time(lambda: relaxation._factorise(H), 20)[0]}
+    try:
+        import qdldl
+
+        solver = qdldl.Solver(H)
+        times["QDLDL"] = best_time(lambda: solver.update(H), 20)[0]
+    except ImportError:
+        pass
+    try:
+        from sksparse.cholmod import cholesky
+
+        factor = cholesky(H)
+        times["CHOLMOD"] = best_time(lambda: factor.cholesky_inplace(H), 20)[0]
+    except ImportError:
+        pass
+    return net.n, {k: 1e3 * v for k, v in times.items()}
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ uplift case stopping with its reason."""
 import numpy as np
 import pytest
 
-from helpers import read_outputs, run_slope_demo
+from helpers import is_png, read_outputs, run_slope_demo
 
 SMALL = ["--particles", "70", "--seed", "1", "--steps", "4", "--no-figure", "--path-following"]
 PATH_GRAVITY = ["--path-following", "gravity"]
@@ -118,17 +118,9 @@ def test_the_weight_by_path_following_is_the_weight_by_load_control(tmp_path):
 
     from mpi4py import MPI
 
-    args = [
-        "--particles",
-        "70",
-        "--seed",
-        "1",
-        "--no-figure",
-        "--gravity-steps",
-        "3",
-        *PATH_GRAVITY,
-    ]
+    args = ["--particles", "70", "--seed", "1", "--gravity-steps", "3", *PATH_GRAVITY]
     stdout, s, _ = demo_run(tmp_path / "path", *args)
+    assert is_png(tmp_path / "path" / "load_settlement.png")  # gravity factor and settlement
     path = s["path_following"]
     assert s["status"] == "converged" and path["phase"] == "gravity" and path["failed"] is None
     assert "reached" in path["stopped"] and "peak gravity factor" in stdout
@@ -143,7 +135,7 @@ def test_the_weight_by_path_following_is_the_weight_by_load_control(tmp_path):
     assert model.settlement() == pytest.approx(settlement, rel=1e-8)
     model.solver.destroy()
     out = tmp_path / "resumed"
-    demo_run(out, *args, "--stop-after", "2")
+    demo_run(out, *args, "--no-figure", "--stop-after", "2")
     run_slope_demo(None, "--resume", out, "--no-figure", timeout=900)
     resumed, _ = read_outputs(out)
     assert resumed["resumed_from"] == 2 and resumed["status"] == "converged"

@@ -320,12 +320,16 @@ def plot_load_settlement(
     path: str | PathLike[str],
     curves: Sequence[tuple[str, ArrayLike, ArrayLike, Mapping[str, Any] | None]],
     title: str = "",
+    load_label: str = "footing load (MN/m)",
+    load_unit: float = 1e6,
 ) -> None:
     """Load-settlement curves (matplotlib PNG).
 
     Args:
         curves: list of ``(label, settlement (k,) in m (down positive), load (k,) in N/m, style)``
             with ``style`` a dict of matplotlib line options (or None).
+        load_label, load_unit: the load axis's label and the load that is one unit on it (N/m;
+            1 for a load factor).
     """
     import matplotlib
 
@@ -335,9 +339,9 @@ def plot_load_settlement(
     fig = Figure(figsize=(6.4, 4.6))
     ax = fig.add_subplot()
     for label, settlement, load, style in curves:
-        ax.plot(np.asarray(settlement), np.asarray(load) / 1e6, label=label, **(style or {}))
+        ax.plot(np.asarray(settlement), np.asarray(load) / load_unit, label=label, **(style or {}))
     ax.set_xlabel("settlement of the loaded footing edge (m)")
-    ax.set_ylabel("footing load (MN/m)")
+    ax.set_ylabel(load_label)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(title, fontsize=10)

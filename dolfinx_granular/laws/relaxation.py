@@ -59,8 +59,9 @@ MAX_STEP = 0.1
 RESOLVED = 30.0
 #: a rattler's Newton move is at most about this many mean overlaps: its unknowns are shifted
 #: by its net force over that length (a disk squeezed between two partners has no stiffness
-#: across them, and one such disk moving far would cut the whole network's line search)
-RATTLER_REACH = 30.0
+#: across them, and one such disk moving far would cut the whole network's line search); the
+#: shift stays in a reused factorisation, so that a shorter reach slows the chord steps
+RATTLER_REACH = 300.0
 
 
 class RigidityLostError(RelaxationError):

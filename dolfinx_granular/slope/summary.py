@@ -262,13 +262,21 @@ def load_settlement_curve(
 
 def draw_load_settlement(run: Any, path: str | PathLike[str]) -> None:
     """``load_settlement.png``: the footing's load-settlement path (with its hysteresis when the
-    load came off again); rank 0."""
-    settlement, load = load_settlement_curve(run.step_info)
+    load came off again), or the gravity factor against the settlement when the weight was
+    taken by path following; rank 0."""
     o = run.options
     law = f"Coulomb friction mu = {o.friction:g}" if o.friction > 0 else "frictionless contacts"
+    axis = {}
+    if o.path_following == "gravity":
+        settlement = [s["settlement"] for s in run.step_info]
+        load = [s["gravity"] for s in run.step_info]
+        axis = {"load_label": "gravity factor (x the weight)", "load_unit": 1.0}
+    else:
+        settlement, load = load_settlement_curve(run.step_info)
     plot_load_settlement(
         path,
         [(law, settlement, load, {"marker": "o", "ms": 3})],
         title=f"slope, {run.packing.n_particles}-particle RVE, {law} (negative = downward, "
         "as in summary.json)",
+        **axis,
     )
