@@ -265,9 +265,8 @@ def check_combination(a: argparse.Namespace, given: set[str]) -> None:
             "steps): add --path-following or drop --max-increments"
         )
     elif a.path_following == "gravity" and given & {"steps", "load_factor"}:
-        names = ", ".join(
-            "--" + d.replace("_", "-") for d in sorted(given & {"steps", "load_factor"})
-        )
+        footing_only = sorted(given & {"steps", "load_factor"})
+        names = ", ".join("--" + d.replace("_", "-") for d in footing_only)
         raise UserError(
             f"--path-following gravity ends the run with the weight (no footing load): drop "
             f"{names}, or follow the footing's path with --path-following footing"

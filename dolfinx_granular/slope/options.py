@@ -131,6 +131,12 @@ class SlopeOptions:
         return dataclasses.asdict(self)
 
     @property
+    def path_full_load(self) -> float:
+        """The load parameter lam at which the phase taken by arc length has its whole load:
+        1 (the weight) for ``"gravity"``, ``load_factor`` for ``"footing"``."""
+        return 1.0 if self.path_following == "gravity" else self.load_factor
+
+    @property
     def phases(self) -> tuple:
         """The load phases: gravity, footing and (``unload``) unloading; gravity alone when
         it is taken by arc length."""

@@ -53,11 +53,11 @@ def load_path(
     converged state (that phase's load set), for ``options`` (a
     :class:`~dolfinx_granular.slope.run.SlopeOptions`); ``restart_state`` and ``du_prev``
     (:func:`last_increment`) continue a stored path."""
-    o = options
+    o, full = options, options.path_full_load
     if o.path_following == "gravity":
-        load, pattern, full, steps = model.gravity, model.gravity_pattern, 1.0, o.gravity_steps
+        load, pattern, steps = model.gravity, model.gravity_pattern, o.gravity_steps
     else:
-        load, pattern, full, steps = model.footing, model.footing_pattern, o.load_factor, o.steps
+        load, pattern, steps = model.footing, model.footing_pattern, o.steps
     al = ArcLength(
         model.solver,
         load,
@@ -106,7 +106,7 @@ def path_summary(
     al: ArcLength | None,
     step_info: Sequence[Mapping[str, Any]],
     nominal_load: float,
-    phase: str = "footing",
+    phase: str | None = "footing",
 ) -> dict | None:
     """The path's record for summary.json: its ``phase``, the peak (footing load in N/m or the
     weight's factor ``gravity``, settlement in m, step), the critical points crossed, how it

@@ -507,8 +507,7 @@ class SlopeRun:
                 stored,
                 None if stored is None else last_increment(self.restart, self.nodes, m.V),
             )
-            full = 1.0 if i == 0 else o.load_factor
-            return self.arclength, lambda inc: inc.lam / full
+            return self.arclength, lambda inc: inc.lam / o.path_full_load
         increment = 1.0 / (o.gravity_steps if i == 0 else o.steps)
         return self.stepper.phase(o.phases[i], setter, increment, t0, dt), lambda inc: inc.t
 
@@ -516,9 +515,10 @@ class SlopeRun:
         """The run's ``failed`` record of phase i's driver."""
         if driver is not self.arclength:
             return driver.failed
-        o = self.options
-        lam = self.arclength.lam / (1.0 if i == 0 else o.load_factor)
-        return failure(o.phases[i], self.step + 1, lam, path_failure(self.model, driver.failed))
+        lam = self.arclength.lam / self.options.path_full_load
+        return failure(
+            self.options.phases[i], self.step + 1, lam, path_failure(self.model, driver.failed)
+        )
 
 
 def _overlap_note(info):
@@ -573,9 +573,7 @@ def run_slope(
     if run.stop_request is not None:
         run.stop_request.on_signal = None  # the load path is done: a signal now changes nothing
     figure = figure and not run.interrupted  # (asked to stop: no figure of a partial run)
-    path = path_summary(
-        run.arclength, run.step_info, o.geometry.footing_load, o.path_following or "footing"
-    )
+    path = path_summary(run.arclength, run.step_info, o.geometry.footing_load, o.path_following)
     report_stop(run, path)
     extremes = m.extremes()
     probes = m.probes(extremes[1][1])

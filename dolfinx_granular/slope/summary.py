@@ -170,7 +170,7 @@ def summarise(
         "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()} for label, xp, Fp, *_ in probes},
         # path following (SlopeOptions.path_following): the peak, the critical points, the path
         "path_following": path_summary(
-            run.arclength, info, o.geometry.footing_load, o.path_following or "footing"
+            run.arclength, info, o.geometry.footing_load, o.path_following
         )
         if path is None
         else path,
