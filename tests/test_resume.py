@@ -189,7 +189,7 @@ def test_ctrl_c_while_the_packing_is_generated(tmp_path):
         proc.kill()
         proc.wait()
     assert proc.returncode == 130 and "Traceback" not in stderr, stderr[-3000:]
-    assert "interrupted by SIGINT before the first load step; nothing to resume" in stdout
+    assert "slope: SIGINT: stopping before the first load step; nothing is lost" in stdout
     assert list(out.iterdir()) == []
 
 

@@ -4,11 +4,13 @@ holds a run (unless ``--force``, which removes that run's files and no others), 
 run; the load-settlement curve is signed as the log and ``summary.json``."""
 
 import json
+import re
+import subprocess
 
 import numpy as np
 import pytest
 
-from helpers import assert_user_error, load_demo, run_slope_demo
+from helpers import MPI_ENV, assert_user_error, load_demo, run_slope_demo, slope_command
 
 SMALL = ["--particles", "70", "--seed", "1", "--no-figure"]
 
@@ -109,6 +111,16 @@ def test_step_log_after_cutbacks(tmp_path):
     assert len(steps) == summary["completed_steps"] > 3
     for line, info in zip(steps, summary["step_info"]):
         assert line.startswith(f"step {info['step']:2d} ({info['phase']}, t = {info['t']:.4g}): ")
+        # the time left while nominal steps remain (none once cut-backs passed their count)
+        assert re.search(r"; ~\d+(\.\d)? (s|min|h) left$", line) or info["step"] >= 3, line
+    assert proc.stdout.splitlines()[-1].startswith("slope: failed after ")
+
+
+def test_help_is_printed_once_under_mpi():
+    proc = subprocess.run(
+        slope_command("--help", ranks=2), env=MPI_ENV, capture_output=True, text=True
+    )
+    assert proc.returncode == 0 and proc.stdout.count("usage:") == 1, proc.stdout
 
 
 def test_load_settlement_curve_is_signed_as_the_summary():
@@ -127,3 +139,22 @@ def test_load_settlement_curve_is_signed_as_the_summary():
         s["non_elliptic_points"] = 0
     settlement, load, _ = load_demo("slope_collapse").curve({"step_info": info})
     assert settlement == [-2.0, -3.8] and load == [-20.0, -40.0]  # the footing steps, MN/m
+
+
+def test_load_settlement_title_is_not_clipped(tmp_path):
+    """The slope's title (the longest law name) lies inside the figure: it was cut at the
+    right edge ('... as in summary.jso')."""
+    from dolfinx_granular.io.postprocess import plot_load_settlement
+
+    title = (
+        "slope, 700-particle RVE, Coulomb friction mu = 0.5 (negative = downward, as in "
+        "summary.json)"
+    )
+    fig = plot_load_settlement(
+        tmp_path / "curve.png", [("law", [0.0, -1.0], [0.0, -1e6], None)], title=title
+    )
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    box = fig.axes[0].title.get_window_extent(renderer)
+    assert fig.bbox.x0 <= box.x0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1, box

@@ -7,6 +7,7 @@ Functions that take a communicator gather to rank 0 what they need; pyvista is i
 
 from __future__ import annotations
 
+import textwrap
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -316,14 +317,19 @@ def _inset(plotter, inset, network, scale, extent):
     plotter.camera.parallel_scale = 1.1 * extent
 
 
+#: characters per line of a load-settlement figure's title (10 pt over its 6.4 in)
+TITLE_WIDTH = 80
+
+
 def plot_load_settlement(
     path: str | PathLike[str],
     curves: Sequence[tuple[str, ArrayLike, ArrayLike, Mapping[str, Any] | None]],
     title: str = "",
     load_label: str = "footing load (MN/m)",
     load_unit: float = 1e6,
-) -> None:
-    """Load-settlement curves (matplotlib PNG).
+) -> Any:
+    """Load-settlement curves (matplotlib PNG); returns the matplotlib Figure. A title longer
+    than :data:`TITLE_WIDTH` characters is wrapped onto more lines.
 
     Args:
         curves: list of ``(label, settlement (k,) in m (down positive), load (k,) in N/m, style)``
@@ -344,9 +350,10 @@ def plot_load_settlement(
     ax.set_ylabel(load_label)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(title, fontsize=10)
+    ax.set_title(textwrap.fill(title, TITLE_WIDTH), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    return fig
 
 
 def headless_vtk():

@@ -27,9 +27,17 @@ from ..fem.compat import show_warnings
 from ..io.runwriter import RestartError
 from ..packings.packing import Packing, PackingFileError
 from .geometry import SlopeGeometry
-from .interrupt import RunInterrupted, StopRequest, exit_status
+from .interrupt import SIGNALS, RunInterrupted, StopRequest, exit_status
 from .options import K_N, LINEAR_SOLVERS, PHASES, RVES
-from .run import SlopeOptions, clear_run, is_complete, load_restart, run_files, run_slope
+from .run import (
+    SlopeOptions,
+    clear_run,
+    converged_steps,
+    is_complete,
+    load_restart,
+    run_files,
+    run_slope,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -49,6 +57,10 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         raise UserError(f"{message} (see '{self.prog} --help')")
+
+    def _print_message(self, message, file=None):
+        if MPI.COMM_WORLD.rank == 0:  # --help once under mpirun, not once per rank
+            super()._print_message(message, file)
 
 
 def _int_at_least(low):
@@ -336,10 +348,12 @@ def _check_out(out):
 
 
 def _claim_out(out, force):
-    """A new run's ``out``: refused if it holds a run, unless ``force`` (then cleared of it)."""
+    """A new run's ``out``: refused if it holds a run that converged a load step, unless
+    ``force``; then cleared of the run's files (a run with no converged step has nothing to
+    lose)."""
     _check_out(out)
     held = run_files(out)
-    if held and not force:
+    if held and not force and converged_steps(out):
         raise UserError(
             f"--out {out} holds a slope run ({', '.join(held)}): add --force to replace it, "
             f"use --resume {out} to continue it, or choose another --out"
@@ -428,6 +442,13 @@ def _run(a, argv, prog, comm, started, stop):
     )
 
 
+def _setup_stop_line(signum):
+    return (
+        f"slope: {signal.Signals(signum).name}: stopping before the first load step; nothing "
+        "is lost: run the same command again"
+    )
+
+
 def main(argv: Sequence[str] | None = None, prog: str = "demos/slope.py") -> int:
     """Command line entry: returns the exit status (0, 1 or 2, see the module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -437,11 +458,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "demos/slope.py") -> int
     stop = StopRequest(verbose=comm.rank == 0)
     try:
         with stop.installed():
+            if comm.rank == 0:
+                stop.announce({s: _setup_stop_line(s) for s in SIGNALS})
             a = build_parser(prog).parse_args(argv)
             summary = _run(a, argv, prog, comm, started, stop)
-    except RunInterrupted as err:  # in the set-up: no load step was taken
-        if comm.rank == 0:
-            print(f"slope: {err} before the first load step; nothing to resume", flush=True)
+    except RunInterrupted as err:  # in the set-up (the native handler said so at once)
         return exit_status(err.signum)
     except (ValueError, OSError) as err:  # user errors: bad options, files, meshes
         if "--debug" in argv:

@@ -7,8 +7,15 @@ with it on disk. A second signal ends the process at once (exit status 128 + the
 
 Launchers differ: MPICH's ``mpiexec`` forwards SIGINT and SIGTERM to the ranks and waits; Open
 MPI's ``mpirun`` sends the ranks SIGTERM and SIGKILL one second later (its MCA parameter
-``odls_base_sigkill_timeout``), so whatever must not be lost is written at once by the
-``on_signal`` callback (rank 0 marks ``summary.json`` as interrupted).
+``odls_base_sigkill_timeout``). A Python handler runs only between bytecodes, too late for that
+when a rank is inside a compiled kernel or a collective, so what must not be lost (the resume
+hint on the console, ``summary.json`` marked interrupted) is prepared beforehand with
+:meth:`StopRequest.announce` and :meth:`StopRequest.keep` and written by a C-level handler the
+instant the signal arrives (:mod:`.interrupt_native`), which then hands the signal on to the
+Python handler here.
+
+Exit status: a serial run and MPICH's ``mpiexec`` return 130 (SIGINT) or 143 (SIGTERM); Open
+MPI's ``mpirun`` returns 1 whenever it is interrupted itself, whatever its ranks return.
 """
 
 from __future__ import annotations
@@ -21,8 +28,10 @@ from typing import TYPE_CHECKING
 
 from mpi4py import MPI
 
+from .interrupt_native import NativeHandler
+
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator
+    from collections.abc import Iterator
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -55,17 +64,14 @@ class StopRequest:
 
     Attributes:
         signum: the first signal this rank received (0: none).
-        on_signal: ``on_signal(signum)`` is called by the first signal's handler (it must not
-            communicate, nor print through ``sys.stdout``: the interrupted code may be inside
-            a print); set by the run once it has something to write.
     """
 
     def __init__(self, verbose: bool = True) -> None:
         self.verbose = verbose
         self.signum = 0
-        self.on_signal: Callable[[int], object] | None = None
         self._raising = False
         self._previous: dict = {}
+        self._native: NativeHandler | None = None
 
     @contextlib.contextmanager
     def installed(self) -> Iterator[StopRequest]:
@@ -74,12 +80,17 @@ class StopRequest:
         main = threading.current_thread() is threading.main_thread()
         if main:
             self._previous = {s: signal.signal(s, self._handle) for s in SIGNALS}
+            self._native = NativeHandler()
+            self._native.install()
         try:
             yield self
         finally:
+            if self._native is not None:
+                self.announce(None)
+                self.keep(None)
             for s, handler in self._previous.items():
-                signal.signal(s, handler)
-            self._previous = {}
+                signal.signal(s, handler)  # (Python's C handler again, over the native one)
+            self._previous, self._native = {}, None
 
     def reinstall(self) -> None:
         """Handle SIGINT and SIGTERM again after a library reset them (if :meth:`installed`):
@@ -87,6 +98,20 @@ class StopRequest:
         level while Python still names its handler."""
         for s in self._previous:
             signal.signal(s, self._handle)
+        if self._native is not None:
+            self._native.install(fresh=False)
+
+    def announce(self, lines: dict[int, str] | None) -> None:
+        """The line that a first signal puts on stdout at once, by signal number (None: none);
+        nothing outside :meth:`installed`."""
+        if self._native is not None:
+            self._native.say(lines)
+
+    def keep(self, path: str | None, contents: dict[int, str] | None = None) -> None:
+        """The file that a first signal writes at once (atomically) at ``path``, its content by
+        signal number; None: no file. Nothing outside :meth:`installed`."""
+        if self._native is not None:
+            self._native.keep(path, contents)
 
     @contextlib.contextmanager
     def raising(self) -> Iterator[None]:
@@ -112,8 +137,6 @@ class StopRequest:
         self.signum = signum
         if self._raising:
             raise RunInterrupted(signum)
-        if self.on_signal is not None:
-            self.on_signal(signum)
 
 
 def write_line(line: str) -> None:

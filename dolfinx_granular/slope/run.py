@@ -32,7 +32,7 @@ from ..io.runwriter import NodeOrder, PointOrder, RestartError, RunWriter, read_
 from ..laws.validity import OVERLAP_THRESHOLD, OverlapMonitor
 from ..packings.packing import Packing
 from .geometry import SlopeGeometry as SlopeGeometry  # (found here too, as before)
-from .interrupt import signal_name, write_line
+from .interrupt import SIGNALS, signal_name
 from .model import SlopeModel, granular_material, newton_solver
 from .options import K_N as K_N
 from .options import PHASES as PHASES
@@ -99,6 +99,24 @@ def run_files(folder: str | os.PathLike[str]) -> list[str]:
     return sorted(
         n for n in names if n in RUN_FILES or any(n.startswith(f + ".tmp") for f in RUN_FILES)
     )
+
+
+def converged_steps(folder: str | os.PathLike[str]) -> int:
+    """The load steps that the run in ``folder`` has on disk: 0 if it has no restart file and
+    its ``summary.json`` (if any) counts none; 1 where the count cannot be read."""
+    if os.path.exists(os.path.join(folder, "restart.npz")):
+        return max(1, _summary_steps(folder))
+    return _summary_steps(folder)
+
+
+def _summary_steps(folder):
+    try:
+        with open(os.path.join(folder, "summary.json")) as f:
+            return int(json.load(f).get("completed_steps") or 0)
+    except FileNotFoundError:
+        return 0
+    except (OSError, ValueError, TypeError, AttributeError):
+        return 1  # (a summary that cannot be read: keep the run)
 
 
 def clear_run(folder: str | os.PathLike[str], names: tuple[str, ...] | None = None) -> None:
@@ -179,7 +197,7 @@ class SlopeRun:
         self.packing, self.comm, self.stop_after = packing, comm, stop_after
         self.verbose = verbose and comm.rank == 0
         self.stop_request, self.interrupted = stop_request, 0
-        self._step_summary, self._writing = None, False  # (see _on_signal)
+        self._step_summary = None  # (summary.json while the run goes on: _write_summary)
         self.say = (
             (lambda *a: print(*a, flush=True))
             if (verbose and comm.rank == 0)
@@ -231,7 +249,8 @@ class SlopeRun:
             self._resume(restart)
         if stop_request is not None:
             stop_request.reinstall()  # (meshing with gmsh may have reset the handlers)
-            stop_request.on_signal = self._on_signal
+        self._step_summary = self._progress({"cutbacks": [], "step": self.step})
+        self._write_summary()  # ("running": a run with no converged step is on disk too)
         self.setup_time = time.perf_counter() - self.t_start
 
     @property
@@ -315,59 +334,65 @@ class SlopeRun:
             u_history=np.asarray(self.u_history),
             **history,
         )
-        self._step_summary = (
-            {
-                "ranks": self.comm.size,
-                "steps": self.n_nominal,
-                "completed_steps": step,
-                "resumed_from": self.resumed_from,
-                "cutbacks": state["cutbacks"],
-                "iterations": list(self.iterations),  # (copies: a signal handler writes it)
-                "footing_settlement": self.step_info[-1]["settlement"],
-                "load_factor": self.options.load_factor,
-                "stabilise": self.options.stabilise,
-                "step_info": list(self.step_info),
-            }
-            if self.comm.rank == 0
-            else None
-        )
+        self._step_summary = self._progress(state)
         self._write_summary()
         self.time_output += time.perf_counter() - t_out
+
+    def _progress(self, state):
+        """summary.json's fields while the run goes on (rank 0; None elsewhere)."""
+        if self.comm.rank != 0:
+            return None
+        return {
+            "ranks": self.comm.size,
+            "steps": self.n_nominal,
+            "completed_steps": state["step"],
+            "resumed_from": self.resumed_from,
+            "cutbacks": state["cutbacks"],
+            "iterations": list(self.iterations),
+            "footing_settlement": self.step_info[-1]["settlement"] if self.step_info else None,
+            "load_factor": self.options.load_factor,
+            "stabilise": self.options.stabilise,
+            "step_info": list(self.step_info),
+        }
 
     def _signalled(self) -> int:
         """The signal this rank has received (0: none); not collective."""
         return self.stop_request.signum if self.stop_request is not None else 0
 
     def _write_summary(self):
-        """summary.json of the last step on disk: ``running``, ``interrupted`` once a signal
-        has come (rank 0)."""
+        """summary.json of the last step on disk, ``running`` (``interrupted`` once a signal
+        has come), and the interrupted one that a signal writes at once (rank 0)."""
         if self.comm.rank != 0:
             return
-        signum = self._signalled()
-        status = "interrupted" if signum else "running"
-        by = signal_name(signum) if signum else None
-        self._writing = True
-        try:
-            self.writer.json(
-                "summary.json", {"status": status, "interrupted_by": by, **self._step_summary}
-            )
-        finally:
-            self._writing = False
-        if status == "running" and self._signalled():  # it came during the write
-            self._write_summary()
+        stop, path = self.stop_request, self.writer.path("summary.json")
 
-    def _on_signal(self, signum):
-        """The first SIGINT/SIGTERM on this rank, in its handler: say so and mark the last step
-        on disk as interrupted at once (Open MPI's mpirun kills the ranks a second later)."""
-        if self.comm.rank != 0:
+        def body(signum):
+            by = signal_name(signum) if signum else None
+            status = "interrupted" if signum else "running"
+            return {"status": status, "interrupted_by": by, **self._step_summary}
+
+        if stop is not None:
+            stop.keep(None)  # (no signal writes it while this does)
+        self.writer.json("summary.json", body(self._signalled()))
+        if stop is None:
             return
-        if self.verbose:
-            write_line(
-                f"slope: {signal_name(signum)}: stopping after the load step in progress "
-                f"(again: at once); continue later with --resume {self.writer.out}"
+        stop.keep(path, {s: json.dumps(body(s), indent=1) for s in SIGNALS})
+        stop.announce({s: self._stop_line(s) for s in SIGNALS} if self.verbose else None)
+        if self._signalled():  # (one that came while the file was being written)
+            self.writer.json("summary.json", body(self._signalled()))
+
+    def _stop_line(self, signum):
+        """What a first signal puts on the console at once."""
+        name, step = signal_name(signum), self._step_summary["completed_steps"]
+        if not step:
+            return (
+                f"slope: {name}: stopping; no load step has converged yet, so nothing is lost: "
+                "run the same command again (no --force needed)"
             )
-        if self._step_summary is not None and not self._writing:
-            self._write_summary()
+        return (
+            f"slope: {name}: stopping after the load step in progress (again: at once); "
+            f"step {step} is on disk: continue with --resume {self.writer.out}"
+        )
 
     def _stop_agreed(self) -> bool:
         """Collective: True once any rank has received a signal (sets :attr:`interrupted`)."""
@@ -442,8 +467,19 @@ class SlopeRun:
             f"step {step:2d} ({self.options.phases[phase_index]}, t = {t:.4g}): gravity "
             f"x{lam_g:.2f}, footing "
             f"{footing:.3e} N/m, {result.iterations} iterations, "
-            f"{elapsed:.2f} s{_overlap_note(self.step_info[-1])}"
+            f"{elapsed:.2f} s{_overlap_note(self.step_info[-1])}{self._time_left(step)}"
         )
+
+    def _time_left(self, step):
+        """``; ~3.2 min left`` for a step's log line: the mean time of this run's steps so far
+        times the nominal steps still to come (an upper bound under path following, which
+        may stop at its peak earlier; cut-backs add steps)."""
+        done, left = step - self._steps_before, self.n_nominal - step
+        if done <= 0 or left <= 0:
+            return ""
+        seconds = (time.perf_counter() - self._path_started) / done * left
+        bound = "at most " if self.options.path_following else ""
+        return f"; {bound}~{_duration(seconds)} left"
 
     def _overlaps(self, step):
         """The step's validity measure for ``step_info`` (collective); warns once per run."""
@@ -475,6 +511,7 @@ class SlopeRun:
 
         if self._stop_agreed():  # (a signal during the set-up)
             return False
+        self._path_started, self._steps_before = time.perf_counter(), self.step
         start_phase, start_t, start_dt = self._start
         for i in range(start_phase, len(self.options.phases)):
             resumed = i == start_phase
@@ -519,6 +556,13 @@ class SlopeRun:
         return failure(
             self.options.phases[i], self.step + 1, lam, path_failure(self.model, driver.failed)
         )
+
+
+def _duration(seconds):
+    """``42 s``, ``3.2 min`` or ``1.5 h``."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.1f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
 
 
 def _overlap_note(info):
@@ -570,8 +614,9 @@ def run_slope(
             f"({run.law.prestress_ratio:.2g} of its modulus)"
         )
     run.run()
-    if run.stop_request is not None:
-        run.stop_request.on_signal = None  # the load path is done: a signal now changes nothing
+    if run.stop_request is not None:  # the load path is done: a signal now changes nothing
+        run.stop_request.announce(None)
+        run.stop_request.keep(None)
     figure = figure and not run.interrupted  # (asked to stop: no figure of a partial run)
     path = path_summary(run.arclength, run.step_info, o.geometry.footing_load, o.path_following)
     report_stop(run, path)
@@ -590,8 +635,9 @@ def run_slope(
     run.writer.csv("convergence.csv", CONVERGENCE_HEADER, run.rows)
     run.writer.json("summary.json", summary)
     t = summary
+    ended = {"converged": "done", "stopped": "stopped as asked"}.get(t["status"], t["status"])
     run.say(
-        f"slope: done in {t['wall_time']:.1f} s (set-up {t['time_setup']:.1f} s, RVE "
+        f"slope: {ended} after {t['wall_time']:.1f} s (set-up {t['time_setup']:.1f} s, RVE "
         f"{t['time_rve']:.1f} s, assembly {t['time_assembly']:.1f} s, solve "
         f"{t['time_solve']:.1f} s, output {t['time_output']:.1f} s); settlement "
         f"{t['footing_settlement']:.4f} m; von Mises {t['min_von_mises']:.4g} .. "
