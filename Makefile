@@ -1,5 +1,5 @@
-# The README's commands: `make demo` (main job) and `make test` (whole suite), on Debian
-# bookworm's DOLFINx 0.5.2; `make lint` (ruff) and `make bench` (docs/performance.md). All set
+# The README's commands: `make demo` (main job) and `make test` (whole suite; `make test-quick`
+# the tests not marked slow), on Debian bookworm's DOLFINx 0.5.2; `make lint` (ruff) and `make bench` (docs/performance.md). All set
 # everything up first; a second set-up run costs seconds.
 # The `-current` targets do the same on the current DOLFINx (0.11, PyPI wheel, Python >= 3.12).
 PY := .venv/bin/python
@@ -20,7 +20,7 @@ define current
 	[ $$rc -eq 0 ] || exit $$rc; set -ex; $(1)
 endef
 
-.PHONY: setup warm demo test test-serial test-mpi lint bench setup-current demo-current test-current bench-current clean
+.PHONY: setup warm demo test test-quick test-serial test-mpi lint bench setup-current demo-current test-current test-quick-current bench-current clean
 
 setup: .venv/.setup-done
 
@@ -46,6 +46,12 @@ test-serial: warm
 test-mpi: warm
 	$(MPIRUN) $(PY) -m pytest -q --color=no -m mpi -p no:cacheprovider tests
 
+# The tests not marked slow (docs, command lines, snippets, kernels, small DOLFINx solves),
+# serially and on 2 ranks: a few minutes, where `make test` takes about half an hour
+test-quick: warm
+	$(PY) -m pytest -q --color=no -m "not slow" tests
+	$(MPIRUN) $(PY) -m pytest -q --color=no -m "mpi and not slow" -p no:cacheprovider tests
+
 # ruff pinned: another version may format differently (configuration in pyproject.toml)
 RUFF_VERSION := 0.17.6
 lint: setup
@@ -65,6 +71,10 @@ demo-current:
 test-current:
 	$(call current,$(PYC) -m pytest -q --color=no tests; \
 	  $(MPIEXEC_C) $(PYC) -m pytest -q --color=no -m mpi -p no:cacheprovider tests)
+
+test-quick-current:
+	$(call current,$(PYC) -m pytest -q --color=no -m "not slow" tests; \
+	  $(MPIEXEC_C) $(PYC) -m pytest -q --color=no -m "mpi and not slow" -p no:cacheprovider tests)
 
 bench-current:
 	$(call current,$(PYC) benchmarks/report.py --out results/report-current)
