@@ -15,6 +15,7 @@ import importlib.util as _importlib_util
 if _importlib_util.find_spec("dolfinx_solver") is not None:
     import dolfinx_solver  # noqa: F401
 
+from .drivers.protocol import LoadPathWarning, SolveFailedWarning
 from .laws.contacts import ContactCandidates
 from .laws.friction import FrictionalRVE, FrictionState
 from .laws.levels import AdaptiveRVE, SmallStrainRVE
@@ -36,10 +37,12 @@ from .packings.fabric import (
 from .packings.generation import NetworkStats, generate_packing, network_stats, relax_overlaps
 from .packings.gsd import SieveCurve, cen_standard_sand
 from .packings.packing import Packing, PackingFileError
+from .packings.reference_packing import reference_packing
 
 __all__ = [
     "Packing",
     "PackingFileError",
+    "reference_packing",
     "TaylorRVE",
     "FrictionalRVE",
     "FrictionState",
@@ -75,6 +78,8 @@ __all__ = [
     "OverlapSummary",
     "OverlapMonitor",
     "ValidityWarning",
+    "SolveFailedWarning",
+    "LoadPathWarning",
 ]
 __version__ = "0.3.0"
 #: the DOLFINx releases this version supports and tests (Debian bookworm, trixie, PyPI wheel)
@@ -90,6 +95,8 @@ _LAZY = {
     "PointResult": "drivers.material_point",
     "ControlError": "drivers.material_point",
     "ConvergenceTest": "drivers.convergence",
+    "confined_packing": "drivers.confinement",
+    "holding_traction": "drivers.confinement",
     "LoadPhase": "drivers.loading",
     "SNESArcLength": "drivers.snes_al",
     "SolveResult": "drivers.newton",

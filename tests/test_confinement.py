@@ -93,6 +93,43 @@ def test_the_slope_law_is_built_on_the_confined_packing(packings):
     )
 
 
+@pytest.mark.mpi
+def test_the_holding_traction_keeps_the_confined_column_at_rest(packings):
+    """The README's column of a confined packing under no load: with holding_traction(material)
+    on its boundary the reference state is in equilibrium (0 Newton steps, u = 0); without it
+    the confinement pushes the free top and the walls' shear out of equilibrium."""
+    pytest.importorskip("dolfinx")
+    import dolfinx_granular
+    from dolfinx_granular import GranularMaterial, NewtonSolver, holding_traction, vector_space
+
+    import ufl
+    from dolfinx import fem, mesh
+    from mpi4py import MPI
+
+    assert dolfinx_granular.confined_packing is confined_packing  # public from the package
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (the prestress is the confinement)
+        law = TaylorRVE(packings[1], K_N, allow_overlaps=True)
+    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0, 0], [10, 10]], [2, 2])
+    V = vector_space(msh)
+    u, v, du = fem.Function(V), ufl.TestFunction(V), ufl.TrialFunction(V)
+    material = GranularMaterial(law, u)
+    bottom = mesh.locate_entities_boundary(msh, 1, lambda x: np.isclose(x[1], 0))
+    bcs = [fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V)]
+    t = holding_traction(material)
+    assert t.ufl_shape == (2,)
+    results = []
+    for hold in (ufl.dot(t, v) * ufl.ds, None):
+        u.x.array[:] = 0.0
+        residual = material.residual_form(v) - (hold if hold is not None else 0)
+        solver = NewtonSolver(residual, material.jacobian_form(du, v), u, bcs, material)
+        results.append(solver.solve(warn=False))
+        solver.destroy()
+    held, free = results
+    assert held.converged and held.iterations == 0 and held.stopped_by == "round-off", held
+    assert free.iterations > 0 or not free.converged, free
+
+
 def test_isotropic_compression_near_jamming_ends_in_equilibrium():
     # jammed at p / k_n = 1e-4, compressed along F = lam I to it: the mean pressure is met and
     # the disks are at rest there (net forces <= 1e-9 of the mean contact force)

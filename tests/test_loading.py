@@ -1,11 +1,19 @@
 """Adaptive load stepping and failure handling: cut-backs on RVE range errors, singular matrices and
 stagnation; a failed step never leaves NaN or an unconverged state behind; the stabiliser."""
 
+import warnings
+
 import numpy as np
 import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
-from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
+from dolfinx_granular import (  # noqa: E402
+    LoadPathWarning,
+    SolveFailedWarning,
+    TaylorRVE,
+    generate_packing,
+)
+from dolfinx_granular.drivers.arclength import ArcLength  # noqa: E402
 from dolfinx_granular.drivers.loading import LoadStepper  # noqa: E402
 from dolfinx_granular.drivers.newton import STAGNATION, NewtonSolver  # noqa: E402
 from dolfinx_granular.fem.compat import vector_space  # noqa: E402
@@ -16,6 +24,7 @@ from dolfinx import fem, mesh  # noqa: E402
 from mpi4py import MPI  # noqa: E402
 
 from helpers import granular_column  # noqa: E402
+from truss import truss  # noqa: E402
 
 
 def column(prefix, n=4, stabilise=0.0, material_class=GranularMaterial, **solver_kwargs):
@@ -35,13 +44,26 @@ def all_finite(a):
     return MPI.COMM_WORLD.allreduce(bool(np.isfinite(a).all()), op=MPI.LAND)
 
 
+def failure_warnings(call):
+    """``call()``'s result and the SolveFailedWarning and LoadPathWarning it issued, as
+    ``(category, message)`` (every one recorded)."""
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        result = call()
+    kinds = (SolveFailedWarning, LoadPathWarning)
+    return result, [(w.category, str(w.message)) for w in record if issubclass(w.category, kinds)]
+
+
 @pytest.mark.mpi
 def test_cutback_recovers_the_same_answer():
     """6.5 MPa in one step drives Newton outside the RVE's range; the stepper halves the step and
     reaches the same state as a run with two nominal steps."""
     solver, material, u, p = column("cut_")
     stepper = LoadStepper(solver)
-    assert stepper.run("press", lambda t: setattr(p, "value", 6.5e6 * t), 1.0)
+    ok, said = failure_warnings(
+        lambda: stepper.run("press", lambda t: setattr(p, "value", 6.5e6 * t), 1.0)
+    )
+    assert ok and not said  # a failed solve the stepper recovers from is no failure to report
     assert len(stepper.cutbacks) == 1 and stepper.step == 2 and stepper.failed is None
     cut = stepper.cutbacks[0]
     assert (cut.phase, cut.step, cut.t_from, cut.t_to) == ("press", 1, 0.0, 1.0)
@@ -68,9 +90,20 @@ def test_crushing_load_fails_cleanly_at_the_last_converged_state():
         converged.update(step=step, t=t, u=u.x.array.copy())
 
     stepper = LoadStepper(solver, max_cutbacks=4)
-    assert not stepper.run(
-        "press", lambda t: setattr(p, "value", 1e7 * t), 1.0, on_converged=remember
+    ok, said = failure_warnings(
+        lambda: stepper.run(
+            "press", lambda t: setattr(p, "value", 1e7 * t), 1.0, on_converged=remember
+        )
     )
+    assert not ok
+    # once per failure: one LoadPathWarning for the phase, none for its failed solves
+    assert [kind for kind, _ in said] == [LoadPathWarning] and len(stepper.cutbacks) > 4
+    message = said[0][1]
+    assert (
+        message.startswith("load phase 'press' failed ")
+        and stepper.failed["reason"].rstrip(".") in message
+    )
+    assert "a limit load, which load control cannot pass" in message and "ArcLength" in message
     assert stepper.failed["step"] == converged["step"] + 1 and stepper.failed["t"] == converged["t"]
     assert 0.5 < converged["t"] < 1.0
     reasons = " ".join(c.reason for c in stepper.cutbacks)
@@ -218,6 +251,48 @@ def test_block_pulled_partly_into_tension():
     solver.destroy()
 
 
+@pytest.mark.mpi
+def test_a_column_pulled_apart_says_why_it_fails():
+    """The issue: a column pulled up returned False and printed nothing. One LoadPathWarning
+    names the reason (RVEs without contacts) and the remedies for tension; the solves it cut
+    back stay silent; warn=False leaves the report to the caller."""
+    solver, _, _, p = column("apart_")
+    stepper = LoadStepper(solver, max_cutbacks=1)
+    ok, said = failure_warnings(
+        lambda: stepper.run("pull", lambda t: setattr(p, "value", -2e5 * t), 1.0)
+    )
+    assert not ok and [kind for kind, _ in said] == [LoadPathWarning]
+    assert "have lost every contact" in said[0][1]
+    assert (
+        "Remedy: the granular material carries no tension" in said[0][1]
+        and "stabilise=" in said[0][1]
+    )
+    quiet = LoadStepper(solver, max_cutbacks=1, warn=False)
+    ok, said = failure_warnings(
+        lambda: quiet.run("pull", lambda t: setattr(p, "value", -2e5 * t), 1.0)
+    )
+    assert not ok and not said and quiet.failed is not None
+    solver.destroy()
+
+
+@pytest.mark.mpi
+def test_a_path_that_cannot_go_on_warns_once():
+    """ArcLength: the failed attempts it cuts back are silent; the path that ends warns once."""
+    model = truss(prefix="al_warn_")
+    al = ArcLength(model.solver, model.load, model.external, 1.0, max_it=0, max_cutbacks=2)
+    inc, said = failure_warnings(al.advance)
+    assert inc is None and [kind for kind, _ in said] == [LoadPathWarning]
+    assert said[0][1].startswith("path following stopped: increment 1 failed")
+    assert (
+        al.failed["reason"].rstrip(".") in said[0][1]
+        and "Remedy: a shorter smallest arc" in said[0][1]
+    )
+    quiet = ArcLength(model.solver, model.load, model.external, 1.0, max_it=0, warn=False)
+    ok, said = failure_warnings(quiet.run)
+    assert not ok and not said and quiet.failed is not None
+    model.solver.destroy()
+
+
 def smooth_limit_path(n, t_top=1.0, scale=3.0):
     """Increments along t(u) = t_top (2 s - s²), s = u / scale: a limit point at u = scale,
     approached with increments that shrink like the cut-back stepper's."""
@@ -285,7 +360,7 @@ class SevenIterationSolver:
     def __init__(self, u):
         self.u, self.materials, self.calls = u, (), 0
 
-    def solve(self):
+    def solve(self, warn=True):
         from dolfinx_granular.drivers.newton import SolveResult
 
         self.calls += 1

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
-from dolfinx_granular import FrictionalRVE, TaylorRVE, generate_packing  # noqa: E402
+from dolfinx_granular import FrictionalRVE, RelaxedRVE, TaylorRVE, generate_packing  # noqa: E402
 from dolfinx_granular.fem.compat import vector_space  # noqa: E402
 from dolfinx_granular.fem.material import GranularMaterial  # noqa: E402
 from dolfinx_granular.fem.probing import (  # noqa: E402
@@ -104,6 +104,46 @@ def test_probe_reads_the_committed_history_of_a_frictional_law():
     sigma = law.cauchy(result.F, state)  # one step from F = I: the committed step's stress
     np.testing.assert_allclose(result.cauchy, sigma, rtol=1e-12, atol=1e-6)
     assert np.isfinite(result.max_overlap_ratio).all() and (result.contacts > 0).all()
+
+
+def contact_statistics(material, points):
+    """(m, 3) [contacts, coordination, largest overlap / smaller radius] of the law's own
+    ``contacts(F, state)`` at the material's points ``points`` (m, 2), gathered from the ranks
+    that own them."""
+    law, comm = material.rve, material.mesh.comm
+    rows = np.zeros((len(points), 3))
+    for k, x in enumerate(points):
+        for i in np.flatnonzero((material.points == x).all(axis=1))[:1]:
+            c = law.contacts(material.F[i], material.state.take([i]))
+            ratio = c.overlap / PACKING.radii[c.pairs].min(axis=1)
+            rows[k] = len(c.overlap), 2 * len(c.overlap) / PACKING.n_particles, ratio.max()
+    return comm.allreduce(rows, op=MPI.SUM)  # (a point is owned by one rank)
+
+
+def probed_statistics(result):
+    return np.stack([result.contacts, result.coordination, result.max_overlap_ratio], axis=1)
+
+
+@pytest.mark.mpi
+def test_probe_of_a_frictional_law_counts_the_contacts_of_its_state():
+    law = FrictionalRVE(PACKING, K_N, K_N, 0.3)
+    material = loaded_material(MPI.COMM_WORLD, law)
+    result = probe(material, TARGETS)
+    np.testing.assert_allclose(
+        probed_statistics(result), contact_statistics(material, result.points), rtol=1e-12
+    )
+
+
+@pytest.mark.mpi
+def test_probe_of_a_relaxed_law_counts_the_contacts_where_its_disks_moved():
+    """The relaxed RVE has no overlap_statistics(F): its contacts depend on where the disks
+    moved to. The probe gives those of ``contacts(F, state)`` at the point (was NaN)."""
+    material = loaded_material(MPI.COMM_WORLD, RelaxedRVE(PACKING, K_N), lambda x: x[0] <= 0.6)
+    result = probe(material, TARGETS[:2])
+    stats = probed_statistics(result)
+    assert np.isfinite(stats).all() and (result.contacts > 0).all(), stats
+    np.testing.assert_allclose(stats, contact_statistics(material, result.points), rtol=1e-12)
+    assert result.max_overlap_ratio.max() < 0.1  # overlaps of a small compression
 
 
 @pytest.mark.mpi

@@ -5,8 +5,15 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 
-from dolfinx_granular import TaylorRVE, generate_packing
+from dolfinx_granular import (
+    LoadPathWarning,
+    LoadStepper,
+    SolveFailedWarning,
+    TaylorRVE,
+    generate_packing,
+)
 from dolfinx_granular.laws.relaxed import RelaxedRVE
 
 import numpy as np
@@ -47,6 +54,35 @@ def test_the_relaxed_column_converges_superlinearly_and_is_softer(packing):
     assert rates and max(rates) > 1.5, history  # the last steps are quadratic
     moved = MPI.COMM_WORLD.allreduce(float(material.state.fluctuation.max()), op=MPI.MAX)
     assert moved > 0.0  # the committed state holds the relaxed positions
+
+
+@pytest.mark.mpi
+def test_an_unconfined_relaxed_column_says_why_and_what_to_do():
+    """The issue: RelaxedRVE swapped into the README column printed '0 Newton steps, converged:
+    False', the reason only in result.error. The stress-free packing unjams at the first
+    iterate: the solve warns once with the reason and names the confined packing and the
+    holding traction; a load stepper that gives up does the same, once."""
+    solver, _, _, p = granular_column(
+        RelaxedRVE(generate_packing(70, seed=1), K_N), "unconfined_", n=4
+    )
+    p.value = 1e5
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        result = solver.solve()
+        stepper = LoadStepper(solver, max_cutbacks=0)
+        assert not stepper.run("press", lambda t: setattr(p, "value", 1e5 * t), 1.0)
+    said = [w for w in record if issubclass(w.category, (SolveFailedWarning, LoadPathWarning))]
+    assert not result.converged and [w.category for w in said] == [
+        SolveFailedWarning,
+        LoadPathWarning,
+    ]
+    # (the reason is this rank's: where its own RVEs failed to relax)
+    assert result.why.rstrip(".") in str(said[0].message)
+    for w in said:
+        message = str(w.message)
+        assert "Remedy: a RelaxedRVE on a stress-free packing" in message, message
+        assert "confined_packing(packing" in message and "holding_traction(material)" in message
+    solver.destroy()
 
 
 SETTLE = """

@@ -2,12 +2,13 @@
 failure reporting, and quadratic convergence of a small slope run."""
 
 import csv
+import warnings
 
 import numpy as np
 import pytest
 
 dolfinx = pytest.importorskip("dolfinx")
-from dolfinx_granular import TaylorRVE, generate_packing  # noqa: E402
+from dolfinx_granular import SolveFailedWarning, TaylorRVE, generate_packing  # noqa: E402
 from dolfinx_granular.fem.compat import SNES_NAN_REASON  # noqa: E402
 from dolfinx_granular.slope import SlopeOptions, run_slope  # noqa: E402
 
@@ -16,7 +17,7 @@ from mpi4py import MPI  # noqa: E402
 from helpers import granular_column  # noqa: E402
 
 
-def column(pressure, petsc_options=None, prefix="col_", n=6):
+def column(pressure, petsc_options=None, prefix="col_", n=6, **solver_kwargs):
     """The shared column (tests/helpers.py) of a 70-particle RVE under a top pressure (Pa)."""
     return granular_column(
         TaylorRVE(generate_packing(70, seed=4), 2.8e7),
@@ -24,6 +25,7 @@ def column(pressure, petsc_options=None, prefix="col_", n=6):
         n=n,
         pressure=pressure,
         petsc_options=petsc_options,
+        **solver_kwargs,
     )[:3]
 
 
@@ -137,6 +139,44 @@ def test_small_slope_run_converges_quadratically(tmp_path, capsys):
 
 
 @pytest.mark.mpi
+def caught(call, category):
+    """``call()``'s result and the warnings of ``category`` it issued (every one recorded)."""
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        result = call()
+    return result, [w for w in record if issubclass(w.category, category)]
+
+
+@pytest.mark.mpi
+def test_a_failed_solve_warns_once_with_the_reason_and_a_remedy():
+    """A failed solve used to return silently, the reason only in result.error. It warns once,
+    at the user's call, naming the reason and what to do; a driver's solve(warn=False) does
+    not, nor does a converged solve."""
+    solver, _, _ = column(3e7, prefix="warn_")
+    result, record = caught(solver.solve, SolveFailedWarning)
+    assert not result.converged and len(record) == 1
+    message = str(record[0].message)
+    assert message.startswith("Newton solve failed after") and result.why.rstrip(".") in message
+    assert "Remedy: take the load in smaller steps: LoadStepper(solver)" in message, message
+    assert record[0].filename == __file__  # attributed to the line that called solve()
+    quiet, record = caught(lambda: solver.solve(warn=False), SolveFailedWarning)
+    assert not quiet.converged and not record
+    solver.destroy()
+    solver, _, _ = column(2e5, prefix="nowarn_")
+    result, record = caught(solver.solve, UserWarning)
+    assert result.converged and not record
+    solver.destroy()
+
+
+@pytest.mark.mpi
+def test_the_iteration_limit_names_max_it():
+    solver, _, _ = column(2e5, prefix="maxit_", max_it=1)
+    result, (record,) = caught(solver.solve, SolveFailedWarning)
+    assert result.reason_name == "DIVERGED_MAX_IT", result
+    assert "Remedy: allow more Newton steps (max_it, now 1)" in str(record.message)
+    solver.destroy()
+
+
 def test_a_converged_state_returns_at_once():
     """The same load twice: the second solve starts converged (residual at round-off of the
     forces) and returns with 0 iterations, not a stagnation from round-off / round-off."""

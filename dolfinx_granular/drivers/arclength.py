@@ -24,7 +24,8 @@ that the solver's :attr:`~dolfinx_granular.NewtonSolver.timings` split the path'
 as a load-controlled run's.
 
 Increments adapt to the Newton iterations they take; a failed increment (no real root, Newton
-divergence, an RVE outside its range, a singular tangent) is restored and halved. The sign of
+divergence, an RVE outside its range, a singular tangent) is restored and halved; a path that
+ends early warns once (:class:`~dolfinx_granular.LoadPathWarning`). The sign of
 det K (MUMPS computes the determinant with the factorisation) is watched along the path: where it
 changes between two converged states the path has crossed a critical point; a limit point where
 the load turns back, a bifurcation point where it does not. Laws with history are committed only
@@ -43,7 +44,14 @@ from petsc4py import PETSc
 
 from .convergence import CONVERGED, NAN, STAGNATION, ConvergenceTest
 from .pathrecords import CriticalPoint, Increment, control_reaches, load_reaches, unloaded_to
-from .protocol import ASKED_TO_STOP, failure
+from .protocol import (
+    ASKED_TO_STOP,
+    UNCONFINED_RELAXED,
+    LoadPathWarning,
+    failure,
+    unconfined_relaxed,
+    warn_failure,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -91,6 +99,8 @@ class ArcLength:
         log: callable taking one progress line, or None.
         max_increments: the increments :meth:`run` takes at most by default.
         stop: the default ``stop`` of :meth:`run`.
+        warn: a path that ends early issues one :class:`~dolfinx_granular.LoadPathWarning`
+            naming the reason and a remedy (False: the caller reports :attr:`failed` itself).
 
     Attributes:
         path: the converged :class:`Increment` s.
@@ -124,6 +134,7 @@ class ArcLength:
         log: Callable[[str], object] | None = None,
         max_increments: int = 100,
         stop: Callable[[ArcLength], str | None] | None = None,
+        warn: bool = True,
     ) -> None:
         if getattr(solver, "linear_solver", "direct") != "direct":
             raise ValueError(
@@ -137,6 +148,7 @@ class ArcLength:
         self._thresholds = getattr(solver, "test", None) or ConvergenceTest(self.problem)
         self.ksp = solver.snes.getKSP() if hasattr(solver, "snes") else _lu(self.problem.comm)
         self.max_increments, self.stop = int(max_increments), stop
+        self.warn = bool(warn)
         self.psi = float(psi)
         self.control = control
         self.direction = 1.0 if direction >= 0 else -1.0
@@ -423,8 +435,7 @@ class ArcLength:
                             f"increment {len(self.path) + 1} failed at ds = {self.ds:.3g} "
                             f"after {cuts - 1} cut-backs: {err}"
                         )
-                        self.failed = failure("path", len(self.path) + 1, self.lam, reason)
-                        self.log(f"path: {reason}; stopping")
+                        self._give_up(reason)
                         return None
                     self.log(
                         f"path: increment {len(self.path) + 1} failed ({err}); ds "
@@ -436,6 +447,27 @@ class ArcLength:
                     return self._accept(x, du, dlam, test, sign)
         finally:
             x0.destroy()
+
+    def _give_up(self, reason):
+        """Record that the path ended early, and warn once (a failed attempt it cuts back does
+        not)."""
+        self.failed = failure("path", len(self.path) + 1, self.lam, reason)
+        self.log(f"path: {reason}; stopping")
+        if not self.warn:
+            return
+        remedy = (
+            "a shorter smallest arc (ds_min, now "
+            f"{self.ds_min:.3g}), more cut-backs in a row (max_cutbacks, now {self.max_cutbacks}) "
+            f"or more corrector iterations (max_it, now {self.max_it})"
+        )
+        if unconfined_relaxed(self.problem.materials):
+            remedy = UNCONFINED_RELAXED
+        warn_failure(
+            f"path following stopped: {reason.rstrip('.')}; u and the materials are at the last "
+            f"converged state, lam = {self.lam:.6g}",
+            LoadPathWarning,
+            remedy,
+        )
 
     def _attempt(self, x0):
         """Predictor and corrector from the converged state x0 (timed as a SNES solve): the state

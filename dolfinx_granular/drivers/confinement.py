@@ -7,8 +7,8 @@ confined state: :func:`confined_packing` compresses the packing to sigma_11 = si
 (the material-point driver on :class:`~dolfinx_granular.RelaxedRVE`, in geometric pressure
 steps) and returns the relaxed disks in the compressed cell, a new packing whose reference state
 F = I carries the stress P(I) ~ -p I (their overlaps) and is in equilibrium. The boundary value
-problem holds that stress with the traction P(I) n on its free boundaries (the confinement of
-:class:`~dolfinx_granular.slope.SlopeOptions`).
+problem holds that stress with the traction P(I) N on its free boundaries,
+:func:`holding_traction` (the confinement of :class:`~dolfinx_granular.slope.SlopeOptions`).
 
 :func:`ramp` and :func:`compress` are the stepping behind it, for studies of one point.
 """
@@ -132,3 +132,27 @@ def confined_packing(packing: Packing, normal_stiffness: float, pressure: float)
     result = compress(point, p * kn, max_increment=10.0 * p)
     F0 = result.F
     return Packing(rve.positions(F0, result.state)[0], packing.radii, np.diag(F0) * packing.box)
+
+
+def holding_traction(material: Any) -> Any:
+    """The traction t = P(I) N (Pa) that holds a material's reference stress on its boundary.
+
+    A confined packing (:func:`confined_packing`) is in equilibrium at F = I with the stress
+    P(I) ~ -p I; a free face of the body must carry t = P(I) N (N the outward unit normal of the
+    reference configuration), else u = 0 is no equilibrium and the body expands. Subtract
+    ``ufl.dot(t, v) * ds`` from the residual over the free faces; over the whole boundary
+    (``ufl.ds``) is the same, since the rows of Dirichlet dofs are replaced by their conditions.
+
+    Args:
+        material: a :class:`~dolfinx_granular.GranularMaterial` (its
+            ``reference_stress()``, P(I) (d, d) in Pa, and its mesh).
+
+    Returns:
+        The UFL vector (d,) ``P(I) N``, P(I) a :class:`dolfinx.fem.Constant`.
+    """
+    # (UFL and DOLFINx here only: the packings above are built without them)
+    import ufl
+    from dolfinx import fem
+
+    P0 = fem.Constant(material.mesh, np.asarray(material.reference_stress(), dtype=float))
+    return ufl.dot(P0, ufl.FacetNormal(material.mesh))

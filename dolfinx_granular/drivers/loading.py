@@ -14,7 +14,9 @@ Newton's start inside the basin of the new contact state, they do not change the
 No increment, however small, passes a limit point of the load-displacement path (the structure
 collapses, or a cohesionless soil lets go of a pulled footing): past it no equilibrium exists at a
 higher load. A failed phase is therefore checked for one (:func:`limit_point`) and, if the path
-stiffness has collapsed, reported as a limit load rather than a solver failure.
+stiffness has collapsed, reported as a limit load rather than a solver failure. A failed phase
+warns once (:class:`~dolfinx_granular.LoadPathWarning`: the reason and a remedy); the failed solves
+the stepper recovers from by cutting back are part of its work and stay silent.
 
 :meth:`LoadStepper.phase` gives one phase as a driver of the
 :class:`~dolfinx_granular.drivers.protocol.Driver` protocol (``run(on_converged)`` with one
@@ -28,7 +30,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .protocol import ASKED_TO_STOP, failure
+from .protocol import (
+    ASKED_TO_STOP,
+    UNCONFINED_RELAXED,
+    LoadPathWarning,
+    failure,
+    unconfined_relaxed,
+    warn_failure,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -159,6 +168,8 @@ class LoadStepper:
         easy_iterations: a converged step with at most this many Newton steps is easy (Newton
             to the energy norm 1e-20 of the paper takes 4-8 steps from a good start).
         log: callable taking one progress line (e.g. ``print`` on rank 0), or None.
+        warn: a phase that gives up issues one :class:`~dolfinx_granular.LoadPathWarning` naming
+            the reason and a remedy (False: the caller reports :attr:`failed` itself).
 
     Attributes:
         cutbacks: every :class:`Cutback` so far, in order.
@@ -186,6 +197,7 @@ class LoadStepper:
         grow: float = 1.5,
         easy_iterations: int = 8,
         log: Callable[[str], object] | None = None,
+        warn: bool = True,
     ) -> None:
         if max_cutbacks < 0 or grow < 1.0 or easy_iterations < 0 or not 0 < min_fraction <= 1:
             raise ValueError(
@@ -197,6 +209,7 @@ class LoadStepper:
         self.grow = float(grow)
         self.easy_iterations = int(easy_iterations)
         self.log = log or (lambda line: None)
+        self.warn = bool(warn)
         self.cutbacks: list[Cutback] = []
         self.step = 0
         self.dt = None
@@ -312,7 +325,8 @@ class LoadStepper:
         V = u.function_space
         n_owned = V.dofmap.index_map.size_local * V.dofmap.index_map_bs
         saved = u.x.array[:n_owned].copy()
-        result = self.solver.solve()
+        # (a failed solve is cut back: the phase warns once if it gives up, not every solve)
+        result = self.solver.solve(warn=False)
         du = u.x.array[:n_owned] - saved
         return result, float(np.sqrt(V.mesh.comm.allreduce(du @ du)))
 
@@ -337,6 +351,38 @@ class LoadStepper:
                 f"extrapolates to zero at t = {limit['t_estimate']:.6g}; no larger load has "
                 "an equilibrium nearby (load control cannot pass a limit point)"
             )
+        if self.warn:
+            how = f"after {self.max_cutbacks} cut-backs in a row"
+            how = "at the smallest increment" if smallest else how
+            reason = cut.reason.rstrip(".")
+            warn_failure(
+                f"load phase {phase!r} failed {how}: t = {t:.6g} -> {target:.6g} ({reason}); "
+                f"u and the materials are at the last converged state, t = {t:.6g}",
+                LoadPathWarning,
+                self._remedy(limit, cut.reason),
+            )
+
+    def _remedy(self, limit, reason):
+        """What to do about a phase that gave up (limit: the :func:`limit_point` dict or None)."""
+        if limit is not None:
+            return (
+                f"the path stiffness fell to {100 * limit['stiffness_ratio']:.1f} % of its "
+                f"initial value, extrapolating to zero at t = {limit['t_estimate']:.6g}: a limit "
+                "load, which load control cannot pass; follow the path past it with ArcLength"
+            )
+        if unconfined_relaxed(getattr(self.solver, "materials", ())):
+            return UNCONFINED_RELAXED
+        if "lost every contact" in reason:
+            return (
+                "the granular material carries no tension: confine it (a confining load, or "
+                "a confined packing held by holding_traction) or stabilise the open points "
+                "(GranularMaterial(..., stabilise=1e-3))"
+            )
+        return (
+            f"smaller load increments, more cut-backs in a row (LoadStepper(max_cutbacks=...), "
+            f"now {self.max_cutbacks}) or a smaller smallest increment (min_fraction, now "
+            f"{self.min_fraction:g})"
+        )
 
 
 class LoadPhase:

@@ -24,7 +24,9 @@ Failed: u and the material data return to the state the solve started from, and 
 why (an RVE outside its range, a singular Jacobian where every contact has opened, a PETSc error,
 the iteration limit, or stagnation: the residual has not gone below its best value for
 ``stagnation_it`` Newton steps, typically Newton cycling between contact sets); nothing raises, so
-that a load stepper (:mod:`dolfinx_granular.drivers.loading`) can cut the step back.
+that a load stepper (:mod:`dolfinx_granular.drivers.loading`) can cut the step back. A failed
+solve called by the user warns once (:class:`~dolfinx_granular.SolveFailedWarning`: the reason and
+a remedy); the stepper's solves do not, the stepper warns if it gives up.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from . import linear_solver as linear
 from .convergence import CONVERGED, MAX_IT, NAN, ConvergenceTest
 from .convergence import STAGNATION as STAGNATION_VERDICT
 from .problem import GranularProblem, collect_garbage
+from .protocol import UNCONFINED_RELAXED, SolveFailedWarning, unconfined_relaxed, warn_failure
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -367,12 +370,14 @@ class NewtonSolver:
 
     # -- driver ------------------------------------------------------------------------------------
 
-    def solve(self) -> SolveResult:
+    def solve(self, *, warn: bool = True) -> SolveResult:
         """Newton solve from the current u (Dirichlet values imposed first).
 
         Converged: u holds the solution, the material data belong to it and the materials'
         history is committed. Failed: u and the material data are those the solve started from;
-        the result says why.
+        the result says why, and with ``warn`` one :class:`~dolfinx_granular.SolveFailedWarning`
+        names the reason and a remedy (drivers that cut a failed solve back pass False: they
+        warn once if the whole load path fails).
         """
         self.test.reset()
         self._error, self._stagnated, self._verdict, self._raised = None, False, 0, None
@@ -405,7 +410,28 @@ class NewtonSolver:
                 self.problem.commit()
             else:
                 self.problem.restore(start)
+        if warn and not result.converged:
+            self._warn_failed(result)
         return result
+
+    def _warn_failed(self, result):
+        """The one :class:`SolveFailedWarning` of a failed solve: its reason and a remedy."""
+        if unconfined_relaxed(self.materials):
+            remedy = UNCONFINED_RELAXED
+        else:
+            remedy = (
+                "take the load in smaller steps: LoadStepper(solver).run(name, set_load, "
+                "increment) cuts a failed step back by itself; near the largest load the "
+                "structure carries, follow the path past it with ArcLength"
+            )
+            if result.reason_name == "DIVERGED_MAX_IT":
+                remedy = f"allow more Newton steps (max_it, now {self.max_it}), or {remedy}"
+        warn_failure(
+            f"Newton solve failed after {result.iterations} Newton steps ({result.reason_name}): "
+            f"{result.why.rstrip('.')}; u and the materials are back at the state it started from",
+            SolveFailedWarning,
+            remedy,
+        )
 
     def _run_snes(self):
         """``snes.solve``; a PETSc error message or None."""

@@ -12,17 +12,66 @@ its end, fails, or is asked to stop:
 * one record per converged increment, an :class:`IncrementRecord`;
 * ``failed``: None, or a :func:`failure` dict;
 * ``stopped``: None, or why the driver stopped before its natural end or failure (a str).
+
+A failure is also said once as a warning naming the reason and a remedy: a
+:class:`SolveFailedWarning` from a solve the user called, a :class:`LoadPathWarning` from a driver
+that has given up (the failed solves it recovered from by cutting back stay silent). Every rank
+warns alike (the failure is collective), so that a filter turning them into errors
+(``warnings.simplefilter("error", LoadPathWarning)``) acts on all ranks.
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..laws.relaxed import RelaxedRVE
+from ..laws.taylor import PRESTRESS_WARNING, _user_stacklevel
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
 #: ``stopped`` of a driver whose ``on_converged`` returned False (a stop the caller asked for)
 ASKED_TO_STOP = "asked to stop"
+
+
+class SolveFailedWarning(UserWarning):
+    """A :meth:`~dolfinx_granular.NewtonSolver.solve` failed (u and the materials are back where
+    it started); the message names the reason and a remedy."""
+
+
+class LoadPathWarning(UserWarning):
+    """A load path (:class:`~dolfinx_granular.LoadStepper`, :class:`~dolfinx_granular.ArcLength`,
+    :class:`~dolfinx_granular.SNESArcLength`) gave up; the message names the reason and a
+    remedy."""
+
+
+#: the remedy of a relaxed RVE on a stress-free packing: it has no shear stiffness once relaxed
+UNCONFINED_RELAXED = (
+    "a RelaxedRVE on a stress-free packing has no shear stiffness once relaxed (the first "
+    "iterate unjams it): build it on confined_packing(packing, k_n, p / k_n) and hold its "
+    "reference stress with holding_traction(material) on the free faces"
+)
+
+
+def unconfined_relaxed(materials: Any) -> bool:
+    """True if a material of ``materials`` carries a RelaxedRVE whose reference stress P(I) is
+    at most the prestress tolerance of a stress-free packing (1e-6 of its modulus)."""
+    for material in materials or ():
+        law = getattr(material, "rve", None)
+        if isinstance(law, RelaxedRVE):
+            P0 = law.stress(np.eye(2)[None], law.initial_state(1))[1][0]
+            if np.linalg.norm(P0) <= PRESTRESS_WARNING * np.linalg.norm(law.small_strain_modulus()):
+                return True
+    return False
+
+
+def warn_failure(message: str, category: type[Warning], remedy: str) -> None:
+    """One warning of ``category``: ``message``, then the remedy, attributed to the first line
+    outside the package (the user's call of the solver or driver)."""
+    warnings.warn(f"{message}. Remedy: {remedy}", category, stacklevel=_user_stacklevel())
 
 
 @runtime_checkable

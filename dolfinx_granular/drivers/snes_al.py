@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from petsc4py import PETSc
 
-from .protocol import ASKED_TO_STOP, failure
+from .protocol import ASKED_TO_STOP, LoadPathWarning, failure, warn_failure
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -64,6 +64,8 @@ class SNESArcLength:
         prefix: PETSc options prefix.
         petsc_options: more options under ``prefix`` (they override the defaults: ``psisq``
             0, ``lambda_min`` -2, 500 continuation steps, 30 Newton steps, rtol 1e-12, LU).
+        warn: a failed run issues one :class:`~dolfinx_granular.LoadPathWarning` naming the
+            reason and a remedy (False: the caller reports :attr:`failed` itself).
 
     Attributes:
         failed: None, or a :func:`~dolfinx_granular.drivers.protocol.failure` dict.
@@ -84,6 +86,7 @@ class SNESArcLength:
         step_size: float = 0.05,
         prefix: str = "granular_al_",
         petsc_options: Mapping[str, Any] | None = None,
+        warn: bool = True,
     ) -> None:
         if not has_newtonal():
             version = ".".join(str(v) for v in PETSc.Sys.getVersion())
@@ -95,6 +98,7 @@ class SNESArcLength:
         self.load, self.target = load, float(target)
         self.f = self.problem.load_vector(external)
         self.failed, self.stopped, self.lam = None, None, 0.0
+        self.warn = bool(warn)
         opts = {
             "snes_type": "newtonal",
             "snes_newtonal_step_size": step_size,
@@ -150,7 +154,7 @@ class SNESArcLength:
             if reason <= 0:
                 self.problem.restore(start)
                 why = f"SNESNEWTONAL: {_REASONS.get(reason, reason)} at lam = {self.lam:.6g}"
-                self.failed = failure("path", 1, 0.0, why)
+                self._give_up(why)
                 return False
             self.problem.residual(x, self.b)  # u = x, the materials there
             self.problem.commit()
@@ -162,6 +166,16 @@ class SNESArcLength:
         if on_converged is not None and on_converged(record) is False:
             self.stopped = ASKED_TO_STOP
         return True
+
+    def _give_up(self, why):
+        """Record the failure, and warn once."""
+        self.failed = failure("path", 1, 0.0, why)
+        if self.warn:
+            warn_failure(
+                f"path following stopped: {why}; u and the materials are back at the start",
+                LoadPathWarning,
+                "a smaller step_size, or ArcLength (cut-backs of failed increments)",
+            )
 
     def destroy(self) -> None:
         """Free the PETSc objects (collective)."""

@@ -18,8 +18,9 @@ ill-posed.)
 stabilising stress included); the Cauchy stress (d, d) of the law at that F and the committed
 state (as ``material.cauchy()``: without a stabiliser); the contact statistics of
 :mod:`~dolfinx_granular.laws.validity` (active contacts, mean coordination number 2 contacts /
-particles, largest overlap over the smaller radius; NaN for a law without
-``overlap_statistics``). Units: Pa, m.
+particles, largest overlap over the smaller radius): of the law's ``overlap_statistics(F)``
+(Taylor, frictional), or of its ``contacts(F, state)`` at the state of the last update (the
+relaxed RVE: the disks where they moved to); NaN for a law with neither. Units: Pa, m.
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ class ProbeResult:
         distance: (m,) |points - targets| (m).
         F, P, cauchy: (m, d, d) as in :class:`PointValues`.
         contacts: (m,) float, active contacts in the point's RVE (NaN: a law without
-            ``overlap_statistics``).
+            ``overlap_statistics`` or ``contacts``).
         coordination: (m,) 2 contacts / particles.
         max_overlap_ratio: (m,) largest overlap / smaller radius (:mod:`validity`).
     """
@@ -152,12 +153,31 @@ def _values_at(material, idx):
     P = material.P.x.array.reshape(-1, d, d)[slots]
     committed = material.export_state()
     sigma = law.cauchy(F) if committed is None else law.cauchy(F, committed.take(idx))
-    stats = np.full((idx.size, 2), np.nan)
-    if callable(getattr(law, "overlap_statistics", None)):
-        ratio, contacts = law.overlap_statistics(F)
-        stats[:, 0], stats[:, 1] = contacts, ratio
+    stats = _contact_statistics(material, idx, F)
     flat = [material.points[idx], F.reshape(-1, d * d), P.reshape(-1, d * d)]
     return np.hstack([*flat, sigma.reshape(-1, d * d), stats])
+
+
+def _contact_statistics(material, idx, F):
+    """(k, 2) [active contacts, largest overlap / smaller radius] at local points idx and their
+    F (k, d, d); NaN for a law that has neither ``overlap_statistics(F)`` nor ``contacts(F,
+    state)``."""
+    law, stats = material.rve, np.full((idx.size, 2), np.nan)
+    if callable(getattr(law, "overlap_statistics", None)):  # overlaps set by F alone (Taylor)
+        ratio, contacts = law.overlap_statistics(F)
+        stats[:, 0], stats[:, 1] = contacts, ratio
+        return stats
+    state = getattr(material, "trial_state", None)
+    if state is None or not callable(getattr(law, "contacts", None)):
+        return stats
+    # the relaxed RVE: the contacts of its disks where they moved to at F (the state of the
+    # last update, the committed one after a solve)
+    radii = law.packing.radii
+    for k, i in enumerate(idx):
+        c = law.contacts(F[k], state.take([i]))
+        smaller = radii[c.pairs].min(axis=1)  # (m,) of the two disks of each contact
+        stats[k] = len(c.overlap), np.max(c.overlap / smaller, initial=0.0)
+    return stats
 
 
 def probe(material: Any, points: ArrayLike) -> ProbeResult:
