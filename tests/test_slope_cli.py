@@ -114,6 +114,8 @@ def test_step_log_after_cutbacks(tmp_path):
         # the time left while nominal steps remain (none once cut-backs passed their count)
         assert re.search(r"; ~\d+(\.\d)? (s|min|h) left$", line) or info["step"] >= 3, line
     assert proc.stdout.splitlines()[-1].startswith("slope: failed after ")
+    # said once, in the run's own log: no warning of the stepper or the solver beside it
+    assert "LoadPathWarning" not in proc.stderr and "SolveFailedWarning" not in proc.stderr
 
 
 def test_help_is_printed_once_under_mpi():

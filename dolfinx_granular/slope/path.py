@@ -68,6 +68,7 @@ def load_path(
         peak_refinement=16.0,
         log=lambda line: say("  " + line),
         stop=_stop(full, o.unload_fraction),
+        warn=False,  # (the run reports a failed path in its log and summary.json)
     )
     al.ds_max = al.ds  # the arc of the first (nominal) step at most: the softening branch bends
     if restart_state is not None:

@@ -232,8 +232,11 @@ class SlopeRun:
             if self.model.material.has_state
             else None
         )
-        self.stepper = LoadStepper(
-            self.model.solver, max_cutbacks=o.max_cutbacks, log=lambda line: self.say("  " + line)
+        self.stepper = LoadStepper(  # (warn=False: the run reports a failure in its log)
+            self.model.solver,
+            max_cutbacks=o.max_cutbacks,
+            log=lambda line: self.say("  " + line),
+            warn=False,
         )
         self.rows, self.iterations, self.step_info, self.u_history = [], [], [], []
         self.step, self.failed, self.stopped = 0, None, None
