@@ -474,15 +474,10 @@ class SlopeRun:
         )
 
     def _time_left(self, step):
-        """``; ~3.2 min left`` for a step's log line: the mean time of this run's steps so far
-        times the nominal steps still to come (an upper bound under path following, which
-        may stop at its peak earlier; cut-backs add steps)."""
-        done, left = step - self._steps_before, self.n_nominal - step
-        if done <= 0 or left <= 0:
-            return ""
-        seconds = (time.perf_counter() - self._path_started) / done * left
-        bound = "at most " if self.options.path_following else ""
-        return f"; {bound}~{_duration(seconds)} left"
+        """``; ~3.2 min left`` for a step's log line (see :func:`time_left_note`)."""
+        elapsed = time.perf_counter() - self._path_started
+        left = self.n_nominal - step
+        return time_left_note(elapsed, step - self._steps_before, left, self.options.path_following)
 
     def _overlaps(self, step):
         """The step's validity measure for ``step_info`` (collective); warns once per run."""
@@ -559,6 +554,18 @@ class SlopeRun:
         return failure(
             self.options.phases[i], self.step + 1, lam, path_failure(self.model, driver.failed)
         )
+
+
+def time_left_note(elapsed: float, done: int, left: int, bound: bool = False) -> str:
+    """``; ~3.2 min left``: the mean time of the ``done`` steps so far (``elapsed`` seconds)
+    times the ``left`` nominal steps to come ('' under 10 s, or with none done or left);
+    ``bound``: "at most" (path following may stop at its peak earlier). Cut-backs add steps."""
+    if done <= 0 or left <= 0:
+        return ""
+    seconds = elapsed / done * left
+    if seconds < 10:
+        return ""
+    return f"; {'at most ' if bound else ''}~{_duration(seconds)} left"
 
 
 def _duration(seconds):
