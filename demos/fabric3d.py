@@ -18,12 +18,14 @@
 # %%
 """Contact-normal fabric of a 3-D packing under affine deformations, as maps on the sphere.
 
-    python demos/fabric3d.py [--particles 1000] [--strain 0.02] [--out results/fabric3d]
+    python demos/fabric3d.py [--particles 1000] [--strain 0.02] [--out results/fabric3d] [--force]
 
-``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests: 100 spheres. Writes
-``fabric3d.csv`` (one row per deformation: contacts, fabric tensor, anisotropy, major axis) and
-``fabric3d.png`` to ``--out``; existing files there are kept unless ``--overwrite``.
-Under MPI, rank 0 does the work (one packing is a serial job).
+``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests: 100 spheres, written to
+``results/fabric3d-small`` by default. Writes ``fabric3d.csv`` (one row per deformation:
+contacts, fabric tensor, anisotropy, major axis) and ``fabric3d.png`` to ``--out``. An ``--out``
+that holds them is refused (exit status 2) unless ``--force``, which replaces those files and no
+others (``--overwrite``: its old name, deprecated). Under MPI, rank 0 does the work (one packing
+is a serial job).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import argparse
 import csv
 import os
 import sys
+import warnings
 
 from dolfinx_granular import (
     anisotropy_3d,
@@ -39,17 +42,21 @@ from dolfinx_granular import (
     fabric_tensor,
     generate_packing,
 )
+from dolfinx_granular.io.outfolder import claim_or_refuse, default_out
 from dolfinx_granular.io.plotting import plot_sphere_densities
 
 import numpy as np
 from mpi4py import MPI
 
-OUTPUTS = ("fabric3d.csv", "fabric3d.png")
+#: the files it writes in --out (what --force replaces)
+FILES = ("fabric3d.csv", "fabric3d.png")
 #: the fabric tensor's components in the CSV
 FABRIC = ("xx", "yy", "zz", "xy", "xz", "yz")
 
 
-def parse(argv=None):
+def parse_args(argv=None):
+    """The options; ``out`` resolved (``results/fabric3d[-small]``), ``small`` with
+    ``DEMO_SMALL=1``, ``force`` with the deprecated ``--overwrite``."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=int, default=1000, help="spheres in the packing")
     ap.add_argument("--seed", type=int, default=0, help="seed of the packing")
@@ -57,12 +64,20 @@ def parse(argv=None):
         "--strain", type=float, default=0.02, help="compressive strain and shear (0 < strain < 0.2)"
     )
     ap.add_argument("--delta", type=float, default=15.0, help="cone of influence in degrees")
-    ap.add_argument("--out", default=os.path.join("results", "fabric3d"))
-    ap.add_argument("--overwrite", action="store_true", help="replace the files in --out")
+    ap.add_argument(
+        "--out", help="output folder (default results/fabric3d, --small: results/fabric3d-small)"
+    )
+    ap.add_argument("--force", action="store_true", help="replace the files in --out (no others)")
+    ap.add_argument("--overwrite", action="store_true", help="deprecated: --force")
     ap.add_argument("--small", action="store_true", help="the reduced run of the tests")
     a = ap.parse_args(argv)
     if not 0.0 < a.strain < 0.2:
         ap.error(f"--strain must lie in (0, 0.2), got {a.strain}")
+    a.small = a.small or os.environ.get("DEMO_SMALL") == "1"
+    a.out = a.out or default_out("fabric3d", a.small)
+    if a.overwrite:  # (old command lines keep working)
+        warnings.warn("--overwrite is deprecated: use --force", FutureWarning, stacklevel=2)
+        a.force = True
     return a
 
 
@@ -120,17 +135,17 @@ def write(out, rows, delta):
 
 
 def main(argv=None):
-    a = parse(argv)
-    if MPI.COMM_WORLD.rank != 0:
-        return 0
-    small = a.small or os.environ.get("DEMO_SMALL") == "1"
-    existing = [n for n in OUTPUTS if os.path.exists(os.path.join(a.out, n))]
-    if existing and not a.overwrite:
-        print(f"fabric3d: {a.out} holds {', '.join(existing)}: kept; --overwrite replaces them",
-              file=sys.stderr)  # fmt: skip
+    comm = MPI.COMM_WORLD
+    with warnings.catch_warnings():
+        if comm.rank != 0:  # (one deprecation notice, not one per rank)
+            warnings.simplefilter("ignore", FutureWarning)
+        a = parse_args(argv)
+    # every rank takes rank 0's answer (exit status 2 alike), then rank 0 works alone
+    if claim_or_refuse(a.out, FILES, a.force, "fabric3d", comm):
         return 2
-    os.makedirs(a.out, exist_ok=True)
-    particles = 100 if small else a.particles
+    if comm.rank != 0:
+        return 0
+    particles = 100 if a.small else a.particles
     packing = generate_packing(particles, dim=3, seed=a.seed)
     rows = fabric_rows(packing, deformations(a.strain))
     for r in rows:

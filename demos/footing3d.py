@@ -18,12 +18,14 @@
 # %%
 """A rectangular footing near the crest of a 3-D slope (hexahedra, sphere RVEs).
 
-    mpirun -n 2 python demos/footing3d.py [--particles 1000] [--out results/footing3d]
+    mpirun -n 2 python demos/footing3d.py [--particles 1000] [--out results/footing3d] [--force]
 
 ``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests: 100 spheres, a coarse
-mesh of 120 hexahedra. Writes ``summary.json``, ``convergence.csv``, ``footing3d.xdmf``
-(ParaView) and ``footing3d.png`` to ``--out``; an existing run there is kept unless
-``--overwrite``.
+mesh of 120 hexahedra, written to ``results/footing3d-small`` by default. Writes
+``summary.json`` (``status``: converged, failed, ...), ``convergence.csv``, ``footing3d.xdmf``
+(ParaView) and ``footing3d.png`` to ``--out``. An ``--out`` that holds a run is refused (exit
+status 2) unless ``--force``, which replaces those files and no others (``--overwrite``: its
+old name, deprecated).
 """
 
 from __future__ import annotations
@@ -31,9 +33,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 from dolfinx_granular.footing3d.geometry import FootingGeometry
+from dolfinx_granular.footing3d.run import FILES as FILES  # (what --force replaces)
 from dolfinx_granular.footing3d.run import FootingOptions, run_footing
+from dolfinx_granular.io.outfolder import OutFolderError, default_out, refused
 from dolfinx_granular.slope.geometry import SlopeGeometry
 
 from mpi4py import MPI
@@ -50,7 +55,9 @@ from mpi4py import MPI
 SMALL = FootingGeometry(SlopeGeometry(rows=3), depth=15.5, layers=2, footing_layers=(0, 1))
 
 
-def parse(argv=None):
+def parse_args(argv=None):
+    """The options; ``out`` resolved (``results/footing3d[-small]``), ``small`` with
+    ``DEMO_SMALL=1``, ``force`` with the deprecated ``--overwrite``."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=int, default=1000, help="spheres per RVE")
     ap.add_argument("--seed", type=int, default=0, help="seed of the packing")
@@ -60,11 +67,22 @@ def parse(argv=None):
     ap.add_argument("--footing-steps", type=int, default=4)
     ap.add_argument("--footing-factor", type=float, default=1.0, help="of the 2-D pressure")
     ap.add_argument("--linear-solver", choices=("direct", "iterative"), default="iterative")
-    ap.add_argument("--out", default=os.path.join("results", "footing3d"))
-    ap.add_argument("--overwrite", action="store_true", help="replace a run in --out")
+    ap.add_argument(
+        "--out", help="output folder (default results/footing3d, --small: results/footing3d-small)"
+    )
+    ap.add_argument(
+        "--force", action="store_true", help="replace the run in --out (its files, no others)"
+    )
+    ap.add_argument("--overwrite", action="store_true", help="deprecated: --force")
     ap.add_argument("--no-figure", action="store_true")
     ap.add_argument("--small", action="store_true", help="the reduced run of the tests")
-    return ap.parse_args(argv)
+    a = ap.parse_args(argv)
+    a.small = a.small or os.environ.get("DEMO_SMALL") == "1"
+    a.out = a.out or default_out("footing3d", a.small)
+    if a.overwrite:  # (old command lines keep working)
+        warnings.warn("--overwrite is deprecated: use --force", FutureWarning, stacklevel=2)
+        a.force = True
+    return a
 
 
 # %% [markdown]
@@ -73,8 +91,12 @@ def parse(argv=None):
 
 # %%
 def main(argv=None):
-    a = parse(argv)
-    small = a.small or os.environ.get("DEMO_SMALL") == "1"
+    comm = MPI.COMM_WORLD
+    with warnings.catch_warnings():
+        if comm.rank != 0:  # (one deprecation notice, not one per rank)
+            warnings.simplefilter("ignore", FutureWarning)
+        a = parse_args(argv)
+    small = a.small
     options = FootingOptions(
         particles=100 if small else a.particles,
         seed=a.seed,
@@ -87,13 +109,10 @@ def main(argv=None):
         figure=not a.no_figure,
         geometry=SMALL if small else None,
     )
-    comm = MPI.COMM_WORLD
-    try:
-        s = run_footing(comm, options, a.out, overwrite=a.overwrite)
-    except FileExistsError as err:
-        if comm.rank == 0:
-            print(f"footing3d: {err}", file=sys.stderr)
-        return 2
+    try:  # (the folder is claimed first: a refusal costs no work)
+        s = run_footing(comm, options, a.out, force=a.force)
+    except OutFolderError as err:
+        return refused(err, comm)
     if comm.rank == 0:
         share = ", ".join(f"{k} {100 * v:.0f} %" for k, v in s["share_per_iteration"].items())
         print(
@@ -102,8 +121,8 @@ def main(argv=None):
             f"{-s['footing_load_N'] / 1e6:.1f} MN, {s['newton_iterations']} Newton iterations, "
             f"{s['seconds']:.0f} s; per iteration: {share}"
         )
-        print(f"wrote {a.out}")
-    return 0 if s["completed"] else 1
+        print(f"wrote {a.out} ({s['status']})")
+    return 0 if s["status"] == "converged" else 1
 
 
 if __name__ == "__main__":

@@ -19,10 +19,12 @@
 # %%
 """Frictional Taylor RVE under confined simple shear: hysteresis, mobilised q/p, dissipation.
 
-    python demos/friction_study.py [--out results/friction_study] [--small] [--no-cache]
+    python demos/friction_study.py [--out results/friction_study] [--small] [--no-cache] [--force]
 
-``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests; under ``mpirun`` rank 0 runs
-the (serial) study and the other ranks exit.
+``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests, written to
+``results/friction_study-small`` by default; under ``mpirun`` rank 0 runs the (serial) study
+and the other ranks exit. An ``--out`` that holds the study's tables or figures is refused (exit
+status 2) unless ``--force``, which replaces those files and no others (the packing cache stays).
 
 * packing: ``generate_packing(n, seed)`` through
   :class:`~dolfinx_granular.packings.cache.PackingCache`
@@ -57,6 +59,7 @@ import time
 from dataclasses import dataclass
 
 from dolfinx_granular.drivers.material_point import ControlError, solve_point
+from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
 from dolfinx_granular.io.shear_figures import (
     dissipation_figure,
     hysteresis_figure,
@@ -87,6 +90,10 @@ DPI = 110
 
 FULL = dict(particles=350, seeds=(0, 1, 2, 3, 4), quarter_steps=40, cycles=3, monotonic_steps=200)
 SMALL = dict(particles=70, seeds=(0,), quarter_steps=20, cycles=2, monotonic_steps=50)
+#: the files it writes in --out (what --force replaces; the packing cache is kept)
+FILES = ("friction_cycles.csv", "friction_monotonic.csv", "friction_summary.csv",
+         "friction_hysteresis.png", "friction_qp_gamma.png", "friction_qp_mu.png",
+         "friction_dissipation.png")  # fmt: skip
 
 
 # %% [markdown]
@@ -502,13 +509,15 @@ def print_tables(say, header, rows, energy, rtol):
             )
 
 
-def run(out="results/friction_study", small=False, use_cache=True, verbose=True):
+def run(out="results/friction_study", small=False, use_cache=True, verbose=True, force=False):
     """Run the study, write CSVs and figures to ``out``; returns a summary dict (runtime_s,
-    config, loop_rtol, summary header and rows, per-cycle energy per mu)."""
+    config, loop_rtol, summary header and rows, per-cycle energy per mu). An ``out`` that holds
+    a study raises ``RunExistsError`` first, unless ``force`` (which removes its files, no
+    others; the packing cache stays)."""
+    claim_out(out, FILES, force, "friction_study")
     t_start = time.perf_counter()
     cfg = SMALL if small else FULL
     say = print if verbose else (lambda *a, **k: None)
-    os.makedirs(out, exist_ok=True)
     cache = PackingCache(os.path.join(out, "packings"), use_cache)
     seeds, m, cycles = list(cfg["seeds"]), cfg["quarter_steps"], cfg["cycles"]
     packings = [cache.get(cfg["particles"], s) for s in seeds]
@@ -542,9 +551,17 @@ def run(out="results/friction_study", small=False, use_cache=True, verbose=True)
     )
 
 
-def main(argv=None):
+def parse_args(argv=None):
+    """The options; ``out`` resolved (``results/friction_study[-small]``)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", default="results/friction_study", help="output directory")
+    parser.add_argument(
+        "--out",
+        help="output folder (default results/friction_study, --small: "
+        "results/friction_study-small)",
+    )
+    parser.add_argument(
+        "--force", action="store_true", help="replace the study in --out (its files, no others)"
+    )
     parser.add_argument(
         "--small",
         action="store_true",
@@ -553,22 +570,33 @@ def main(argv=None):
     )
     parser.add_argument("--no-cache", action="store_true", help="regenerate the packings")
     args = parser.parse_args(argv)
-    if _mpi_rank() == 0:  # a serial study: under mpirun, rank 0 runs it and the others rest
-        run(args.out, small=args.small, use_cache=not args.no_cache)
+    args.out = args.out or default_out("friction_study", args.small)
+    return args
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    comm = _world()
+    # every rank takes rank 0's answer (exit status 2 alike) before any work
+    if claim_or_refuse(args.out, FILES, args.force, "friction_study", comm):
+        return 2
+    if comm is None or comm.rank == 0:  # a serial study: rank 0 runs it, the others rest
+        run(args.out, small=args.small, use_cache=not args.no_cache, force=args.force)
     return 0
 
 
-def _mpi_rank():
-    """This process's rank in MPI.COMM_WORLD (0 without mpi4py: the study needs no MPI)."""
+def _world():
+    """MPI.COMM_WORLD, or None without mpi4py (the study needs no MPI)."""
     try:
         from mpi4py import MPI
     except ImportError:
-        return 0
-    return MPI.COMM_WORLD.rank
+        return None
+    return MPI.COMM_WORLD
 
 
 # %% [markdown]
-# Run as a script; in a notebook call `run("results/friction_study")` instead of this cell.
+# Run as a script; in a notebook call `run("results/friction_study")` instead of this cell
+# (`force=True` replaces an earlier study there).
 
 # %%
 if __name__ == "__main__":

@@ -15,11 +15,13 @@
 # and boundary conditions), a **driver** (Newton's method inside adaptive load stepping) and the
 # **output** (displacement and Cauchy stress in XDMF, a stress probe per load step as CSV).
 #
-#     python demos/granular_column.py [--out results/granular_column] [--small]
+#     python demos/granular_column.py [--out results/granular_column] [--small] [--force]
 #     mpirun -n 2 python demos/granular_column.py --small
 #
 # ``--small`` (or ``DEMO_SMALL=1`` in the environment, e.g. for a notebook) takes a 70-particle
-# packing, a 4 x 4 mesh and 3 load steps; the full run 350 particles, 8 x 8 cells and 6 steps.
+# packing, a 4 x 4 mesh and 3 load steps, written to ``results/granular_column-small`` by
+# default; the full run 350 particles, 8 x 8 cells and 6 steps. An ``--out`` that holds a run is
+# refused (exit status 2) unless ``--force``, which replaces its files and no others.
 # Serial or under MPI: every line below runs on every rank.
 
 # %%
@@ -43,6 +45,7 @@ from dolfinx_granular import (
 from dolfinx_granular.drivers.material_point import MaterialPoint
 from dolfinx_granular.fem.compat import repair_xdmf
 from dolfinx_granular.fem.fields import cauchy_output
+from dolfinx_granular.io.outfolder import OutFolderError, claim_out, default_out, refused
 
 import numpy as np
 import ufl
@@ -54,6 +57,8 @@ HEIGHT = 10.0  # side of the column, m
 PRESSURE = 3e5  # final surface pressure on top, Pa
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of Meier, Steinmann & Kuhl)
 PROBE = (5.0, 2.0)  # where the stress is recorded, m
+#: the files it writes in its folder (what --force replaces)
+FILES = ("column.xdmf", "column.h5", "probe.csv", "summary.json")
 
 
 # %% [markdown]
@@ -195,12 +200,13 @@ def write_results(out, rows, stepper, settlement, calibration):
 
 
 # %%
-def run(out="results/granular_column", small=False, comm=MPI.COMM_WORLD):
+def run(out="results/granular_column", small=False, comm=MPI.COMM_WORLD, force=False):
     """Solve the column and write column.xdmf, probe.csv and summary.json to ``out``; returns
-    the summary dict (on every rank)."""
+    the summary dict (on every rank). An ``out`` that holds a run raises ``RunExistsError``
+    first, unless ``force`` (which removes its files, no others)."""
+    claim_out(out, FILES, force, "granular_column", comm)
     cfg = SIZES["small" if small else "full"]
     say = print if comm.rank == 0 else None
-    os.makedirs(out, exist_ok=True)
     law = make_law(comm, cfg["particles"])
     calibration = oedometer(law, PRESSURE)
     if say:
@@ -215,9 +221,17 @@ def run(out="results/granular_column", small=False, comm=MPI.COMM_WORLD):
     return comm.bcast(summary)
 
 
-def main(argv=None):
+def parse_args(argv=None):
+    """The options; ``out`` resolved (``results/granular_column[-small]``)."""
     parser = argparse.ArgumentParser(description="A granular column under a surface load.")
-    parser.add_argument("--out", default="results/granular_column", help="output directory")
+    parser.add_argument(
+        "--out",
+        help="output folder (default results/granular_column, --small: "
+        "results/granular_column-small)",
+    )
+    parser.add_argument(
+        "--force", action="store_true", help="replace the run in --out (its files, no others)"
+    )
     parser.add_argument(
         "--small",
         action="store_true",
@@ -225,11 +239,22 @@ def main(argv=None):
         help="reduced run (tests; also DEMO_SMALL=1)",
     )
     args = parser.parse_args(argv)
-    return 0 if run(args.out, args.small)["converged"] else 1
+    args.out = args.out or default_out("granular_column", args.small)
+    return args
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    try:  # (run claims the folder first: a refusal costs no work)
+        summary = run(args.out, args.small, force=args.force)
+    except OutFolderError as err:
+        return refused(err, MPI.COMM_WORLD)
+    return 0 if summary["converged"] else 1
 
 
 # %% [markdown]
-# Run as a script; in a notebook call `run("results/granular_column", small=True)` instead.
+# Run as a script; in a notebook call `run("results/granular_column-small", small=True)` instead
+# (`force=True` replaces an earlier run there).
 
 # %%
 if __name__ == "__main__":

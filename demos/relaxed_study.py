@@ -18,10 +18,13 @@
 # %%
 """Relaxed against Taylor RVE: bulk and shear moduli over pressure, coordination, confined shear.
 
-    python demos/relaxed_study.py [--out results/relaxed_study] [--small]
+    python demos/relaxed_study.py [--out results/relaxed_study] [--small] [--force]
 
-``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests; under ``mpirun`` rank 0 runs
-the (serial) study and the other ranks exit.
+``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests, written to
+``results/relaxed_study-small`` by default; under ``mpirun`` rank 0 runs the (serial) study and
+the other ranks exit. An ``--out`` that holds the study's tables or figures is refused (exit
+status 2) unless ``--force``, which replaces those files and no others; the packings cached in
+``OUT/packings`` stay and are reused.
 
 * packings: ``generate_packing(n, seed, pressure=p)`` for each target pressure p / k_n: the
   contact network jammed at that pressure, so that compressing it to p keeps its network
@@ -60,6 +63,7 @@ from dolfinx_granular import (
     generate_packing,
 )
 from dolfinx_granular.drivers.confinement import compress, ramp
+from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
 from dolfinx_granular.io.shear_figures import save_figure
 from dolfinx_granular.laws import relaxation
 
@@ -70,6 +74,9 @@ K_N = 2.8e7  # N/m², table 1 of the paper
 FULL = dict(particles=700, seeds=(0, 1, 2), pressures=(1e-5, 1e-4, 1e-3, 1e-2), shear_steps=40)
 SMALL = dict(particles=70, seeds=(0,), pressures=(1e-3, 3e-3), shear_steps=4)
 SHEAR_PRESSURE, MAX_SHEAR = 1e-3, 0.02
+#: the files it writes in --out (what --force replaces; the packing cache is kept)
+FILES = ("moduli.csv", "shear.csv", "relaxed_moduli.png", "relaxed_coordination.png",
+         "relaxed_shear.png")  # fmt: skip
 
 
 # %% [markdown]
@@ -249,11 +256,14 @@ def write_csv(path, rows):
         w.writerows(rows)
 
 
-def run(out="results/relaxed_study", small=False, verbose=True):
-    """Run the study, write the CSVs and figures to ``out``; returns the two tables."""
+def run(out="results/relaxed_study", small=False, verbose=True, force=False):
+    """Run the study, write the CSVs and figures to ``out``; returns the two tables. An ``out``
+    that holds a study raises ``RunExistsError`` first, unless ``force`` (which removes its
+    files, no others)."""
+    claim_out(out, FILES, force, "relaxed_study")
     cfg = SMALL if small else FULL
     say = print if verbose else (lambda *a, **k: None)
-    folder = os.path.join(out, "packings")
+    folder = os.path.join(out, "packings")  # (a cache: kept by force, reused)
     os.makedirs(folder, exist_ok=True)
     t0, rows = time.perf_counter(), []
     for pressure in cfg["pressures"]:
@@ -292,9 +302,16 @@ def run(out="results/relaxed_study", small=False, verbose=True):
     return rows, shear
 
 
-def main(argv=None):
+def parse_args(argv=None):
+    """The options; ``out`` resolved (``results/relaxed_study[-small]``)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", default="results/relaxed_study", help="output directory")
+    parser.add_argument(
+        "--out",
+        help="output folder (default results/relaxed_study, --small: results/relaxed_study-small)",
+    )
+    parser.add_argument(
+        "--force", action="store_true", help="replace the study in --out (its files, no others)"
+    )
     parser.add_argument(
         "--small",
         action="store_true",
@@ -302,22 +319,33 @@ def main(argv=None):
         help="reduced run (tests; also DEMO_SMALL=1)",
     )
     args = parser.parse_args(argv)
-    if _mpi_rank() == 0:  # a serial study: under mpirun, rank 0 runs it and the others rest
-        run(args.out, small=args.small)
+    args.out = args.out or default_out("relaxed_study", args.small)
+    return args
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    comm = _world()
+    # every rank takes rank 0's answer (exit status 2 alike) before any work
+    if claim_or_refuse(args.out, FILES, args.force, "relaxed_study", comm):
+        return 2
+    if comm is None or comm.rank == 0:  # a serial study: rank 0 runs it, the others rest
+        run(args.out, small=args.small, force=args.force)
     return 0
 
 
-def _mpi_rank():
-    """This process's rank in MPI.COMM_WORLD (0 without mpi4py: the study needs no MPI)."""
+def _world():
+    """MPI.COMM_WORLD, or None without mpi4py (the study needs no MPI)."""
     try:
         from mpi4py import MPI
     except ImportError:
-        return 0
-    return MPI.COMM_WORLD.rank
+        return None
+    return MPI.COMM_WORLD
 
 
 # %% [markdown]
-# Run as a script; in a notebook call `run("results/relaxed_study")` instead of this cell.
+# Run as a script; in a notebook call `run("results/relaxed_study")` instead of this cell
+# (`force=True` replaces an earlier study there).
 
 # %%
 if __name__ == "__main__":

@@ -16,10 +16,12 @@
 # %%
 """RVE-size study (section 4 of Meier, Steinmann & Kuhl): figures 2-5 and speed against error.
 
-    python demos/rve_study.py [--out results/rve_study] [--small] [--no-cache]
+    python demos/rve_study.py [--out results/rve_study] [--small] [--no-cache] [--force]
 
-``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests; under ``mpirun`` rank 0 runs
-the (serial) study and the other ranks exit.
+``--small`` (or ``DEMO_SMALL=1``) is the reduced run of the tests, written to
+``results/rve_study-small`` by default; under ``mpirun`` rank 0 runs the (serial) study and the
+other ranks exit. An ``--out`` that holds the study's tables or figures is refused (exit status
+2) unless ``--force``, which replaces those files and no others (the packing cache stays).
 
 * 5 packings each of 70, 350 and 700 particles (seeds 0-4) from the CEN standard sand;
 * figure 2 (sieve curve with a packing's grains), figure 3 (packings and contact-normal densities
@@ -46,6 +48,7 @@ import time
 from dolfinx_granular import TaylorRVE, cen_standard_sand
 from dolfinx_granular.drivers.material_point import MaterialPoint
 from dolfinx_granular.io import plotting
+from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
 from dolfinx_granular.packings.cache import PackingCache
 from dolfinx_granular.packings.fabric import (
     anisotropy,
@@ -71,6 +74,10 @@ FULL = dict(
     steps=20,
 )
 SMALL = dict(fig_sizes=(70,), speed_sizes=(70, 140), seeds=2, speed_seeds=3, steps=4)
+#: the files it writes in --out (what --force replaces; the packing cache is kept)
+FILES = ("summary.json", "packings.csv", "stress_curves.csv", "speed_error.csv",
+         "speed_error.png", "fig2_sieve_curve.png", "fig3_packings_densities.png",
+         "fig4_compression.png", "fig5_shear.png")  # fmt: skip
 
 # name -> (F as a function of the parameter s, axis label); s runs from 0 to MAX_STRAIN
 PATHS = {
@@ -271,12 +278,14 @@ def speed_error(cache, rve_sets, out):
 
 
 # %%
-def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
-    """Run the study, write figures and tables to ``out``; returns a summary dict."""
+def run(out="results/rve_study", small=False, use_cache=True, verbose=True, force=False):
+    """Run the study, write figures and tables to ``out``; returns a summary dict. An ``out``
+    that holds a study raises ``RunExistsError`` first, unless ``force`` (which removes its
+    files, no others; the packing cache stays)."""
+    claim_out(out, FILES, force, "rve_study")
     t_start = time.perf_counter()
     cfg = SMALL if small else FULL
     say = print if verbose else (lambda *a, **k: None)
-    os.makedirs(out, exist_ok=True)
     cache = PackingCache(os.path.join(out, "packings"), use_cache)
     sizes = sorted(set(cfg["fig_sizes"]) | set(cfg["speed_sizes"]))
     packings = {}
@@ -321,9 +330,15 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True):
     return summary
 
 
-def main(argv=None):
+def parse_args(argv=None):
+    """The options; ``out`` resolved (``results/rve_study[-small]``)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", default="results/rve_study", help="output directory")
+    parser.add_argument(
+        "--out", help="output folder (default results/rve_study, --small: results/rve_study-small)"
+    )
+    parser.add_argument(
+        "--force", action="store_true", help="replace the study in --out (its files, no others)"
+    )
     parser.add_argument(
         "--small",
         action="store_true",
@@ -332,22 +347,33 @@ def main(argv=None):
     )
     parser.add_argument("--no-cache", action="store_true", help="regenerate the packings")
     args = parser.parse_args(argv)
-    if _mpi_rank() == 0:  # a serial study: under mpirun, rank 0 runs it and the others rest
-        run(args.out, small=args.small, use_cache=not args.no_cache)
+    args.out = args.out or default_out("rve_study", args.small)
+    return args
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    comm = _world()
+    # every rank takes rank 0's answer (exit status 2 alike) before any work
+    if claim_or_refuse(args.out, FILES, args.force, "rve_study", comm):
+        return 2
+    if comm is None or comm.rank == 0:  # a serial study: rank 0 runs it, the others rest
+        run(args.out, small=args.small, use_cache=not args.no_cache, force=args.force)
     return 0
 
 
-def _mpi_rank():
-    """This process's rank in MPI.COMM_WORLD (0 without mpi4py: the study needs no MPI)."""
+def _world():
+    """MPI.COMM_WORLD, or None without mpi4py (the study needs no MPI)."""
     try:
         from mpi4py import MPI
     except ImportError:
-        return 0
-    return MPI.COMM_WORLD.rank
+        return None
+    return MPI.COMM_WORLD
 
 
 # %% [markdown]
-# Run as a script; in a notebook call `run("results/rve_study", small=True)` instead of this cell.
+# Run as a script; in a notebook call `run("results/rve_study-small", small=True)` instead of
+# this cell (`force=True` replaces an earlier study there).
 
 # %%
 if __name__ == "__main__":

@@ -15,12 +15,16 @@
 # the RVEs have lost strong ellipticity), and the uplift case by path following.
 #
 #     mpirun -n 2 python demos/slope_collapse.py [--particles 700] [--meshes 1 2] [--out DIR]
+#         [--force]
 #
-# ``--small`` (or ``DEMO_SMALL=1``): 70 particles (seed 1), 4 footing steps, the 380-cell mesh only.
+# ``--small`` (or ``DEMO_SMALL=1``): 70 particles (seed 1), 4 footing steps, the 380-cell mesh
+# only, written to ``results/slope_collapse-small`` by default (else ``results/slope_collapse``).
 #
 # Writes ``collapse.png`` (load-settlement curves, and how the RVEs that lost ellipticity spread
 # along the path), ``collapse.csv`` (every converged state of every run) and ``collapse.json``
-# (peak loads, critical points, increments, wall times), and each run's own output folder.
+# (peak loads, critical points, increments, wall times), and each run's own output folder
+# (``load_control_380/``, ``path_380/``, ...). An ``--out`` that holds a study is refused (exit
+# status 2) unless ``--force``, which replaces those files and no others.
 
 # %%
 from __future__ import annotations
@@ -31,9 +35,10 @@ import sys
 import time
 
 from dolfinx_granular import generate_packing
+from dolfinx_granular.io.outfolder import claim_or_refuse, default_out
 from dolfinx_granular.io.runwriter import RunWriter
 from dolfinx_granular.slope import SlopeGeometry, SlopeOptions, run_slope
-from dolfinx_granular.slope.run import clear_run
+from dolfinx_granular.slope.run import RUN_FILES
 
 from mpi4py import MPI
 
@@ -42,6 +47,12 @@ from mpi4py import MPI
 #
 # One packing for all runs; the mesh refinement K multiplies the columns and rows (K² x 380
 # cells); the first footing increment is the nominal step of ``steps``.
+
+#: the files it writes in --out (what --force replaces): its own, and every slope run's in the
+#: runs' folders (whatever meshes an earlier study took)
+FILES = ("collapse.csv", "collapse.json", "collapse.png") + tuple(
+    f"{run}_[0-9]*/{name}" for run in ("load_control", "path", "uplift_path") for name in RUN_FILES
+)
 
 
 def runs(meshes, steps):
@@ -73,9 +84,7 @@ def runs(meshes, steps):
 
 def run_all(packing, meshes, steps, out, comm, say):
     results = {}
-    for name, options in runs(meshes, steps):
-        if comm.rank == 0:  # no file of an earlier study beside this one's (e.g. its figures)
-            clear_run(os.path.join(out, name))
+    for name, options in runs(meshes, steps):  # (the folder claimed: no earlier run's files)
         t0 = time.perf_counter()
         s = run_slope(
             packing, options, out=os.path.join(out, name), comm=comm, figure=False, verbose=False
@@ -165,7 +174,9 @@ def records(results):
 SMALL = dict(particles=70, seed=1, steps=4, meshes=[1])
 
 
-def main(argv=None):
+def parse_args(argv=None):
+    """The options, ``--small``'s where not given; ``out`` resolved
+    (``results/slope_collapse[-small]``)."""
     p = argparse.ArgumentParser(
         description="The slope's collapse: load control and path "
         "following on two meshes, and the uplift."
@@ -174,7 +185,14 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, default=20, help="nominal footing steps")
     p.add_argument("--meshes", type=int, nargs="+", default=[1, 2], help="refinements K")
-    p.add_argument("--out", default="results/slope_collapse")
+    p.add_argument(
+        "--out",
+        help="output folder (default results/slope_collapse, --small: "
+        "results/slope_collapse-small)",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="replace the study in --out (its files, no others)"
+    )
     p.add_argument(
         "--small",
         action="store_true",
@@ -184,34 +202,40 @@ def main(argv=None):
     if p.parse_args(argv).small:
         p.set_defaults(**SMALL)
     a = p.parse_args(argv)
+    a.out = a.out or default_out("slope_collapse", a.small)
+    return a
+
+
+def main(argv=None):
+    a = parse_args(argv)
     comm = MPI.COMM_WORLD
+    if claim_or_refuse(a.out, FILES, a.force, "slope_collapse", comm):  # (before any work)
+        return 2
     say = (lambda *x: print(*x, flush=True)) if comm.rank == 0 else (lambda *x: None)
     packing = comm.bcast(generate_packing(a.particles, seed=a.seed) if comm.rank == 0 else None)
     results = run_all(packing, a.meshes, a.steps, a.out, comm, say)
     if comm.rank == 0:
-        rows, summary = records(results)
-        writer = RunWriter(a.out, comm)  # (atomic files, floats to 17 digits)
-        writer.csv(
-            "collapse.csv",
-            [
-                "run",
-                "cells",
-                "step",
-                "settlement_m",
-                "footing_load_MN_per_m",
-                "non_elliptic_points",
-            ],
-            rows,
-        )
-        writer.json("collapse.json", summary)
-        figure(results, os.path.join(a.out, "collapse.png"))
-        for name, s in summary.items():
-            peak = s["peak"] or {}
-            say(
-                f"{name}: {s['completed_steps']} steps, peak x{abs(peak.get('load_factor', 0)):.4g}"
-                f", {s['wall_time']:.0f} s on {s['ranks']} rank(s); {s['stopped']}"
-            )
+        write_study(a.out, results, say)
     return 0
+
+
+def write_study(out, results, say):
+    """collapse.csv, collapse.json and collapse.png (rank 0), and a line per run."""
+    rows, summary = records(results)
+    writer = RunWriter(out, MPI.COMM_SELF)  # (atomic files, floats to 17 digits)
+    writer.csv(
+        "collapse.csv",
+        ["run", "cells", "step", "settlement_m", "footing_load_MN_per_m", "non_elliptic_points"],
+        rows,
+    )
+    writer.json("collapse.json", summary)
+    figure(results, os.path.join(out, "collapse.png"))
+    for name, s in summary.items():
+        peak = s["peak"] or {}
+        say(
+            f"{name}: {s['completed_steps']} steps, peak x{abs(peak.get('load_factor', 0)):.4g}"
+            f", {s['wall_time']:.0f} s on {s['ranks']} rank(s); {s['stopped']}"
+        )
 
 
 if __name__ == "__main__":

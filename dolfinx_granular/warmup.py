@@ -6,8 +6,10 @@
 
 * the usual API (:func:`warm_api`): ``generate_packing`` and ``relax_overlaps`` (generation
   kernels), ``TaylorRVE.evaluate`` / ``stress`` / ``cauchy`` / ``spatial_tangent`` /
-  ``overlap_statistics`` and ``FrictionalRVE.evaluate`` / ``stress`` on plain arrays, and the
-  3-D Taylor kernels on :data:`SPHERES` spheres;
+  ``overlap_statistics`` and ``FrictionalRVE.evaluate`` / ``stress`` on plain arrays, the
+  relaxed RVE's micro solver (:func:`warm_relaxed`: Newton, the condensed tangent and the FIRE
+  fallback, as ``demos/relaxed_study.py`` and ``--rve relaxed`` use them) and the 3-D Taylor
+  kernels on :data:`SPHERES` spheres;
 * the slope benchmark (:func:`warm_slope`): its gravity step, frictionless (the demo) and with
   friction, figure included: the material's kernel specialisations on DOLFINx quadrature data,
   and the slope's forms, elements and expressions (FFCx).
@@ -33,8 +35,12 @@ import tempfile
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .packings.packing import Packing
 
 #: disks of the warm-up packing: the same kernels as any size, compiled in seconds of run time
 PARTICLES = 30
@@ -47,7 +53,6 @@ def warm_api(particles: int = PARTICLES) -> None:
     """Run the public material-point API once on a tiny generated packing (every Numba kernel
     specialisation that plain-array calls use)."""
     from .laws.friction import FrictionalRVE
-    from .laws.relaxed import RelaxedRVE
     from .laws.taylor import TaylorRVE
     from .packings.generation import generate_packing, relax_overlaps
     from .packings.packing import Packing
@@ -67,13 +72,37 @@ def warm_api(particles: int = PARTICLES) -> None:
     state = frictional.initial_state(len(F))
     for method in (frictional.evaluate, frictional.stress):
         method(F, state)
-    relaxed = RelaxedRVE(packing, 2.8e7)
-    relaxed.evaluate(F, relaxed.initial_state(len(F)))
+    warm_relaxed(packing, F)
     spheres = TaylorRVE(generate_packing(SPHERES, seed=0, dim=3), 1e5)  # the 3-D kernels
     F3 = np.stack([np.diag([0.99, 1.0, 1.0]), np.eye(3) + 1e-3 * np.eye(3)[::-1]])
     for method in (spheres.evaluate, spheres.stress, spheres.cauchy, spheres.spatial_tangent):
         method(F3)
     spheres.overlap_statistics(F3)
+
+
+def warm_relaxed(packing: Packing, F: np.ndarray) -> None:
+    """The relaxed RVE's kernels (``demos/relaxed_study.py``, ``--rve relaxed``):
+    ``RelaxedRVE.evaluate`` at F (n, 2, 2) (Newton, the condensed tangent) and the micro solver's
+    FIRE fallback (:func:`~dolfinx_granular.laws.relaxation.fire`, which runs only where Newton
+    stalls), each on a cell as built and on one whose candidate list grew."""
+    from .laws import relaxation
+    from .laws.relaxed import RelaxedRVE
+
+    built, grown = RelaxedRVE(packing, 2.8e7), RelaxedRVE(packing, 2.8e7)
+    # A list grows (Cell.extend) where a disk moves out of reach of its candidates, in a
+    # rearrangement: its arrays are then writeable copies of the read-only ones it was built
+    # with, a second specialisation of every kernel, compiled mid-study unless here. One disk
+    # moved by half the box grows the list for certain.
+    w = np.zeros((packing.n_particles, 2))
+    w[0] = 0.5 * packing.box
+    grown.cell.visited(np.eye(2), w)
+    settings = relaxation.Settings(fire_steps=relaxation.FIRE_CHUNK)
+    for rve in (built, grown):
+        rve.evaluate(F, rve.initial_state(len(F)))
+        try:  # one chunk of FIRE steps from the affine positions of a compression
+            relaxation.fire(rve.cell, np.diag([0.99, 0.995]), np.zeros_like(w), settings)
+        except relaxation.RelaxationError:
+            pass  # (not relaxed within the chunk: compiled all the same)
 
 
 def warm_slope(particles: int = PARTICLES) -> None:

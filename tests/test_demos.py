@@ -1,15 +1,41 @@
 """Every demo in demos/ at its small size, serially (``--small``) and under ``mpirun -n 2``
-(``DEMO_SMALL=1``), each checked for its files; the demos are jupytext percent scripts."""
+(``DEMO_SMALL=1``), each checked for its files; the demos are jupytext percent scripts. One rule
+for their output folders (:mod:`dolfinx_granular.io.outfolder`): a second run into the same
+``--out`` is refused before any work, ``--force`` replaces the demo's own files and no others,
+and ``--small`` has its own default folder."""
 
 import csv
 import glob
 import json
 import os
+import subprocess
+
+from dolfinx_granular.io.outfolder import (
+    OutFolderError,
+    RunExistsError,
+    claim_out,
+    default_out,
+    held_files,
+)
+from dolfinx_granular.slope.run import RUN_FILES
 
 import numpy as np
 import pytest
+from mpi4py import MPI
 
-from helpers import DEMOS, ROOT, is_png, run_demo
+from helpers import (
+    DEMOS,
+    MPI_ENV,
+    ROOT,
+    assert_user_error,
+    demo_command,
+    is_png,
+    load_demo,
+    run_demo,
+)
+
+#: a user's own file in an output folder: no run may touch it
+NOTE = "notes.txt"
 
 
 def read_csv(path):
@@ -38,7 +64,8 @@ def check_fabric3d(out, stdout):
 
 def check_footing3d(out, stdout):
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["completed"] and summary["cells"] == 120 and summary["points"] == 960
+    assert summary["status"] == "converged" and summary["converged"]  # (the slope's schema)
+    assert summary["cells"] == 120 and summary["points"] == 960
     assert summary["settlement_m"] < 0.0 and summary["footing_load_N"] < 0.0
     assert [s["phase"] for s in summary["steps"]] == ["gravity"] * 2 + ["footing"] * 4
     rows = read_csv(out / "convergence.csv")
@@ -133,13 +160,140 @@ def test_every_demo_is_tested_and_a_jupytext_percent_script():
         assert text.count("# %% [markdown]") >= 1 and "\n# %%\n" in text, name
 
 
+def own_files(name):
+    """The files (names, patterns) that demo ``name`` writes in its ``--out``."""
+    return RUN_FILES if name == "slope" else load_demo(name).FILES
+
+
+def snapshot(folder):
+    """{path: (size, mtime in ns)} of every file under ``folder``: equal if none was written."""
+    return {
+        str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in folder.rglob("*")
+        if p.is_file()
+    }
+
+
+def assert_refused(name, folder, *args, ranks=1, env=None):
+    """Running the demo into ``folder`` again is refused on every rank: exit status 2, one line
+    ``error: --out ... holds a ... run``, no file touched."""
+    before = snapshot(folder)
+    proc = subprocess.run(
+        demo_command(name, *args, "--out", folder, ranks=ranks),
+        cwd=ROOT,
+        env=dict(MPI_ENV, **(env or {})),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert_user_error(proc, f"--out {folder} holds a", "--force", mpirun=ranks > 1)
+    assert snapshot(folder) == before
+
+
 @pytest.mark.parametrize("name", demo_params())
 def test_demo_runs_small_serially(name, tmp_path):
-    proc = run_demo(name, "--small", "--out", tmp_path)
+    """``--force`` into a folder with a killed run's leftover and a user's note: the leftover goes,
+    the note stays; the same command again without ``--force`` is refused."""
+    (tmp_path / NOTE).write_text("mine")
+    leftover = tmp_path / f"{own_files(name)[0]}.tmp4242"  # (an atomic write's temporary file)
+    leftover.write_text("stale")
+    proc = run_demo(name, "--small", "--force", "--out", tmp_path)
     CHECKS[name](tmp_path, proc.stdout)
+    assert not leftover.exists() and (tmp_path / NOTE).read_text() == "mine"
+    assert_refused(name, tmp_path, "--small")
 
 
 @pytest.mark.parametrize("name", demo_params())
 def test_demo_runs_small_under_mpi(name, tmp_path):
+    """A folder with only a user's note holds no run: the demo writes beside it; run again, it is
+    refused on both ranks alike."""
+    (tmp_path / NOTE).write_text("mine")
     proc = run_demo(name, "--out", tmp_path, ranks=2, env={"DEMO_SMALL": "1"})
     CHECKS[name](tmp_path, proc.stdout)
+    assert (tmp_path / NOTE).read_text() == "mine"
+    assert_refused(name, tmp_path, ranks=2, env={"DEMO_SMALL": "1"})
+
+
+@pytest.mark.parametrize("name", [n for n in DEMOS if n != "slope"])
+def test_a_small_run_has_its_own_default_folder(name):
+    if os.environ.get("DEMO_SMALL") == "1":
+        pytest.skip("DEMO_SMALL=1 makes every run small")
+    demo = load_demo(name)
+    assert demo.parse_args([]).out == os.path.join("results", name)
+    assert demo.parse_args(["--small"]).out == os.path.join("results", f"{name}-small")
+    assert demo.parse_args(["--small", "--out", "mine"]).out == "mine"
+
+
+@pytest.mark.parametrize("name", ["footing3d", "fabric3d"])
+def test_overwrite_is_the_deprecated_name_of_force(name):
+    demo = load_demo(name)
+    assert not demo.parse_args([]).force
+    with pytest.warns(FutureWarning, match="--overwrite is deprecated: use --force"):
+        assert demo.parse_args(["--overwrite"]).force
+
+
+# -- the rule itself ---------------------------------------------------------------------------
+
+FILES = ("table.csv", "figure.png", "run_[0-9]*/summary.json")
+
+
+def run_files_of_fill():
+    return ["run_1/summary.json", "table.csv", "table.csv.tmp99"]
+
+
+def fill(folder):
+    """A folder with a run's files (one in a run's subfolder, one left by a killed atomic
+    write) and a user's: returns the run's, sorted."""
+    for name in ("table.csv", "table.csv.tmp99", "run_1/summary.json", NOTE, "run_x/summary.json"):
+        (folder / name).parent.mkdir(exist_ok=True)
+        (folder / name).write_text("x")
+    return run_files_of_fill()
+
+
+def test_a_folder_with_the_commands_files_is_refused_and_force_removes_only_them(tmp_path):
+    run = fill(tmp_path)
+    assert held_files(tmp_path, FILES) == run
+    before = snapshot(tmp_path)
+    with pytest.raises(RunExistsError) as refusal:
+        claim_out(tmp_path, FILES, False, "demo")
+    assert str(refusal.value) == (
+        f"--out {tmp_path} holds a demo run (run_1/summary.json, table.csv, table.csv.tmp99): "
+        "add --force to replace it, or choose another --out"
+    )
+    assert snapshot(tmp_path) == before
+    assert claim_out(tmp_path, FILES, True, "demo") == run
+    assert sorted(snapshot(tmp_path)) == [NOTE, "run_x/summary.json"]
+    assert claim_out(tmp_path, FILES, False, "demo") == []  # (nothing of a run left)
+
+
+def test_a_new_folder_is_created_and_an_unwritable_one_refused(tmp_path):
+    assert claim_out(tmp_path / "new" / "out", FILES, False, "demo") == []
+    assert (tmp_path / "new" / "out").is_dir()
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutFolderError, match="cannot be written.*choose a writable folder"):
+        claim_out(tmp_path / "file" / "out", FILES, True, "demo")
+
+
+def test_a_long_list_of_files_is_cut_short(tmp_path):
+    for k in range(12):
+        (tmp_path / f"f{k:02d}.csv").write_text("x")
+    with pytest.raises(RunExistsError, match=r"f07.csv and 4 more\): add --force"):
+        claim_out(tmp_path, ["f*.csv"], False, "demo")
+
+
+def test_default_folders():
+    assert default_out("demo") == os.path.join("results", "demo")
+    assert default_out("demo", small=True) == os.path.join("results", "demo-small")
+
+
+@pytest.mark.mpi
+def test_every_rank_gets_rank_0s_answer(tmp_path):
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(tmp_path, root=0)  # (each rank's pytest has its own temporary folder)
+    if comm.rank == 0:
+        fill(folder)
+    comm.barrier()
+    with pytest.raises(RunExistsError, match="holds a demo run"):
+        claim_out(folder, FILES, False, "demo", comm)
+    # rank 0 removed them; every rank is told which
+    assert claim_out(folder, FILES, True, "demo", comm) == run_files_of_fill()

@@ -1,5 +1,6 @@
-"""The 3-D scene: its mesh and tags, its run's agreement across linear solvers and ranks, and
-the refusal to overwrite a run."""
+"""The 3-D scene: its mesh and tags, its run's agreement across linear solvers and ranks, its
+summary's status (the slope's schema), and its output folder: a run there is refused, and
+``force`` (``overwrite``, deprecated) replaces its files and no others."""
 
 import json
 
@@ -9,6 +10,7 @@ import pytest
 dolfinx = pytest.importorskip("dolfinx")
 from dolfinx_granular.footing3d import geometry as G  # noqa: E402
 from dolfinx_granular.footing3d.run import FootingOptions, run_footing  # noqa: E402
+from dolfinx_granular.io.outfolder import RunExistsError  # noqa: E402
 from dolfinx_granular.slope.geometry import SlopeGeometry  # noqa: E402
 
 from mpi4py import MPI  # noqa: E402
@@ -53,6 +55,14 @@ def test_bad_footing_layers_are_refused():
         G.FootingGeometry(layers=4, footing_layers=(3, 5))
 
 
+def stale_run(folder):
+    """A killed run's summary and a user's note in ``folder`` (rank 0 writes, all wait)."""
+    if MPI.COMM_WORLD.rank == 0:
+        (folder / "summary.json").write_text('{"status": "running"}')
+        (folder / "notes.txt").write_text("mine")
+    MPI.COMM_WORLD.barrier()
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     out = {}
@@ -63,14 +73,21 @@ def runs(tmp_path_factory):
             particles=100, linear_solver=solver, figure=False, geometry=TINY,
             gravity_steps=1, footing_steps=2,
         )  # fmt: skip
-        out[solver] = (run_footing(MPI.COMM_WORLD, o, str(folder)), folder)
+        if solver == "direct":
+            summary = run_footing(MPI.COMM_WORLD, o, str(folder))
+        else:  # into a stale run beside a user's file, by the old name of force
+            stale_run(folder)
+            with pytest.warns(DeprecationWarning, match="overwrite"):
+                summary = run_footing(MPI.COMM_WORLD, o, str(folder), overwrite=True)
+        out[solver] = (summary, folder)
     return out
 
 
 @pytest.mark.mpi
 def test_direct_and_iterative_solvers_agree(runs):
     direct, iterative = runs["direct"][0], runs["iterative"][0]
-    assert direct["completed"] and iterative["completed"]
+    assert direct["status"] == iterative["status"] == "converged"
+    assert direct["completed"] and direct["failed"] is None  # (the old keys, kept)
     assert iterative["settlement_m"] == pytest.approx(direct["settlement_m"], rel=1e-10)
     # the Krylov tolerance follows the Newton residual: Newton takes the same steps
     assert [s["iterations"] for s in iterative["steps"]] == [
@@ -88,14 +105,23 @@ def test_different_folders_on_the_ranks_are_refused(tmp_path):
 
 
 @pytest.mark.mpi
-def test_an_existing_run_is_not_overwritten(runs):
+def test_an_existing_run_is_refused_before_any_work(runs):
     summary, folder = runs["direct"]
     before = (folder / "summary.json").read_text()
     o = FootingOptions(particles=100, figure=False, geometry=TINY)
-    with pytest.raises(FileExistsError, match="already holds a run.*--overwrite"):
+    with pytest.raises(RunExistsError, match=r"holds a footing3d run \(convergence.csv, .*--force"):
         run_footing(MPI.COMM_WORLD, o, str(folder))
     assert (folder / "summary.json").read_text() == before
     assert json.loads(before)["settlement_m"] == summary["settlement_m"]
+
+
+@pytest.mark.mpi
+def test_force_replaces_the_run_and_keeps_the_users_files(runs):
+    summary, folder = runs["iterative"]
+    stored = json.loads((folder / "summary.json").read_text())
+    assert stored["status"] == "converged" and stored["settlement_m"] == summary["settlement_m"]
+    assert (folder / "notes.txt").read_text() == "mine"
+    assert summary["completed_steps"] == len(summary["steps"]) == 3
 
 
 def test_serial_and_two_ranks_agree(tmp_path):

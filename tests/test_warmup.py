@@ -1,5 +1,6 @@
-"""The set-up's warm-up (``python -m dolfinx_granular.warmup``): after it, the slope demo and the
-usual API find every Numba kernel and FFCx form in the caches, and a repeated warm-up is skipped."""
+"""The set-up's warm-up (``python -m dolfinx_granular.warmup``): after it, the slope demo, the
+relaxed study and the usual API find every Numba kernel and FFCx form in the caches, and a
+repeated warm-up is skipped."""
 
 import json
 import os
@@ -9,6 +10,8 @@ import sys
 from dolfinx_granular import warmup
 
 import pytest
+
+from helpers import ROOT
 
 # Run in a fresh interpreter with its own FFCx cache (XDG_CACHE_HOME): warm up, then the demo's
 # command line (frictionless with its figure, and with friction) and a GranularMaterial on a mesh
@@ -70,11 +73,58 @@ print("PROBE", json.dumps({
 """
 
 
-@pytest.mark.slow
-def test_after_warmup_the_demo_and_the_api_compile_nothing(tmp_path):
-    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "cache"))
+# In a fresh interpreter: the warm-up's material-point calls, then what the relaxed study does
+# (demos/relaxed_study.py: a packing jammed at a pressure, compressed along F = lam I, moduli,
+# confined shear, for both laws) and the FIRE fallback of its micro solver (where Newton stalls:
+# near jamming, or on a packing that another CPU generated a little differently); the kernel
+# specialisations they needed that the warm-up had not compiled.
+RELAXED_PROBE = r"""
+import importlib.util, json, sys
+
+import numba
+import numpy as np
+
+from dolfinx_granular import RelaxedRVE, generate_packing, warmup
+from dolfinx_granular.laws import relaxation
+
+
+def signatures():
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("dolfinx_granular"):
+            for attr, obj in vars(module).items():
+                if isinstance(obj, numba.core.dispatcher.Dispatcher):
+                    found[f"{name}.{attr}"] = {str(s) for s in obj.signatures}
+    return found
+
+
+warmup.warm_api()
+kernels = signatures()
+spec = importlib.util.spec_from_file_location("relaxed_study", sys.argv[1])
+study = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(study)
+packing = generate_packing(40, seed=3, pressure=1e-3)
+row = study.moduli_row(packing, 3, 1e-3)
+study.shear_rows(packing, 2)
+relaxed = RelaxedRVE(packing, study.K_N)
+settings = relaxation.Settings(max_iterations=0, fire_steps=relaxation.FIRE_CHUNK)
+try:  # Newton given no step: FIRE takes over at once
+    relaxation.relax(relaxed.cell, np.diag([0.99, 0.995]), np.zeros((40, 2)), True, settings)
+except relaxation.RelaxationError:
+    pass
+new = {k: sorted(s - kernels.get(k, set())) for k, s in signatures().items()}
+print("PROBE", json.dumps({
+    "status": row["status"],
+    "fire": len(relaxation.rk.fire_chunk.signatures),
+    "new_kernels": {k: s for k, s in new.items() if s},
+}))
+"""
+
+
+def probe_report(code, *args, env=None):
+    """Run a probe script in a fresh interpreter; its ``PROBE {json}`` line as a dict."""
     proc = subprocess.run(
-        [sys.executable, "-c", PROBE, str(tmp_path)],
+        [sys.executable, "-c", code, *map(str, args)],
         env=env,
         capture_output=True,
         text=True,
@@ -82,7 +132,19 @@ def test_after_warmup_the_demo_and_the_api_compile_nothing(tmp_path):
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     line = next(x for x in proc.stdout.splitlines() if x.startswith("PROBE "))
-    report = json.loads(line[len("PROBE ") :])
+    return json.loads(line[len("PROBE ") :])
+
+
+def test_after_warmup_the_relaxed_study_compiles_nothing():
+    report = probe_report(RELAXED_PROBE, os.path.join(ROOT, "demos", "relaxed_study.py"))
+    assert report["status"] == "ok" and report["fire"] > 0  # (it did take those paths)
+    assert report["new_kernels"] == {}, "specialisations the warm-up does not compile"
+
+
+@pytest.mark.slow
+def test_after_warmup_the_demo_and_the_api_compile_nothing(tmp_path):
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "cache"))
+    report = probe_report(PROBE, tmp_path, env=env)
     assert report["ran"] == [True, False]  # forced, then skipped as current
     assert report["compiled"] > 0  # the probe did see the package's kernels
     assert report["new_kernels"] == {}, "specialisations the warm-up does not compile"

@@ -1,11 +1,14 @@
 """The 3-D scene's run: the weight in load steps, then the footing's; the files a run leaves.
 
-Output folder (written on rank 0, atomically; an existing folder with a run in it is refused
-unless ``overwrite``):
+Output folder (written on rank 0, atomically): a folder that holds a run's files (:data:`FILES`)
+is refused unless ``force``, which removes those files, and only those, first
+(:mod:`dolfinx_granular.io.outfolder`: the rule of every demo):
 
-- ``summary.json``: options, mesh and packing sizes, the settlement of the footing's loaded
-  edge, Newton iterations, times (RVE, assembly, linear solve, rest; their shares of a Newton
-  iteration) and the largest von Mises stress;
+- ``summary.json``: ``status`` as the slope's (``running`` during the run, rewritten after every
+  converged load step; ``converged``, ``failed`` where a load step gave up, ``interrupted`` by
+  Ctrl-C), options, mesh and packing sizes, the settlement of the footing's loaded edge, Newton
+  iterations, times (RVE, assembly, linear solve, rest; their shares of a Newton iteration) and
+  the largest von Mises stress;
 - ``convergence.csv``: one row per Newton step (phase, step, load parameter, iteration,
   residual norm, relative energy norm);
 - ``footing3d.xdmf`` (+ ``.h5``): displacement and the Cauchy stress (cell means) at every
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
 
@@ -25,6 +29,7 @@ from dolfinx import io
 
 from ..drivers.loading import LoadStepper
 from ..fem.fields import cauchy_output
+from ..io.outfolder import claim_out
 from ..io.runwriter import RunWriter
 from ..laws.taylor import TaylorRVE
 from ..packings.generation import generate_packing
@@ -34,6 +39,7 @@ from .model import FootingModel
 if TYPE_CHECKING:
     from mpi4py.MPI import Comm
 
+#: the files a run writes in its folder (``force`` removes these, and nothing else)
 FILES = ("summary.json", "convergence.csv", "footing3d.xdmf", "footing3d.h5", "footing3d.png")
 
 
@@ -69,46 +75,27 @@ class FootingOptions:
         return g.scaled(self.refine) if self.refine != 1 else g
 
 
-def run_footing(comm: Comm, options: FootingOptions, out: str, overwrite: bool = False) -> dict:
+def run_footing(
+    comm: Comm,
+    options: FootingOptions,
+    out: str,
+    force: bool = False,
+    overwrite: bool | None = None,
+) -> dict:
     """Run the scene with ``options`` and write its files to ``out``; the summary (a dict, the
-    same on every rank). Collective."""
-    _prepare(comm, out, overwrite)
+    same on every rank). Collective.
+
+    An ``out`` that holds a run's files raises
+    :class:`~dolfinx_granular.io.outfolder.RunExistsError` before any work, unless ``force``
+    (which removes those files, no others); ``overwrite`` is its old name (deprecated)."""
+    _prepare(comm, out, _force(force, overwrite))
     t_start = time.perf_counter()
     packing = generate_packing(options.particles, seed=options.seed, dim=3)
     law = TaylorRVE(packing, options.normal_stiffness)
     model = FootingModel(comm, law, options.scene(), {"linear_solver": options.linear_solver})
-    log = print if comm.rank == 0 else None
-    stepper = LoadStepper(model.solver, log=log)
-    rows, steps = [], []
-    xdmf = io.XDMFFile(comm, os.path.join(out, "footing3d.xdmf"), "w")
-    xdmf.write_mesh(model.mesh)
-
-    def record(phase):
-        def on_converged(inc):
-            for it, rnorm, energy in inc.history:
-                rows.append((phase, inc.step, inc.t, it, rnorm, energy))
-            steps.append(
-                {"phase": phase, "t": inc.t, "iterations": inc.iterations,
-                 "settlement": model.settlement()}
-            )  # fmt: skip
-            time_value = float(len(steps))
-            xdmf.write_function(model.u, time_value)
-            xdmf.write_function(cauchy_output(model.material), time_value)
-
-        return on_converged
-
-    phases = (
-        ("gravity", model.set_gravity, options.gravity_steps),
-        ("footing", lambda t: model.set_footing(options.footing_factor * t), options.footing_steps),
-    )
-    done = True
-    for name, set_load, n in phases:
-        done = stepper.run_phase(name, set_load, 1.0 / n, on_converged=record(name)) and done
-        if not done:
-            break
-    xdmf.close()
-    summary = _summary(model, options, stepper, steps, done, time.perf_counter() - t_start)
     writer = RunWriter(out, comm)
+    stepper, rows, steps, done = _load_path(model, options, writer)
+    summary = _summary(model, options, stepper, steps, done, time.perf_counter() - t_start)
     writer.csv(
         "convergence.csv",
         ("phase", "step", "t", "iteration", "residual_norm", "energy_norm"),
@@ -123,28 +110,84 @@ def run_footing(comm: Comm, options: FootingOptions, out: str, overwrite: bool =
     return summary
 
 
-def _prepare(comm, out, overwrite):
-    """Create ``out``; refuse one that holds a run's files unless ``overwrite`` (nothing a user
-    computed is lost), and different folders on different ranks (the collective writes would
-    hang). Collective."""
-    problem = None
+def _force(force, overwrite):
+    """``force``, or the deprecated ``overwrite`` where given (with a DeprecationWarning)."""
+    if overwrite is None:
+        return force
+    warnings.warn(
+        "run_footing(overwrite=...) is deprecated; use force=...", DeprecationWarning, stacklevel=3
+    )
+    return force or overwrite
+
+
+def _load_path(model, options, writer):
+    """Gravity, then the footing, in load steps: ``(stepper, convergence rows, step dicts,
+    done)``. Every converged step goes to the XDMF file, and to ``summary.json`` as
+    ``running``; Ctrl-C leaves it ``interrupted``."""
+    comm = model.comm
+    stepper = LoadStepper(model.solver, log=print if comm.rank == 0 else None)
+    rows, steps = [], []
+    xdmf = io.XDMFFile(comm, writer.path("footing3d.xdmf"), "w")
+    xdmf.write_mesh(model.mesh)
+
+    def record(phase):
+        def on_converged(inc):
+            for it, rnorm, energy in inc.history:
+                rows.append((phase, inc.step, inc.t, it, rnorm, energy))
+            steps.append(
+                {"phase": phase, "t": inc.t, "iterations": inc.iterations,
+                 "settlement": model.settlement()}
+            )  # fmt: skip
+            time_value = float(len(steps))
+            xdmf.write_function(model.u, time_value)
+            xdmf.write_function(cauchy_output(model.material), time_value)
+            writer.json("summary.json", _progress(options, steps, "running"))
+
+        return on_converged
+
+    phases = (
+        ("gravity", model.set_gravity, options.gravity_steps),
+        ("footing", lambda t: model.set_footing(options.footing_factor * t), options.footing_steps),
+    )
+    writer.json("summary.json", _progress(options, steps, "running"))
+    done = True
+    try:
+        for name, set_load, n in phases:
+            done = stepper.run_phase(name, set_load, 1.0 / n, on_converged=record(name)) and done
+            if not done:
+                break
+    except KeyboardInterrupt:  # (no collective call here: the other ranks may be elsewhere)
+        writer.json("summary.json", _progress(options, steps, "interrupted", "SIGINT"))
+        raise
+    xdmf.close()
+    return stepper, rows, steps, done
+
+
+def _progress(options, steps, status, interrupted_by=None):
+    """The summary of a run in progress (or interrupted): its status, options and steps."""
+    return {
+        "status": status,
+        "interrupted_by": interrupted_by,
+        "options": _options(options),
+        "completed_steps": len(steps),
+        "steps": steps,
+    }
+
+
+def _options(options):
+    return {k: v for k, v in asdict(options).items() if k != "geometry"}
+
+
+def _prepare(comm, out, force):
+    """Refuse different folders on different ranks (the collective writes would hang), then
+    claim ``out``: refused if it holds a run's files unless ``force`` (nothing a user computed
+    is lost). Collective."""
     if len(set(comm.allgather(os.path.abspath(out)))) > 1:
         raise ValueError(
             "run_footing was given different output folders on different ranks; pass every "
             "rank the same folder (e.g. broadcast rank 0's)"
         )
-    if comm.rank == 0:
-        found = [f for f in FILES if os.path.exists(os.path.join(out, f))]
-        if found and not overwrite:
-            problem = (
-                f"{out!r} already holds a run ({', '.join(found)}); choose another folder or "
-                "pass overwrite=True (command line: --overwrite)"
-            )
-        else:
-            os.makedirs(out, exist_ok=True)
-    problem = comm.bcast(problem, root=0)
-    if problem:
-        raise FileExistsError(problem)
+    claim_out(out, FILES, force, "footing3d", comm)
 
 
 def _summary(model, options, stepper, steps, done, wall):
@@ -157,9 +200,12 @@ def _summary(model, options, stepper, steps, done, wall):
     n_points = comm.allreduce(model.material.n_points)
     g = model.geometry
     return {
-        "options": {k: v for k, v in asdict(options).items() if k != "geometry"},
-        "completed": bool(done),
+        "status": "converged" if done else "failed",  # (the slope's values)
+        "converged": bool(done),
+        "completed": bool(done),  # (the old name of converged, kept for old readers)
         "failed": stepper.failed,
+        "interrupted_by": None,
+        "options": _options(options),
         "cells": g.n_cells,
         "points": n_points,
         "dofs": model.V.dofmap.index_map.size_global * 3,
@@ -167,6 +213,7 @@ def _summary(model, options, stepper, steps, done, wall):
         "footing_area_m2": g.footing_area,
         "footing_load_N": model.footing_load(),
         "settlement_m": model.settlement(),
+        "completed_steps": len(steps),
         "steps": steps,
         "newton_iterations": iterations,
         "cutbacks": len(stepper.cutbacks),
