@@ -90,7 +90,7 @@ def footing(out, particles, seed, solver, extra=()):
     folder = os.path.join(out, f"footing_{particles}_{seed}_{solver}")
     wall = run(
         ["demos/footing3d.py", "--particles", str(particles), "--seed", str(seed),
-         "--linear-solver", solver, "--out", folder, "--overwrite", *extra],
+         "--linear-solver", solver, "--out", folder, "--force", *extra],
         ranks=2,
     )  # fmt: skip
     with open(os.path.join(folder, "summary.json")) as f:

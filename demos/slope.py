@@ -16,7 +16,8 @@
 #     mpirun -n 2 python demos/slope.py [--particles 700] [--steps 20] [--out results/slope] ...
 #     python demos/slope.py --help
 #
-# `--small` (or `DEMO_SMALL=1`) is a reduced run for the tests: `--particles 70 --steps 4`.
+# `--small` (or `DEMO_SMALL=1`) is a reduced run for the tests: `--particles 70 --steps 4`, into
+# `results/slope-small` unless `--out` is given.
 # An `--out` that holds a run is refused unless `--force` (replace it) or `--resume DIR`
 # (continue it); Ctrl-C stops after the load step in progress, and `--resume DIR` goes on.
 #
@@ -29,7 +30,7 @@ import sys
 from dolfinx_granular.slope import SlopeOptions, cli, run_slope  # noqa: F401 (walkthrough)
 
 #: what ``--small`` (or ``DEMO_SMALL=1``) puts before the other arguments (they override it)
-SMALL = ["--particles", "70", "--steps", "4"]
+SMALL = ["--particles", "70", "--steps", "4", "--out", "results/slope-small"]
 
 # %% [markdown]
 # ## The pieces

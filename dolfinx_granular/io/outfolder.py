@@ -66,8 +66,9 @@ def clear_files(folder: str | os.PathLike[str], files: Iterable[str]) -> list[st
     return held
 
 
-def _writable(folder):
-    """Create ``folder`` and prove that a file can be written there."""
+def writable(folder: str | os.PathLike[str]) -> None:
+    """Create ``folder`` and prove that a file can be written there (:class:`OutFolderError`
+    with the fix where it cannot)."""
     try:
         os.makedirs(folder, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder):  # (unnamed where the OS can: nothing left)
@@ -80,7 +81,7 @@ def _writable(folder):
 
 def _claim(folder, files, force, command):
     """Rank 0's part of :func:`claim_out`."""
-    _writable(folder)
+    writable(folder)
     if force:
         return clear_files(folder, files)
     held = held_files(folder, files)

@@ -126,6 +126,8 @@ class Cell:
         self.ratio = np.concatenate([self.ratio, np.hypot(L[:, 0], L[:, 1]) / R])
         self.shift = np.concatenate([self.shift, sh])
         self._known = np.sort(np.concatenate([known, keys[fresh]]))
+        for a in (self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.shift):
+            a.flags.writeable = False  # as the list of Cell.of: one compiled kernel, not two
 
     def known_keys(self) -> np.ndarray:
         """Sorted (M,) :meth:`keys_of` of the candidates."""

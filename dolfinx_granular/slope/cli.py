@@ -13,10 +13,8 @@ files, and only those, first) or ``--resume`` (which continues it).
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
-import tempfile
 import time
 from typing import TYPE_CHECKING
 
@@ -24,6 +22,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..fem.compat import show_warnings
+from ..io.outfolder import writable
 from ..io.runwriter import RestartError
 from ..packings.packing import Packing, PackingFileError
 from .geometry import SlopeGeometry
@@ -333,25 +332,11 @@ def make_packing(
     return generate_packing(particles, seed=seed, pressure=pressure)
 
 
-def _check_out(out):
-    """Create ``out`` and prove that a file can be written there (before any work is done)."""
-    try:
-        os.makedirs(out, exist_ok=True)
-        # an unnamed file (O_TMPFILE on Linux): nothing is left in out if the run is
-        # interrupted right here
-        with tempfile.TemporaryFile(dir=out):
-            pass
-    except OSError as err:
-        raise UserError(
-            f"--out {out!r} cannot be written ({err.strerror or err}); choose a writable folder"
-        ) from None
-
-
 def _claim_out(out, force):
     """A new run's ``out``: refused if it holds a run that converged a load step, unless
     ``force``; then cleared of the run's files (a run with no converged step has nothing to
     lose)."""
-    _check_out(out)
+    writable(out)
     held = run_files(out)
     if held and not force and converged_steps(out):
         raise UserError(
@@ -369,7 +354,7 @@ def _prepare(a):
             restart = load_restart(a.resume)
         except RestartError as err:
             raise UserError(f"--resume: {err}") from err
-        _check_out(a.resume)
+        writable(a.resume)
         return restart
     _claim_out(a.out, a.force)
     try:
