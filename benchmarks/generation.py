@@ -5,10 +5,12 @@ Run: ``.venv/bin/python benchmarks/generation.py [--sizes 700 2800 11200 45000] 
 
 Per size it prints the wall time (the Numba compilation is done beforehand by a 70-disk run and
 not counted), the volume fraction, the FIRE steps of the jamming search in all, the wall time per
-disk and step (ns; the whole run over steps x n, so it includes the stages after the jamming) and
-the slope d log(t) / d log(n) from the previous size; at the end the least-squares slope over all
-sizes. A slope of 1 is linear time. One process, one thread; ``--progress`` prints the
-generator's progress lines to stderr.
+disk and step (ns; the whole run over steps x n, so it includes the stages after the jamming), the
+packing's sha256 (first 12 hex digits of ``portable.digest(centers, radii, box)``: the same on
+every machine, so a different one means a different packing, not a slower one) and the slope
+d log(t) / d log(n) from the previous size; at the end the least-squares slope over all sizes. A
+slope of 1 is linear time. One process, one thread; ``--progress`` prints the generator's
+progress lines to stderr.
 """
 
 import argparse
@@ -18,6 +20,7 @@ import sys
 import time
 
 from dolfinx_granular import generate_packing
+from dolfinx_granular.packings.portable import digest
 
 import numba
 import numpy as np
@@ -69,7 +72,8 @@ def main(argv=None):
         f"{numba.__version__}, numpy {np.__version__}"
     )
     print(
-        f"{'n':>8} {'seconds':>10} {'phi':>8} {'FIRE steps':>11} {'ns/disk/step':>13} {'slope':>7}"
+        f"{'n':>8} {'seconds':>10} {'phi':>8} {'FIRE steps':>11} {'ns/disk/step':>13} "
+        f"{'sha256':>12} {'slope':>7}"
     )
     seconds = []
     for k, n in enumerate(sizes):
@@ -80,7 +84,7 @@ def main(argv=None):
         slope = f"{loglog_slope(sizes[k - 1 : k + 1], seconds[-2:]):7.2f}" if k else ""
         print(
             f"{n:8d} {t[0]:10.2f} {p.volume_fraction:8.4f} {steps:11d} "
-            f"{1e9 * t[0] / (steps * n):13.1f} {slope}",
+            f"{1e9 * t[0] / (steps * n):13.1f} {digest(p.centers, p.radii, p.box)[:12]} {slope}",
             flush=True,
         )
     print(f"log-log slope over all sizes: {loglog_slope(sizes, seconds):.2f}")

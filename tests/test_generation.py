@@ -1,7 +1,7 @@
 """generate_packing: jammed, stress-free, rigid, periodic, deterministic; bad input."""
 
 from dolfinx_granular import Packing, TaylorRVE, generate_packing, network_stats
-from dolfinx_granular.packings import fire, generation, neighbours
+from dolfinx_granular.packings import cholesky, fire, generation, neighbours, portable
 from dolfinx_granular.packings.gsd import SieveCurve, cen_standard_sand
 
 import numpy as np
@@ -297,6 +297,58 @@ def test_fire_in_chunks_follows_the_same_trajectory():
         np.testing.assert_array_equal(st, ends[0][1])
 
 
+def network(p):
+    """The contacts (M, 2) of a packing at F = I and their unit normals (M, d)."""
+    ij, shift, eps = fire.candidates(p.centers, p.radii, p.box, 1.0 / 0.99)
+    ij, shift = ij[eps >= 0.0], shift[eps >= 0.0]
+    L = p.centers[ij[:, 1]] + shift * p.box - p.centers[ij[:, 0]]
+    return ij, L / np.linalg.norm(L, axis=1)[:, None]
+
+
+def test_the_minimum_norm_step_is_the_least_squares_one(packings):
+    """The Numba Cholesky step of the stress-free correction equals the minimum-norm solution of
+    J dz = -g (a dense SVD), with J's rows n at x_i, -n at x_j, 1 at r_i and r_j."""
+    p = packings[(350, 1)]
+    ij, nv = network(p)
+    n, m = p.n_particles, ij.shape[0]
+    g = np.random.default_rng(0).standard_normal(m) * 1e-4
+    dx, dr = cholesky.minimum_norm_step(ij, nv, g, cholesky.nested_dissection(p.centers, ij), n)
+    J = np.zeros((m, 3 * n))
+    rows = np.arange(m)
+    for a in range(2):
+        np.add.at(J, (rows, 2 * ij[:, 0] + a), nv[:, a])
+        np.add.at(J, (rows, 2 * ij[:, 1] + a), -nv[:, a])
+    np.add.at(J, (rows, 2 * n + ij[:, 0]), 1.0)
+    np.add.at(J, (rows, 2 * n + ij[:, 1]), 1.0)
+    expected = np.linalg.lstsq(J, -g, rcond=None)[0]
+    dz = np.concatenate([dx.ravel(), dr])
+    np.testing.assert_allclose(dz, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
+
+
+def test_nested_dissection_orders_every_contact_and_saves_fill(packings):
+    p = packings[(700, 3)]
+    ij, nv = network(p)
+    order = cholesky.nested_dissection(p.centers, ij)
+    np.testing.assert_array_equal(np.sort(order), np.arange(ij.shape[0]))
+
+    def fill(order):
+        rp, ri, rx = cholesky._normal_rows(ij, nv, order, p.n_particles)
+        lp, _, _, ok = cholesky._cholesky(rp, ri, rx)
+        assert ok
+        return lp[-1]
+
+    # the contacts come sorted by |L| / R, scattered over the cell: 3x the fill
+    assert 3 * fill(order) < fill(np.arange(ij.shape[0]))
+
+
+def test_an_indefinite_normal_matrix_is_refused(packings):
+    p = packings[(70, 0)]
+    ij, nv = network(p)
+    nv[3] = np.nan
+    with pytest.raises(ValueError, match="not definite"):
+        cholesky.minimum_norm_step(ij, nv, np.zeros(ij.shape[0]), np.arange(ij.shape[0]), 70)
+
+
 def test_progress_fractions_increase_to_one(monkeypatch):
     monkeypatch.setattr(generation, "PROGRESS_INTERVAL", 0.0)  # a heartbeat after every chunk
     lines = []
@@ -330,9 +382,12 @@ def test_generation_benchmark_runs(capsys):
     benchmark.main(["--sizes", *sizes])
     out = capsys.readouterr().out
     rows = [row for row in map(str.split, out.splitlines()) if row[:1] and row[0] in sizes]
-    assert [row[0] for row in rows] == sizes and len(rows[1]) == 6
+    assert [row[0] for row in rows] == sizes and len(rows[1]) == 7
     # the FIRE steps are read from the progress lines: a search takes hundreds at least
     assert all(int(row[3]) >= 100 and float(row[4]) > 0 for row in rows)
+    # the packing's digest, as tests/test_reference_packing.py computes it
+    p = generate_packing(140, seed=0)
+    assert rows[1][5] == portable.digest(p.centers, p.radii, p.box)[:12]
     assert "log-log slope over all sizes" in out
 
 

@@ -1,5 +1,10 @@
 """Sieve curves: the shipped CEN sand, validation, interpolation and diameter sampling."""
 
+import decimal
+import math
+from decimal import Decimal
+
+from dolfinx_granular.packings import portable
 from dolfinx_granular.packings.gsd import (
     DEFAULT_D_MIN,
     SieveCurve,
@@ -111,3 +116,45 @@ def test_as_sieve_curve_accepts_pairs_and_rejects_junk():
     assert c.passing_at(0.6) == 50
     with pytest.raises(ValueError, match="pair"):
         as_sieve_curve(3.0)
+
+
+def _correctly_rounded(value, x):
+    """Whether the float ``value`` is the nearest float to the decimal ``x`` (60 digits)."""
+    below, above = np.nextafter(value, 0.0), np.nextafter(value, np.inf)
+    with decimal.localcontext(decimal.Context(prec=60)):
+        err = abs(Decimal(value) - x)
+        return err <= abs(Decimal(float(below)) - x) and err <= abs(Decimal(float(above)) - x)
+
+
+def test_cube_roots_are_correctly_rounded():
+    """The generator's cube roots come from decimal arithmetic, not from a C library's pow:
+    the nearest float to the exact root, whatever the CPU."""
+    xs = np.random.default_rng(0).random(300) * 10.0 + 1e-3
+    with decimal.localcontext(decimal.Context(prec=60)) as ctx:
+        for x in xs.tolist():
+            exact = ctx.exp(ctx.ln(Decimal(x)) / 3)
+            assert _correctly_rounded(portable.root(x, 3), exact)
+            assert _correctly_rounded(float(portable.inverse_roots([x], 3)[0]), 1 / exact)
+    assert [portable.root(v, 3) for v in (27.0, 0.125, 1.0)] == [3.0, 0.5, 1.0]
+
+
+def test_class_weights_are_correctly_rounded_sums():
+    """Shares and number fractions are normalised by correctly rounded sums (math.fsum)."""
+    for dim in (2, 3):
+        lo, hi, nfrac = cen_standard_sand().number_fractions(DEFAULT_D_MIN, dim)
+        assert math.fsum(nfrac.tolist()) == pytest.approx(1.0, abs=4e-16)
+        assert np.all(nfrac > 0.0) and lo[0] == DEFAULT_D_MIN
+
+
+#: sha256 of ``cen_standard_sand().sample_diameters(1000, 0, d_min=0.5, dim=k)`` (float64 bytes):
+#: the same on every CPU and numpy release (recorded with numpy 1.24.2 and 2.5.5)
+DIAMETERS = {
+    2: "590d3c2b94138ec5ca5e4e1d764f09c381da16f405e522a949608e5b5ad22533",
+    3: "f6eb5d8a52136c0db8c3726565543a35bb6052a3ac8caf9ed6a3e69794e6f0e9",
+}
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_sampled_diameters_have_the_recorded_bits(dim):
+    d = cen_standard_sand().sample_diameters(1000, 0, d_min=DEFAULT_D_MIN, dim=dim)
+    assert portable.digest(d) == DIAMETERS[dim]

@@ -1,9 +1,10 @@
 """Packing: validation, wrapping and the .npz file format."""
 
+import math
 import zipfile
 
 from dolfinx_granular import Packing, PackingFileError
-from dolfinx_granular.packings.packing import FORMAT_NAME, FORMAT_VERSION
+from dolfinx_granular.packings.packing import FORMAT_NAME, FORMAT_VERSION, solid_measure
 
 import numpy as np
 import pytest
@@ -145,3 +146,15 @@ def test_zip_without_arrays(tmp_path):
         z.writestr("hello.txt", "hi")
     with pytest.raises(PackingFileError, match="z.npz' is an .npz file but not a dolfinx_granular"):
         Packing.load(tmp_path / "z.npz")
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_solid_measure_is_the_correctly_rounded_sum(dim):
+    """Products and math.fsum: no pow and no summation order in it (the generator sizes its cell
+    from it), so any order of the radii gives the same float."""
+    r = np.random.default_rng(3).random(10001) + 0.25
+    total = solid_measure(r, dim)
+    power = r * r if dim == 2 else r * r * r
+    factor = np.pi if dim == 2 else 4.0 / 3.0 * np.pi
+    assert total == factor * math.fsum(power.tolist())
+    assert solid_measure(r[::-1], dim) == solid_measure(np.sort(r), dim) == total

@@ -11,6 +11,7 @@ the clock. Centres (N, d), radii (N,) and the cell (d,) are in mm, d = 2 or 3.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -221,4 +222,4 @@ def virial_pressure(x, r, box):
     sum overlap * distance / (d V) (1 / mm in 3-D)."""
     m, pi, pj, ps = neighbour_list(x, r, box, 0.0)
     vir = forces(x, r, box, m, pi, pj, ps, np.empty_like(x))
-    return vir / (x.shape[1] * box.prod())
+    return vir / (x.shape[1] * math.prod(box))

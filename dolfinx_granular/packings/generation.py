@@ -36,17 +36,21 @@ Algorithm (:func:`generate_packing`):
 Cost. Every neighbour search is a cell list
 (:func:`~dolfinx_granular.packings.neighbours.find_pairs`), so one FIRE step, one stress-free round
 and :func:`network_stats` cost O(N); the sparse normal equations of the Newton correction are
-factorised with a symmetric fill-reducing order. What stays super-linear is the number of FIRE
-steps a minimisation needs, which grows like N^0.4 to N^0.6 (seed 0: 46 000 steps in all at 2800
-disks, 149 000 at 45000; the slowest elastic mode of the cell relaxes on a time ~ its width), and a
-step's cost per disk at large N, which grows with the cache misses: the total grows like N^1.3 from
-2800 to 11200 disks and N^1.9 from 11200 to 45000 (``benchmarks/generation.py`` measures it). Above
+factorised in a fill-reducing order (nested dissection, :mod:`.cholesky`). What stays
+super-linear is the number of FIRE steps a minimisation needs, which grows like N^0.4 to N^0.6
+(seed 0: 32 000 steps in all at 2800 disks, 126 000 at 45000; the slowest elastic mode of the
+cell relaxes on a time ~ its width), and a step's cost per disk at large N, which grows with the
+cache misses: the total grew like N^1.6 from 2800 to 11200 disks and N^1.5 from 11200 to 45000
+(``benchmarks/generation.py`` measures it). Above
 ``CELL_ORDER_ABOVE`` disks the initial centres are numbered along the cells, so that a step's
 memory access stays local (1.4x faster steps at 45000 disks).
 
 Everything is deterministic for a given ``seed`` (one ``numpy.random.Generator``; the Numba
 kernels are serial; FIRE runs in chunks of steps whose length depends on the wall clock, but the
-whole state is carried from chunk to chunk, so the trajectory does not).
+whole state is carried from chunk to chunk, so the trajectory does not), and the same bits on
+every CPU and numpy release: the arithmetic is IEEE's correctly rounded +, -, *, / and sqrt, and
+the few logarithms, cube roots and sums come from :mod:`.portable`, not from numpy's ``exp``,
+``log`` and ``pow``, the C library or the BLAS, whose last bits the jamming would amplify.
 """
 
 from __future__ import annotations
@@ -58,7 +62,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import neighbours
+from . import neighbours, portable
 from .fire import candidates, minimise, virial_pressure
 from .gsd import DEFAULT_D_MIN, as_sieve_curve
 from .packing import Packing, check_dimension, require_disks, solid_measure
@@ -277,7 +281,7 @@ def generate_packing(
     say = _Reporter(progress)
     rng = np.random.default_rng(_seed(seed))
     r0, box = _radii_and_cell(curve, n, rng, d_min, aspect, dim)
-    delta = contact_overlap * float(2.0 * r0.mean())
+    delta = contact_overlap * 2.0 * portable.mean(r0)
     best = None
     for attempt in range(max_attempts):
         say.new_attempt()
@@ -313,7 +317,7 @@ def _radii_and_cell(curve, n, rng, d_min, aspect, dim):
     if dim == 2:
         box = np.array([np.sqrt(V / aspect), np.sqrt(V * aspect)])
     else:
-        w = (V / aspect) ** (1.0 / 3.0)
+        w = portable.root(V / aspect, 3)
         box = np.array([w, w, w * aspect])
     if 2.0 * r0.max() >= 0.8 * box.min():
         raise ValueError(
@@ -333,11 +337,11 @@ def _attempt(rng, r0, box, pressure, delta, say):
         # the random centres numbered along the cells (the radii keep their random order:
         # the same distribution), so that FIRE's force loop finds neighbours near in memory
         x = x[neighbours.cell_list(x, box, 2.0 * r0.max())[2]]
-    x, scale, p = _jam(x, r0, box, pressure, float(2.0 * r0.mean()), say)
+    x, scale, p = _jam(x, r0, box, pressure, 2.0 * portable.mean(r0), say)
     say(
         "jamming",
         1.0,
-        f"jammed at phi = {solid_measure(scale * r0, box.size) / box.prod():.4f}"
+        f"jammed at phi = {solid_measure(scale * r0, box.size) / math.prod(box):.4f}"
         f", p/k = {p:.2e} ({say.elapsed():.1f} s)",
     )
     centers, radii, cell = stress_free(x / scale, r0.copy(), box / scale, delta, say)
@@ -376,7 +380,7 @@ def relax_overlaps(
         raise TypeError(f"packing must be a dolfinx_granular.Packing, got {type(packing).__name__}")
     require_disks(packing, "relax_overlaps")
     _check_contact_overlap(contact_overlap)
-    delta = contact_overlap * 2.0 * float(packing.radii.mean())
+    delta = contact_overlap * 2.0 * portable.mean(packing.radii)
     say = _Reporter(progress)
     x, r, box = packing.centers.copy(), packing.radii.copy(), packing.box.copy()
     try:
@@ -385,7 +389,7 @@ def relax_overlaps(
         pass
     say("stress-free", 0.0, "the overlaps are too large for small moves: jamming afresh")
     try:
-        x, scale, _ = _jam(packing.centers.copy(), r, box, 1e-4, 2.0 * float(r.mean()), say)
+        x, scale, _ = _jam(packing.centers.copy(), r, box, 1e-4, 2.0 * portable.mean(r), say)
         return Packing(*stress_free(x, scale * r, box, scale * delta, say))
     except RuntimeError as err:  # the jamming search or the correction failed
         raise ValueError(
@@ -456,7 +460,7 @@ def _jam(x, r0, box, p_target, d_mean, say):
         ``(x, scale, p)`` with the jammed centres (N, d) at radii ``scale * r0``.
     """
     dim = box.size
-    phi0 = solid_measure(r0, dim) / box.prod()
+    phi0 = solid_measure(r0, dim) / math.prod(box)
     skin = 0.3 * d_mean
     ftol = 1e-3 * p_target * d_mean
     phi = FIRST_GUESS[dim]
@@ -464,7 +468,7 @@ def _jam(x, r0, box, p_target, d_mean, say):
     jammed = []
     p = 0.0
     for it in range(60):
-        scale = (phi / phi0) ** (1.0 / dim)
+        scale = portable.root(phi / phi0, dim)
         steps, p = _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, phi, it)
         say(
             "jamming",
@@ -481,9 +485,9 @@ def _jam(x, r0, box, p_target, d_mean, say):
             jammed.append((phi, p))
         if lo is not None and hi is not None and hi - lo < 1e-9:
             # p jumps across the target (small N): accept the jammed state at the upper bound
-            scale = (hi / phi0) ** (1.0 / dim)
+            scale = portable.root(hi / phi0, dim)
             _minimise_reporting(x, scale * r0, box, skin, ftol, d_mean, say, hi, it)
-            return x, scale, virial_pressure(x, scale * r0, box) * d_mean ** (dim - 2)
+            return x, scale, virial_pressure(x, scale * r0, box) * _pressure_unit(d_mean, dim)
         phi = _next_phi(phi, jammed, lo, hi, p_target)
     raise RuntimeError(f"jamming did not reach p/k = {p_target:g} (last p/k = {p:.3g})")
 
@@ -510,7 +514,12 @@ def _minimise_reporting(x, r, box, skin, ftol, d_mean, say, phi, it):
 
     steps, vir = minimise(x, r, box, skin, ftol, 0.05 * d_mean, 0.5 * d_mean, 2_000_000, beat)
     dim = box.size
-    return steps, vir / (dim * box.prod()) * d_mean ** (dim - 2)  # dimensionless
+    return steps, vir / (dim * math.prod(box)) * _pressure_unit(d_mean, dim)  # dimensionless
+
+
+def _pressure_unit(d_mean, dim):
+    """The factor that makes p / k dimensionless: 1 in 2-D (k in N/m²), d_mean in 3-D (N/m)."""
+    return d_mean if dim == 3 else 1.0
 
 
 def _next_phi(phi, jammed, lo, hi, p_target):

@@ -16,12 +16,14 @@ disks.
 from __future__ import annotations
 
 import csv
+import decimal
 import io
 from importlib import resources
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import portable
 from .packing import check_dimension
 
 if TYPE_CHECKING:
@@ -136,13 +138,13 @@ class SieveCurve:
             lo, hi, dp = lo[keep], hi[keep], dp[keep]
             if lo[0] < d_min:
                 # the class straddling the cut keeps its share above d_min (log-linear P)
-                dp[0] *= np.log(hi[0] / d_min) / np.log(hi[0] / lo[0])
+                dp[0] = _straddling_share(dp[0], lo[0], hi[0], d_min)
                 lo[0] = d_min
         keep = dp > 0.0
         lo, hi, dp = lo[keep], hi[keep], dp[keep]
         if dp.size == 0:
             raise ValueError(f"no grains above d_min = {d_min} mm on this sieve curve")
-        return lo, hi, dp / dp.sum()
+        return lo, hi, dp / portable.total(dp)
 
     def number_fractions(
         self, d_min: float | None = None, dim: int = 2
@@ -151,9 +153,8 @@ class SieveCurve:
         passing read as area (``dim`` 2, disks) or volume (``dim`` 3, spheres) fraction."""
         k = check_dimension(dim)
         lo, hi, share = self.classes(d_min)
-        mean_dk = k * np.log(hi / lo) / (lo**-k - hi**-k)
-        w = share / mean_dk
-        return lo, hi, w / w.sum()
+        w = share / np.array([_mean_power(a, b, k) for a, b in zip(lo, hi)])
+        return lo, hi, w / portable.total(w)
 
     def sample_diameters(
         self,
@@ -166,7 +167,8 @@ class SieveCurve:
         spheres) distribution follows the curve above d_min.
 
         Stratified sampling of the number distribution: the i-th diameter is the inverse number
-        CDF at (i + U_i) / n, U_i uniform, so even 70 grains reproduce the grading closely.
+        CDF at (i + U_i) / n, U_i uniform, so even 70 grains reproduce the grading closely. The
+        diameters are the same floats on every CPU and numpy release (:mod:`.portable`).
 
         Args:
             n: number of grains, >= 1.
@@ -189,8 +191,9 @@ class SieveCurve:
         c = np.clip(np.searchsorted(cdf, u, side="right") - 1, 0, lo.size - 1)
         t = np.clip((u - cdf[c]) / nfrac[c], 0.0, 1.0)
         # inverse of the class's number CDF (a^-k - d^-k) / (a^-k - b^-k), k = dim
-        a, b = lo[c], hi[c]
-        return (a**-k - t * (a**-k - b**-k)) ** (-1.0 / k)
+        lo_k = np.array([float(portable.inverse_power(a, k)) for a in lo])
+        hi_k = np.array([float(portable.inverse_power(b, k)) for b in hi])
+        return portable.inverse_roots(lo_k[c] - t * (lo_k[c] - hi_k[c]), k)
 
     @staticmethod
     def area_passing(diameters: ArrayLike, d: ArrayLike, dim: int = 2) -> np.ndarray:
@@ -237,6 +240,24 @@ class SieveCurve:
                 ) from None
         arr = np.array(data)
         return cls(arr[:, 0], arr[:, 1], name=name, source=" ".join(comments))
+
+
+def _straddling_share(dp, lo, hi, d_min):
+    """The share dp of the class [lo, hi] that lies above d_min: dp ln(hi / d_min) / ln(hi / lo)
+    (P linear in log d), in decimal (the same float everywhere)."""
+    ctx = portable.context()
+    above = ctx.subtract(portable.ln(hi), portable.ln(d_min))
+    whole = ctx.subtract(portable.ln(hi), portable.ln(lo))
+    return float(ctx.divide(ctx.multiply(decimal.Decimal(float(dp)), above), whole))
+
+
+def _mean_power(lo, hi, k):
+    """<d^k> of the class [lo, hi] with the number density ~ d^-(k+1) of a log-uniform area
+    (k = 2) or volume (k = 3): k ln(hi / lo) / (lo^-k - hi^-k), in decimal."""
+    ctx = portable.context()
+    log_ratio = ctx.subtract(portable.ln(hi), portable.ln(lo))
+    span = ctx.subtract(portable.inverse_power(lo, k), portable.inverse_power(hi, k))
+    return float(ctx.divide(ctx.multiply(log_ratio, k), span))
 
 
 def cen_standard_sand() -> SieveCurve:

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import portable
+
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
@@ -212,10 +214,14 @@ def check_dimension(dim: int) -> int:
 
 
 def solid_measure(radii: np.ndarray, dim: int) -> float:
-    """Area (2-D: sum pi r²) or volume (3-D: sum 4/3 pi r³) of particles of ``radii`` (N,)."""
+    """Area (2-D: sum pi r²) or volume (3-D: sum 4/3 pi r³) of particles of ``radii`` (N,).
+
+    The powers are products and the sum is correctly rounded (numpy's r**3 calls a ``pow``
+    that rounds differently by CPU): the same float everywhere, which the generator needs."""
+    radii = np.asarray(radii, dtype=np.float64)
     if dim == 2:
-        return np.pi * np.sum(radii**2)
-    return 4.0 / 3.0 * np.pi * np.sum(radii**3)
+        return np.pi * portable.total(radii * radii)
+    return 4.0 / 3.0 * np.pi * portable.total(radii * radii * radii)
 
 
 def require_disks(packing: Packing, who: str) -> None:

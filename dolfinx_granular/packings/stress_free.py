@@ -6,15 +6,15 @@ correction of all centres and radii makes every contact between non-rattlers ove
 ``delta`` and opens the contacts of rattlers (particles with fewer than d + 1 contacts: 3 for
 disks, 4 for spheres, removed recursively) to a small gap. A contact is identified by its
 particles and their image shift between the unwrapped centres, so that a particle crossing the
-cell boundary keeps it.
+cell boundary keeps it. The Newton steps solve their normal equations with
+:mod:`~dolfinx_granular.packings.cholesky` (the same bits on every machine).
 """
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
+from .cholesky import minimum_norm_step, nested_dissection
 from .fire import candidates
 from .packing import Packing
 
@@ -118,10 +118,9 @@ def _newton(x, r, box, ij, shift, target, delta):
     x = x.copy()
     r = r.copy()
     i, j = ij[:, 0], ij[:, 1]
-    m = i.size
     n, dim = x.shape
     S = shift * box
-    rows = np.repeat(np.arange(m), 2 * dim + 2)
+    order = nested_dissection(x, ij)
     for _ in range(8):
         L = x[j] + S - x[i]
         d2 = L[:, 0] * L[:, 0]
@@ -133,23 +132,7 @@ def _newton(x, r, box, ij, shift, target, delta):
         g = r[i] + r[j] - d - target
         if np.all(np.abs(g) <= 0.01 * delta):
             break
-        nv = L / d[:, None]
-        # unknowns: x (d n, interleaved) then r (n); deps/dx_i = n, deps/dx_j = -n, deps/dr = 1
-        a = np.arange(dim)
-        cols = np.concatenate(
-            [dim * i[:, None] + a, dim * j[:, None] + a, dim * n + np.stack([i, j], axis=1)],
-            axis=1,
-        )
-        vals = np.concatenate([nv, -nv, np.ones((m, 2))], axis=1)
-        J = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, (dim + 1) * n))
-        JJt = (J @ J.T).tocsc()
-        JJt = JJt + sp.identity(m, format="csc") * 1e-12 * JJt.diagonal().mean()
-        # J J^T is symmetric positive definite: a symmetric fill-reducing order without pivoting
-        # fills in far less than the default column order (O(M^1.2) instead of O(M^1.6) here)
-        lu = spla.splu(
-            JJt, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
-        )
-        dz = J.T @ lu.solve(-g)
-        x += dz[: dim * n].reshape(n, dim)
-        r += dz[dim * n :]
+        dx, dr = minimum_norm_step(ij, L / d[:, None], g, order, n)
+        x += dx
+        r += dr
     return x, r
