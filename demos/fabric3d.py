@@ -30,7 +30,6 @@ is a serial job).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import sys
@@ -42,6 +41,7 @@ from dolfinx_granular import (
     fabric_tensor,
     generate_packing,
 )
+from dolfinx_granular.io.commandline import Parser
 from dolfinx_granular.io.outfolder import claim_or_refuse, default_out
 from dolfinx_granular.io.plotting import plot_sphere_densities
 
@@ -57,7 +57,7 @@ FABRIC = ("xx", "yy", "zz", "xy", "xz", "yz")
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/fabric3d[-small]``), ``small`` with
     ``DEMO_SMALL=1``, ``force`` with the deprecated ``--overwrite``."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = Parser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=int, default=1000, help="spheres in the packing")
     ap.add_argument("--seed", type=int, default=0, help="seed of the packing")
     ap.add_argument(

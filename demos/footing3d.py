@@ -30,7 +30,6 @@ old name, deprecated).
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import warnings
@@ -38,6 +37,7 @@ import warnings
 from dolfinx_granular.footing3d.geometry import FootingGeometry
 from dolfinx_granular.footing3d.run import FILES as FILES  # (what --force replaces)
 from dolfinx_granular.footing3d.run import FootingOptions, run_footing
+from dolfinx_granular.io.commandline import Parser
 from dolfinx_granular.io.outfolder import OutFolderError, default_out, refused
 from dolfinx_granular.slope.geometry import SlopeGeometry
 
@@ -58,7 +58,7 @@ SMALL = FootingGeometry(SlopeGeometry(rows=3), depth=15.5, layers=2, footing_lay
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/footing3d[-small]``), ``small`` with
     ``DEMO_SMALL=1``, ``force`` with the deprecated ``--overwrite``."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = Parser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=int, default=1000, help="spheres per RVE")
     ap.add_argument("--seed", type=int, default=0, help="seed of the packing")
     ap.add_argument("--stiffness", type=float, default=1e5, help="k_n in N/m")

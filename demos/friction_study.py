@@ -51,7 +51,6 @@ and dissipation; dissipation, loop area and their relative difference per cycle)
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import sys
@@ -59,6 +58,7 @@ import time
 from dataclasses import dataclass
 
 from dolfinx_granular.drivers.material_point import ControlError, solve_point
+from dolfinx_granular.io.commandline import Parser
 from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
 from dolfinx_granular.io.shear_figures import (
     dissipation_figure,
@@ -553,7 +553,7 @@ def run(out="results/friction_study", small=False, use_cache=True, verbose=True,
 
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/friction_study[-small]``)."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = Parser(description=__doc__.split("\n")[0])
     parser.add_argument(
         "--out",
         help="output folder (default results/friction_study, --small: "

@@ -27,7 +27,6 @@
 # %%
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import os
@@ -45,6 +44,7 @@ from dolfinx_granular import (
 from dolfinx_granular.drivers.material_point import MaterialPoint
 from dolfinx_granular.fem.compat import repair_xdmf
 from dolfinx_granular.fem.fields import cauchy_output
+from dolfinx_granular.io.commandline import Parser
 from dolfinx_granular.io.outfolder import OutFolderError, claim_out, default_out, refused
 
 import numpy as np
@@ -223,7 +223,7 @@ def run(out="results/granular_column", small=False, comm=MPI.COMM_WORLD, force=F
 
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/granular_column[-small]``)."""
-    parser = argparse.ArgumentParser(description="A granular column under a surface load.")
+    parser = Parser(description="A granular column under a surface load.")
     parser.add_argument(
         "--out",
         help="output folder (default results/granular_column, --small: "

@@ -47,7 +47,6 @@ shear step), ``relaxed_moduli.png``, ``relaxed_coordination.png``, ``relaxed_she
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import sys
@@ -63,6 +62,7 @@ from dolfinx_granular import (
     generate_packing,
 )
 from dolfinx_granular.drivers.confinement import compress, ramp
+from dolfinx_granular.io.commandline import Parser
 from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
 from dolfinx_granular.io.shear_figures import save_figure
 from dolfinx_granular.laws import relaxation
@@ -304,7 +304,7 @@ def run(out="results/relaxed_study", small=False, verbose=True, force=False):
 
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/relaxed_study[-small]``)."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = Parser(description=__doc__.split("\n")[0])
     parser.add_argument(
         "--out",
         help="output folder (default results/relaxed_study, --small: results/relaxed_study-small)",

@@ -38,7 +38,6 @@ regenerates them). ``--small`` is a reduced run for the tests (2-3 seeds, 70 and
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import os
@@ -48,6 +47,7 @@ import time
 from dolfinx_granular import TaylorRVE, cen_standard_sand
 from dolfinx_granular.drivers.material_point import MaterialPoint
 from dolfinx_granular.io import plotting
+from dolfinx_granular.io.commandline import Parser
 from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
 from dolfinx_granular.packings.cache import PackingCache
 from dolfinx_granular.packings.fabric import (
@@ -332,7 +332,7 @@ def run(out="results/rve_study", small=False, use_cache=True, verbose=True, forc
 
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/rve_study[-small]``)."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = Parser(description=__doc__.split("\n")[0])
     parser.add_argument(
         "--out", help="output folder (default results/rve_study, --small: results/rve_study-small)"
     )

@@ -29,12 +29,12 @@
 # %%
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
 
 from dolfinx_granular import generate_packing
+from dolfinx_granular.io.commandline import Parser
 from dolfinx_granular.io.outfolder import claim_or_refuse, default_out
 from dolfinx_granular.io.runwriter import RunWriter
 from dolfinx_granular.slope import SlopeGeometry, SlopeOptions, run_slope
@@ -177,7 +177,7 @@ SMALL = dict(particles=70, seed=1, steps=4, meshes=[1])
 def parse_args(argv=None):
     """The options, ``--small``'s where not given; ``out`` resolved
     (``results/slope_collapse[-small]``)."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         description="The slope's collapse: load control and path "
         "following on two meshes, and the uplift."
     )

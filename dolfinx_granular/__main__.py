@@ -25,11 +25,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .io.commandline import Parser, world_rank
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
 
-class _Parser(argparse.ArgumentParser):
+class _Parser(Parser):
     """argparse with one-line errors (``error: ...``, exit 2) instead of the usage block."""
 
     def error(self, message):
@@ -207,7 +209,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, OSError) as err:
         if debug:
             raise
-        print(f"error: {err}", file=sys.stderr)
+        if world_rank() == 0:  # (once under mpirun)
+            print(f"error: {err}", file=sys.stderr)
         return 2
 
 

@@ -27,7 +27,6 @@ quick; the record is ``warmup.<python tag>.json`` next to Numba's cache, and goe
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -38,6 +37,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from .io.commandline import Parser
 
 if TYPE_CHECKING:
     from .packings.packing import Packing
@@ -190,7 +191,7 @@ def warm_up(force: bool = False, stamp: Path | None = None, say=print) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: ``python -m dolfinx_granular.warmup [--force]``."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m dolfinx_granular.warmup",
         description="Compile the Numba kernels and the slope's forms into their caches "
         "(once per change of the sources), so that the first run does not compile.",

@@ -45,7 +45,7 @@ def anchors(path):
 def test_readme_is_short_and_points_to_the_docs():
     with open(os.path.join(ROOT, "README.md"), encoding="utf-8") as f:
         text = f.read()
-    assert len(text.splitlines()) <= 200
+    assert len(text.splitlines()) <= 220
     for name in DOCS[1:]:
         assert f"({name})" in text, f"the README does not link {name}"
 

@@ -4,12 +4,11 @@ holds a run (unless ``--force``, which removes that run's files and no others), 
 run; the load-settlement curve is signed as the log and ``summary.json``."""
 
 import json
-import subprocess
 
 import numpy as np
 import pytest
 
-from helpers import MPI_ENV, assert_user_error, load_demo, run_slope_demo, slope_command
+from helpers import assert_user_error, load_demo, run_slope_demo
 
 SMALL = ["--particles", "70", "--seed", "1", "--no-figure"]
 
@@ -131,13 +130,6 @@ def test_time_left(elapsed, done, left, bound, note):
     from dolfinx_granular.slope.run import time_left_note
 
     assert time_left_note(elapsed, done, left, bound) == note
-
-
-def test_help_is_printed_once_under_mpi():
-    proc = subprocess.run(
-        slope_command("--help", ranks=2), env=MPI_ENV, capture_output=True, text=True
-    )
-    assert proc.returncode == 0 and proc.stdout.count("usage:") == 1, proc.stdout
 
 
 def test_load_settlement_curve_is_signed_as_the_summary():

@@ -13,6 +13,18 @@ import pytest
 
 from helpers import ROOT
 
+# (in the probes: the compiled specialisations of every Numba kernel of the package)
+SIGNATURES = r"""
+def signatures():
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("dolfinx_granular"):
+            for attr, obj in vars(module).items():
+                if isinstance(obj, numba.core.dispatcher.Dispatcher):
+                    found[f"{name}.{attr}"] = {str(s) for s in obj.signatures}
+    return found
+"""
+
 # Run in a fresh interpreter with its own FFCx cache (XDG_CACHE_HOME): warm up, then the demo's
 # command line (frictionless with its figure, and with friction) and a GranularMaterial on a mesh
 # of the user's; report what they compiled that the warm-up had not.
@@ -30,15 +42,7 @@ stamp = tmp / "warmup.json"
 ran = [warmup.warm_up(force=True, stamp=stamp, say=print), warmup.warm_up(stamp=stamp, say=print)]
 
 
-def signatures():
-    found = {}
-    for name, module in list(sys.modules.items()):
-        if name.startswith("dolfinx_granular"):
-            for attr, obj in vars(module).items():
-                if isinstance(obj, numba.core.dispatcher.Dispatcher):
-                    found[f"{name}.{attr}"] = {str(s) for s in obj.signatures}
-    return found
-
+{SIGNATURES}
 
 def ffcx_files():
     return {p.name for p in warmup._ffcx_cache_dir().glob("*.so")}
@@ -70,7 +74,7 @@ print("PROBE", json.dumps({
     "new_forms": new_forms,
     "compiled": sum(len(s) for s in after.values()),
 }))
-"""
+""".replace("{SIGNATURES}", SIGNATURES)
 
 
 # In a fresh interpreter: the warm-up's material-point calls, then what the relaxed study does
@@ -88,15 +92,7 @@ from dolfinx_granular import RelaxedRVE, generate_packing, warmup
 from dolfinx_granular.laws import relaxation
 
 
-def signatures():
-    found = {}
-    for name, module in list(sys.modules.items()):
-        if name.startswith("dolfinx_granular"):
-            for attr, obj in vars(module).items():
-                if isinstance(obj, numba.core.dispatcher.Dispatcher):
-                    found[f"{name}.{attr}"] = {str(s) for s in obj.signatures}
-    return found
-
+{SIGNATURES}
 
 warmup.warm_api()
 kernels = signatures()
@@ -118,7 +114,7 @@ print("PROBE", json.dumps({
     "fire": len(relaxation.rk.fire_chunk.signatures),
     "new_kernels": {k: s for k, s in new.items() if s},
 }))
-"""
+""".replace("{SIGNATURES}", SIGNATURES)
 
 
 def probe_report(code, *args, env=None):

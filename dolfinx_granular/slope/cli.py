@@ -22,6 +22,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..fem.compat import show_warnings
+from ..io.commandline import Parser
 from ..io.outfolder import writable
 from ..io.runwriter import RestartError
 from ..packings.packing import Packing, PackingFileError
@@ -51,15 +52,11 @@ class UserError(ValueError):
 RESUME_OPTIONS = ("resume", "no_figure", "stop_after", "debug")
 
 
-class _Parser(argparse.ArgumentParser):
+class _Parser(Parser):
     """argparse that raises :class:`UserError` (one line) instead of printing the usage block."""
 
     def error(self, message):
         raise UserError(f"{message} (see '{self.prog} --help')")
-
-    def _print_message(self, message, file=None):
-        if MPI.COMM_WORLD.rank == 0:  # --help once under mpirun, not once per rank
-            super()._print_message(message, file)
 
 
 def _int_at_least(low):
