@@ -11,8 +11,9 @@ import subprocess
 import sys
 import time
 
+from dolfinx_granular.io.runwriter import RestartError
 from dolfinx_granular.slope.cli import UserError, _claim_out
-from dolfinx_granular.slope.run import converged_steps
+from dolfinx_granular.slope.run import converged_steps, load_restart
 
 import pytest
 
@@ -99,6 +100,8 @@ def test_a_run_with_no_converged_step_is_run_again_without_force(tmp_path):
     out = tmp_path / "run"
     write_run(out, 0, restart=False)
     assert converged_steps(out) == 0
+    with pytest.raises(RestartError, match="nothing to resume; run the same command again"):
+        load_restart(out)
     _claim_out(str(out), force=False)
     assert sorted(os.listdir(out)) == ["notes.txt"]
 

@@ -132,6 +132,11 @@ def load_restart(folder: str | os.PathLike[str]) -> dict:
     ``packing``, ``nodes`` (n, 2), ``u_history`` (steps, n, 2), ``path``; raises
     :class:`~dolfinx_granular.io.runwriter.RestartError` if unusable."""
     path = os.path.join(folder, "restart.npz")
+    if not os.path.exists(path) and run_files(folder) and not converged_steps(folder):
+        raise RestartError(
+            f"{folder} holds a run that stopped before its first load step converged: nothing "
+            "to resume; run the same command again without --resume (no --force needed)"
+        )
     f = read_npz(path, RESTART_FORMAT)
     try:
         return {
