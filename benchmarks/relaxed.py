@@ -19,14 +19,19 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
 - one factorisation of the network's stiffness at the committed state by other sparse
   libraries, where they are installed (none is a dependency): QDLDL (``pip install qdldl``) and
   CHOLMOD (``pip install scikit-sparse`` on SuiteSparse's headers), each refactorising on a
-  symbolic analysis done once, the least any of them could cost per factorisation.
+  symbolic analysis done once, the least any of them could cost per factorisation;
+- the block LDL^T in 2 x 2 blocks (:mod:`~dolfinx_granular.laws.block_ldlt`) beside SuperLU:
+  its factorisation on the pattern of every candidate pair (as a solver keeps it while the list
+  holds) and on the network's own pairs (the least it could be), its flops and the blocks of L
+  (in scalar entries beside SuperLU's nnz(L)), one solve, and the assembly straight into its
+  values beside the COO triplets and their conversion to CSC that SuperLU needs.
 """
 
 import argparse
 import time
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.laws import relaxation
+from dolfinx_granular.laws import block_ldlt, relaxation
 from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
 from dolfinx_granular.laws.relaxed_cell import ContactState
 
@@ -164,6 +169,7 @@ def main(argv=None):
         f"one factorisation of the network's stiffness ({n} unknowns), ms: "
         + ", ".join(f"{k} {v:.2f}" for k, v in libraries.items())
     )
+    print_block_ldlt(block_ldlt_times(rve, F0, state))
 
 
 def factorisation_libraries(rve, F0, state):
@@ -189,6 +195,70 @@ def factorisation_libraries(rve, F0, state):
     except ImportError:
         pass
     return net.n, {k: 1e3 * v for k, v in times.items()}
+
+
+def block_ldlt_times(rve, F0, state, repeats=50):
+    """The block LDL^T beside SuperLU on the network's stiffness at the committed state (the
+    tangent's matrix; the rattlers' unknowns on the diagonal alone): ms per factorisation,
+    solve and assembly (best of ``repeats``), flops, nnz(L) in scalar entries, and the largest
+    difference of the two solutions relative to SuperLU's."""
+    cell = rve.cell
+    s = ContactState(cell, F0, state.w[0])
+    net = relaxation._Network(cell, F0, s)
+    H = relaxation._matrix(cell, F0, s, s.network, s.network, net.dof, net.n)
+    pinned = int(np.argmax(s.keep))
+    shift = np.where(s.keep, 0.0, cell.K)
+    args = (F0, cell.pi[: s.m], cell.pj[: s.m], s.lx, s.ly, s.d, s.e, cell.R[: s.m], cell.K,
+            s.network, s.network)  # fmt: skip
+    network = np.zeros(cell.pi.size, np.bool_)
+    network[: s.m] = s.network
+    own = np.c_[cell.pi, np.where(network, cell.pj, cell.pi)]  # (i, i): no block
+    g = np.random.default_rng(0).normal(size=(cell.n_disks, 2))
+    g[~s.keep] = 0.0
+    ref = relaxation._scatter(net.lu.solve(relaxation._gather(g, net.dof, net.n)), net.dof,
+                              cell.n_disks)  # fmt: skip
+    out = {"SuperLU": {
+        "factorisation": best_time(lambda: relaxation._factorise(H), repeats // 2)[0],
+        "solve": best_time(lambda: net.lu.solve(np.ones(net.n)), repeats)[0],
+        "assembly": best_time(lambda: relaxation._matrix(cell, F0, s, s.network, s.network,
+                                                         net.dof, net.n), repeats)[0],
+        "nnz(L)": net.lu.L.nnz,
+    }}  # fmt: skip
+    for name, pairs in (("candidates", np.c_[cell.pi, cell.pj]), ("network", own)):
+        p = block_ldlt.analyse(cell.n_disks, pairs, pinned=pinned)
+        values, factor = p.zeros(), p.new_factor()
+        assemble = lambda p=p, v=values: block_ldlt.assemble(  # noqa: E731
+            *args, p.diag_slot, p.pair_slot, v
+        )
+        assemble()
+        out[name] = {
+            "factorisation": best_time(
+                lambda p=p, v=values, f=factor: block_ldlt.factorise(p, v, f, shift), repeats
+            )[0],
+            "solve": best_time(lambda p=p, f=factor: block_ldlt.solve(p, f, g), repeats)[0],
+            "assembly": best_time(assemble, repeats)[0],
+            "nnz(L)": 4 * p.nnz_L + 3 * p.n,
+            "flops": p.flops,
+            "agree": float(np.abs(block_ldlt.solve(p, factor, g) - ref).max() / np.abs(ref).max()),
+        }
+    return out
+
+
+def print_block_ldlt(times):
+    """The lines of :func:`block_ldlt_times`."""
+    su = times["SuperLU"]
+    print(
+        f"block LDL^T beside SuperLU (ms, best of many; nnz(L) in scalar entries): SuperLU "
+        f"factorisation {1e3 * su['factorisation']:.3f}, solve {1e3 * su['solve']:.3f}, COO "
+        f"assembly and CSC {1e3 * su['assembly']:.3f}, nnz(L) {su['nnz(L)']}"
+    )
+    for name, label in (("candidates", "candidates'"), ("network", "network's")):
+        t = times[name]
+        print(
+            f"  on the {label} pattern: factorisation {1e3 * t['factorisation']:.3f} "
+            f"({t['flops'] / 1e6:.2f} MFLOP), solve {1e3 * t['solve']:.3f}, assembly "
+            f"{1e3 * t['assembly']:.3f}, nnz(L) {t['nnz(L)']}, agrees to {t['agree']:.1e}"
+        )
 
 
 if __name__ == "__main__":

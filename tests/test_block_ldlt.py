@@ -1,0 +1,326 @@
+"""The block LDL^T factorisation (laws/block_ldlt.py) against SuperLU and dense eigenvalues, on
+the stiffness the relaxed RVE's micro solver assembles at a relaxed state of real packings, and
+on synthetic 3 x 3 block matrices."""
+
+from dolfinx_granular import generate_packing
+from dolfinx_granular.laws import block_ldlt, relaxation
+from dolfinx_granular.laws.relaxed import RelaxedRVE
+from dolfinx_granular.laws.relaxed_cell import ContactState
+from dolfinx_granular.packings.reference_packing import reference_packing
+
+import numpy as np
+import pytest
+from scipy.sparse import diags
+from scipy.sparse.linalg import splu, spsolve
+
+K_N = 2.8e7
+F0 = np.diag([0.995, 0.995])
+F1 = np.array([[0.994, 0.002], [0.001, 0.996]])
+
+
+class Relaxed:
+    """A relaxed cell at F, its contact state, and the block pattern of its candidates with
+    the first non-rattler pinned (as the micro solver pins it)."""
+
+    def __init__(self, packing, F):
+        self.rve = RelaxedRVE(packing, K_N)
+        _, _, _, state = self.rve.evaluate(F[None], self.rve.initial_state(1))
+        self.cell, self.F, self.w = self.rve.cell, F, state.w[0]
+        self.s = ContactState(self.cell, F, self.w)
+        self.pinned = int(np.argmax(self.s.keep))
+        self.pattern = block_ldlt.analyse(
+            self.cell.n_disks, np.c_[self.cell.pi, self.cell.pj], pinned=self.pinned
+        )
+        self.dof = np.arange(self.cell.n_disks, dtype=np.int64)
+        self.dof[self.pinned + 1 :] -= 1
+        self.dof[self.pinned] = -1
+        self.n = 2 * (self.cell.n_disks - 1)
+
+    def values(self, exact, F=None, s=None):
+        """The stiffness over the contacts on (``exact`` the exact ones) in block values."""
+        F, s, c = (self.F if F is None else F), (self.s if s is None else s), self.cell
+        v = self.pattern.zeros()
+        block_ldlt.assemble(
+            F, c.pi[: s.m], c.pj[: s.m], s.lx, s.ly, s.d, s.e, c.R[: s.m], c.K, s.on, exact,
+            self.pattern.diag_slot, self.pattern.pair_slot, v,
+        )  # fmt: skip
+        return v
+
+    def superlu_matrix(self, exact, F=None, s=None):
+        """relaxation._matrix of the same contacts (CSC on the unknowns without the pinned
+        disk)."""
+        F, s = (self.F if F is None else F), (self.s if s is None else s)
+        return relaxation._matrix(self.cell, F, s, s.on, exact, self.dof, self.n)
+
+    def gather(self, g):
+        return relaxation._gather(g, self.dof, self.n)
+
+    def scatter(self, v):
+        return relaxation._scatter(v, self.dof, self.cell.n_disks)
+
+    def rattler_shift(self, scale=1e-8):
+        shift = np.zeros(self.cell.n_disks)
+        shift[~self.s.keep] = scale * self.cell.K
+        return shift
+
+
+@pytest.fixture(scope="module")
+def big():
+    """The shipped 700-disk packing relaxed at an isotropic compression."""
+    return Relaxed(reference_packing(), F0)
+
+
+@pytest.fixture(scope="module")
+def small():
+    """70 disks jammed at p / k_n = 1e-3, relaxed at the same compression."""
+    return Relaxed(generate_packing(70, seed=0, pressure=1e-3), F0)
+
+
+@pytest.fixture(scope="module")
+def network_eigenvalues(big):
+    """Eigenvalues of the 700-disk network's stiffness, the rattlers' unknowns at K."""
+    H = big.superlu_matrix(big.s.network) + diags(unknowns_of(big.rattler_shift(1.0), big.dof))
+    return np.linalg.eigvalsh(H.toarray())
+
+
+def rel_err(x, ref):
+    return np.abs(x - ref).max() / np.abs(ref).max()
+
+
+def unknowns_of(shift_per_disk, dof):
+    """A per-disk shift (N,) as a diagonal on the unknowns without the pinned disk."""
+    k = dof >= 0
+    return np.repeat(shift_per_disk[k], 2)
+
+
+def test_assembly_writes_the_stiffness_of_the_micro_solver(big):
+    for exact in (big.s.network, big.s.on):
+        A = big.pattern.to_csc(big.values(exact))
+        keep = np.repeat(big.dof >= 0, 2)
+        A = A[keep][:, keep]
+        H = big.superlu_matrix(exact)
+        assert abs(A - H).max() <= 1e-14 * abs(H).max()
+
+
+def residual(H, b, x):
+    """Normwise relative residual |b - H x| / (|H| |x|) (max norms)."""
+    return np.abs(b - H @ x).max() / (abs(H).max() * np.abs(x).max())
+
+
+def superlu(H, b):
+    """SuperLU's solution with one step of iterative refinement (the reference)."""
+    lu = splu(H.tocsc())
+    x = lu.solve(b)
+    return x + lu.solve(b - H @ x)
+
+
+def test_the_network_stiffness_solves_as_superlu(big):
+    """The non-rattlers' exact stiffness (the tangent's condensation), the rattlers' unknowns
+    on the diagonal alone: positive definite, solved as SuperLU solves it."""
+    shift = big.rattler_shift(1.0)
+    factor = big.pattern.new_factor()
+    ok, inertia = block_ldlt.factorise(big.pattern, big.values(big.s.network), factor, shift)
+    assert ok and factor.positive_definite and inertia == (big.n, 0, 0)
+    H = big.superlu_matrix(big.s.network) + diags(unknowns_of(shift, big.dof))
+    g = np.random.default_rng(0).normal(size=(big.cell.n_disks, 2))
+    ref = big.scatter(spsolve(H.tocsc(), big.gather(g)))
+    x = block_ldlt.solve(big.pattern, factor, g)
+    assert rel_err(x, ref) < 1e-12
+    assert np.all(x[big.pinned] == 0.0)
+    assert rel_err(block_ldlt.solve(big.pattern, factor, g, refine=1), ref) < 1e-12
+
+
+def test_the_newton_stiffness_with_the_rattler_shift(big):
+    """Newton's stiffness: every contact, the rattlers' by their positive part, the rattlers'
+    unknowns shifted by 1e-8 K (condition number ~7e8: two backward stable solvers agree to
+    ~1e-10 only): backward stable, refined to SuperLU's residual."""
+    shift = big.rattler_shift()
+    factor = big.pattern.new_factor()
+    ok, _ = block_ldlt.factorise(big.pattern, big.values(big.s.network), factor, shift)
+    assert ok and factor.positive_definite
+    H = (big.superlu_matrix(big.s.network) + diags(unknowns_of(shift, big.dof))).tocsc()
+    g = np.random.default_rng(6).normal(size=(big.cell.n_disks, 2))
+    b = big.gather(g)
+    x = big.gather(block_ldlt.solve(big.pattern, factor, g))
+    x1 = big.gather(block_ldlt.solve(big.pattern, factor, g, refine=1))
+    assert residual(H, b, x) < 1e-15 and residual(H, b, x1) < 1e-17
+    assert rel_err(x, spsolve(H, b)) < 1e-8 and rel_err(x1, superlu(H, b)) < 1e-8
+
+
+def test_several_right_hand_sides_in_every_layout(big):
+    shift = big.rattler_shift(1.0)
+    factor = big.pattern.new_factor()
+    block_ldlt.factorise(big.pattern, big.values(big.s.network), factor, shift)
+    H = big.superlu_matrix(big.s.network) + diags(unknowns_of(shift, big.dof))
+    B = np.random.default_rng(1).normal(size=(big.cell.n_disks, 2, 4))
+    k = big.dof >= 0
+    rhs = np.zeros((big.n, 4))
+    rhs[2 * big.dof[k]], rhs[2 * big.dof[k] + 1] = B[k, 0], B[k, 1]
+    ref = big.scatter(splu(H.tocsc()).solve(rhs))
+    X = block_ldlt.solve(big.pattern, factor, B)
+    assert X.shape == B.shape and rel_err(X, ref) < 1e-12
+    flat = block_ldlt.solve(big.pattern, factor, B.reshape(-1, 4))
+    np.testing.assert_array_equal(flat, X.reshape(-1, 4))
+    one = block_ldlt.solve(big.pattern, factor, B[:, :, 0].ravel())
+    np.testing.assert_array_equal(one, X[:, :, 0].ravel())
+
+
+@pytest.mark.parametrize("below", [3, 100])
+def test_a_negative_shift_makes_it_indefinite(big, network_eigenvalues, below):
+    """The network's stiffness shifted by -mu I, mu between its eigenvalues number ``below``
+    and ``below`` + 1: that many negative eigenvalues, solved as SuperLU solves it once
+    refined (without pivoting the D blocks can grow: the refinement takes that out)."""
+    lam = network_eigenvalues
+    mu = 0.5 * (lam[below - 1] + lam[below])
+    shift = big.rattler_shift(1.0) - mu
+    factor = big.pattern.new_factor()
+    ok, inertia = block_ldlt.factorise(big.pattern, big.values(big.s.network), factor, shift)
+    assert ok and inertia == (big.n - below, below, 0) and not factor.positive_definite
+    H = (big.superlu_matrix(big.s.network) + diags(unknowns_of(shift, big.dof))).tocsc()
+    g = np.random.default_rng(3).normal(size=(big.cell.n_disks, 2))
+    b = big.gather(g)
+    x = big.gather(block_ldlt.solve(big.pattern, factor, g, refine=2))
+    assert rel_err(x, superlu(H, b)) < 1e-12
+
+
+def test_refactorisation_on_the_same_pattern(big):
+    """The values of another relaxed state (sheared, the same candidates) factorised into the
+    same arrays: no trace of the first factorisation."""
+    factor = big.pattern.new_factor()
+    block_ldlt.factorise(big.pattern, big.values(big.s.network), factor, big.rattler_shift())
+    _, _, _, state = big.rve.evaluate(F1[None], big.rve.initial_state(1))
+    s1 = ContactState(big.cell, F1, state.w[0])
+    assert not np.array_equal(s1.network, big.s.network)
+    shift = np.zeros(big.cell.n_disks)
+    shift[~s1.keep] = big.cell.K
+    ok, _ = block_ldlt.factorise(big.pattern, big.values(s1.network, F1, s1), factor, shift)
+    H = big.superlu_matrix(s1.network, F1, s1) + diags(unknowns_of(shift, big.dof))
+    g = np.random.default_rng(4).normal(size=(big.cell.n_disks, 2))
+    ref = big.scatter(spsolve(H.tocsc(), big.gather(g)))
+    assert ok and rel_err(block_ldlt.solve(big.pattern, factor, g), ref) < 1e-12
+
+
+def test_inertia_is_that_of_the_dense_eigenvalues(small):
+    """Shifted by -mu I across the spectrum: the counts of positive and negative eigenvalues
+    of the dense matrix (pinned disk removed)."""
+    shift = small.rattler_shift(1e-3)
+    values = small.values(small.s.on)
+    H = (small.superlu_matrix(small.s.on) + diags(unknowns_of(shift, small.dof))).toarray()
+    lam = np.linalg.eigvalsh(H)
+    factor = small.pattern.new_factor()
+    below = np.arange(7, lam.size - 1, 14)  # (past the rattlers' 5-fold eigenvalue)
+    for mu in [0.0] + list(0.5 * (lam[below] + lam[below + 1])):
+        ok, inertia = block_ldlt.factorise(small.pattern, values, factor, shift - mu)
+        shifted = lam - mu
+        assert ok and inertia == (int((shifted > 0).sum()), int((shifted < 0).sum()), 0), mu
+
+
+def test_a_singular_or_non_finite_block_is_reported(small):
+    factor = small.pattern.new_factor()
+    ok, inertia = block_ldlt.factorise(small.pattern, small.pattern.zeros(), factor)
+    assert not ok and inertia[2] == 2 and not factor.positive_definite
+    with pytest.raises(ValueError, match="singular"):
+        block_ldlt.solve(small.pattern, factor, np.ones((small.cell.n_disks, 2)))
+    values = small.values(small.s.network)
+    values[small.pattern.diag_slot[small.pattern.perm[5]], 0, 0] = np.nan
+    ok, _ = block_ldlt.factorise(small.pattern, values, factor, small.rattler_shift())
+    assert not ok and not factor.positive_definite
+
+
+def test_minimum_degree_fills_as_little_as_superlu(big):
+    """L's blocks (in scalar entries, the diagonal blocks' lower triangles included) on the
+    network's pattern against SuperLU's L of the same matrix in its own minimum-degree order;
+    reverse Cuthill-McKee fills several times more."""
+    s, c = big.s, big.cell
+    pairs = np.c_[c.pi, c.pj].copy()
+    network = np.zeros(c.pi.size, np.bool_)
+    network[: s.m] = s.network
+    pairs[~network, 1] = pairs[~network, 0]  # a pair of a disk with itself: no block
+    fill = {}
+    for ordering in ("mmd", "rcm"):
+        p = block_ldlt.analyse(c.n_disks, pairs, pinned=big.pinned, ordering=ordering)
+        fill[ordering] = 4 * p.nnz_L + 3 * p.n
+    H = big.superlu_matrix(s.network) + diags(unknowns_of(big.rattler_shift(), big.dof))
+    lu, pd = relaxation._factorise(H.tocsc())
+    assert pd and fill["mmd"] <= 1.1 * lu.L.nnz
+    assert fill["rcm"] > 2 * fill["mmd"]
+
+
+def test_the_flop_count_is_that_of_the_operations():
+    """One block column on a path of 3 blocks (natural order): L has 2 blocks, each needs
+    Y D^-1 and D's update (2 d^3 each), none an earlier block of its column; 3 inverses."""
+    p = block_ldlt.analyse(3, np.array([[0, 1], [1, 2]]), ordering="natural")
+    assert p.nnz_L == 2 and p.flops == 2 * 8 * (0 + 2 * 2) + 8 * 3
+
+
+def random_blocks(n, d, pairs, rng, margin):
+    """A dense symmetric matrix (n d, n d) with random (non-symmetric) off-diagonal blocks at
+    ``pairs`` and diagonal blocks dominant by ``margin``; and its values on a pattern."""
+    A = np.zeros((n * d, n * d))
+    blocks = rng.normal(size=(len(pairs), d, d))
+    for (i, j), B in zip(pairs, blocks):
+        A[d * i : d * i + d, d * j : d * j + d] += B
+        A[d * j : d * j + d, d * i : d * i + d] += B.T
+    for i in range(n):
+        S = rng.normal(size=(d, d))
+        A[d * i : d * i + d, d * i : d * i + d] += S + S.T
+    row = np.abs(A).sum(axis=1)
+    A += np.diag(row + margin)
+    return A, blocks
+
+
+def values_of(pattern, A, pairs, blocks):
+    """Values on ``pattern`` of the dense A: diagonal blocks, then each pair's block once
+    (its slot holds A[i, j] or, flipped, A[j, i])."""
+    d = pattern.d
+    v = pattern.zeros()
+    for b in range(pattern.n_blocks):
+        if pattern.diag_slot[b] >= 0:
+            v[pattern.diag_slot[b]] = A[d * b : d * b + d, d * b : d * b + d]
+    for k, B in enumerate(blocks):
+        if pattern.pair_slot[k] >= 0:
+            v[pattern.pair_slot[k]] += B.T if pattern.pair_flip[k] else B
+    return v
+
+
+@pytest.mark.parametrize("pinned", [-1, 4])
+def test_three_by_three_blocks(pinned):
+    """d = 3 (a disk with its rotation): a random SPD block matrix on a random graph, and the
+    same shifted indefinite, against numpy."""
+    rng = np.random.default_rng(5)
+    n, d = 60, 3
+    pairs = np.unique(np.sort(rng.integers(0, n, size=(150, 2)), axis=1), axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    A, blocks = random_blocks(n, d, pairs, rng, 1.0)
+    pattern = block_ldlt.analyse(n, pairs, pinned=pinned, d=3)
+    values = values_of(pattern, A, pairs, blocks)
+    keep = np.ones(n * d, np.bool_)
+    if pinned >= 0:
+        keep[d * pinned : d * pinned + d] = False
+    Ak = A[keep][:, keep]
+    assert np.abs(pattern.to_csc(values).toarray()[keep][:, keep] - Ak).max() == 0.0
+    factor = pattern.new_factor()
+    assert block_ldlt.factorise(pattern, values, factor) == (True, (keep.sum(), 0, 0))
+    b = rng.normal(size=(n * d, 2))
+    x = block_ldlt.solve(pattern, factor, b)
+    ref = np.zeros_like(b)
+    ref[keep] = np.linalg.solve(Ak, b[keep])
+    assert rel_err(x, ref) < 1e-12
+    lam = np.linalg.eigvalsh(Ak)
+    mu = 0.5 * (lam[40] + lam[41])
+    ok, inertia = block_ldlt.factorise(pattern, values, factor, -mu)
+    assert ok and inertia == (int((lam > mu).sum()), int((lam < mu).sum()), 0)
+    ref[keep] = np.linalg.solve(Ak - mu * np.eye(keep.sum()), b[keep])
+    assert rel_err(block_ldlt.solve(pattern, factor, b, refine=1), ref) < 1e-12
+
+
+def test_the_benchmark_times_it_beside_superlu():
+    import relaxed as benchmark  # benchmarks/relaxed.py
+
+    rve = RelaxedRVE(generate_packing(70, seed=0), benchmark.K_N)
+    F, state = benchmark.committed(rve, 0.005, 1)
+    times = benchmark.block_ldlt_times(rve, F, state, repeats=2)
+    for name in ("candidates", "network"):
+        assert times[name]["agree"] < 1e-12 and times[name]["factorisation"] > 0.0
+    assert times["network"]["nnz(L)"] <= 1.1 * times["SuperLU"]["nnz(L)"]
+    assert times["candidates"]["flops"] > times["network"]["flops"]
