@@ -266,20 +266,22 @@ def run(out="results/relaxed_study", small=False, verbose=True, force=False):
     folder = os.path.join(out, "packings")  # (a cache: kept by force, reused)
     os.makedirs(folder, exist_ok=True)
     t0, rows = time.perf_counter(), []
+    total = len(cfg["pressures"]) * len(cfg["seeds"])
     for pressure in cfg["pressures"]:
         for seed in cfg["seeds"]:
             rows.append(
                 moduli_row(packing_at(cfg["particles"], seed, pressure, folder), seed, pressure)
             )
-            r = rows[-1]
+            r, done = rows[-1], f"packing {len(rows)} of {total}, {time.perf_counter() - t0:.0f} s"
             if r["status"] != "ok":
-                say(f"p/kn {pressure:.0e} seed {seed}: {r['status']}")
+                say(f"p/kn {pressure:.0e} seed {seed}: {r['status']} ({done})")
                 continue
             say(
                 f"p/kn {r['p_over_kn']:.2e} seed {seed}: B {r['B_relaxed']:.3e} / "
                 f"{r['B_taylor']:.3e} Pa, G {r['G_relaxed']:.3e} / {r['G_taylor']:.3e} Pa "
-                f"(relaxed / Taylor), z {r['z']:.3f} ({time.perf_counter() - t0:.0f} s)"
+                f"(relaxed / Taylor), z {r['z']:.3f} ({done})"
             )
+    say(f"confined shear in {cfg['shear_steps']} steps (the full study's longest part)")
     shear = shear_rows(
         packing_at(cfg["particles"], cfg["seeds"][0], SHEAR_PRESSURE, folder), cfg["shear_steps"]
     )
