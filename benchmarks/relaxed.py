@@ -28,6 +28,7 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
 """
 
 import argparse
+import dataclasses
 import time
 
 from dolfinx_granular import TaylorRVE, generate_packing
@@ -64,6 +65,25 @@ def steps(F0, n, size, seed=0):
     return F0[None] + size * d
 
 
+def against_superlu(rve, F, state, block):
+    """Seconds of ``rve.evaluate(F, state)`` with the SuperLU factorisation on the same cell,
+    and the largest difference over the points of its W, P and A from ``block`` (the block
+    LDL^T's ``(W, P, A, state)``), each relative to the point's largest entry."""
+    settings = rve.settings
+    rve.settings = dataclasses.replace(settings, factorisation="superlu")
+    try:
+        t, ref = best_time(lambda: rve.evaluate(F, state), 1)
+    finally:
+        rve.settings = settings
+    return t, [relative_difference(a, b) for a, b in zip(block[:3], ref[:3])]
+
+
+def relative_difference(a, b):
+    """max over points of max|a - b| / max|b| ((n, ...) arrays)."""
+    a, b = np.reshape(a, (len(a), -1)), np.reshape(b, (len(b), -1))
+    return float((np.abs(a - b).max(axis=1) / np.abs(b).max(axis=1)).max())
+
+
 def per_point(rve, F0, F, state):
     """Time (s), steps, factorisations and FIRE steps of each point, and whether its network
     (the contacts between non-rattlers) differs from the committed one at F0."""
@@ -77,20 +97,23 @@ def per_point(rve, F0, F, state):
     return np.array(rows), np.array(rearranged)
 
 
-#: the micro solver's parts, by the function that does each (cumulative time under cProfile)
+_BLOCK, _SUPERLU = relaxation._BlockStiffness, relaxation._SuperLUStiffness
+#: the micro solver's parts, by the functions that do each (cumulative time under cProfile;
+#: both factorisations' methods)
 PARTS = {
-    "assembly": relaxation._matrix,
-    "factorisation": relaxation._factorise,
-    "line search": relaxation._line_search,
-    "FIRE": relaxation.fire,
-    "tangent": relaxation.condensation,
+    "assembly": (_BLOCK.assemble, _SUPERLU.assemble),
+    "factorisation": (_BLOCK.factorise, _SUPERLU.factorise),
+    "solves": (_BLOCK.solve, _SUPERLU.solve),
+    "line search": (relaxation._line_search,),
+    "FIRE": (relaxation.fire,),
+    "tangent": (relaxation.condensation,),
 }
 
 
 def where_time_goes(rve, F, state):
-    """ms per point in each of :data:`PARTS` and SuperLU's solves over one pass of the points,
-    under cProfile (which slows the Python parts: read the shares, not the sum), and the
-    factorisations per point, the shifted tries included."""
+    """ms per point in each of :data:`PARTS` over one pass of the points, under cProfile
+    (which slows the Python parts: read the shares, not the sum), and the factorisations per
+    point, the shifted tries included."""
     import cProfile
     import pstats
 
@@ -101,14 +124,12 @@ def where_time_goes(rve, F, state):
     profile.disable()
     stats = pstats.Stats(profile).stats  # {(file, line, name): (cc, nc, tt, ct, callers)}
     keys = {(f.__code__.co_filename, f.__code__.co_firstlineno, f.__name__): k
-            for k, f in PARTS.items()}  # fmt: skip
+            for k, fs in PARTS.items() for f in fs}  # fmt: skip
     times, factorisations = {}, 0
     for key, (_, nc, _, ct, _) in stats.items():
         if key in keys:
-            times[keys[key]] = ct
+            times[keys[key]] = times.get(keys[key], 0.0) + ct
             factorisations += nc if keys[key] == "factorisation" else 0
-        elif key[2] == "<method 'solve' of 'SuperLU' objects>":
-            times["solves"] = times.get("solves", 0.0) + ct
     n = F.shape[0]
     return {k: 1e3 * v / n for k, v in times.items()}, factorisations / n
 
@@ -134,7 +155,8 @@ def main(argv=None):
     F0, state = committed(rve, a.compression, a.points)
     F = steps(F0, a.points, a.step)
     t_taylor, _ = best_time(lambda: taylor.evaluate(F))
-    t_relaxed, _ = best_time(lambda: rve.evaluate(F, state), 1)
+    t_relaxed, block = best_time(lambda: rve.evaluate(F, state), 1)
+    t_superlu, agree = against_superlu(rve, F, state, block)
     rows, rearranged = per_point(rve, F0, F, state)
     t_state, t_tangent = phases(rve, F0, state)
     us = 1e6 / a.points
@@ -144,6 +166,11 @@ def main(argv=None):
     )
     print(f"Taylor P+A    {t_taylor * us:9.2f} µs/point")
     print(f"relaxed P+A   {t_relaxed * us / 1e3:9.2f} ms/point   ratio {t_relaxed / t_taylor:.0f}")
+    print(
+        f"  with SuperLU {t_superlu * us / 1e3:9.2f} ms/point (the earlier factorisation); W, P, "
+        f"A agree to {agree[0]:.1e}, {agree[1]:.1e}, {agree[2]:.1e} (largest relative "
+        "difference over the points)"
+    )
     for name, mask in (("kept network", ~rearranged), ("rearranged", rearranged)):
         if mask.any():
             r = rows[mask]
@@ -177,8 +204,7 @@ def factorisation_libraries(rve, F0, state):
     the micro solver calls it, and QDLDL's and CHOLMOD's refactorisations (their symbolic
     analysis reused) where the libraries are installed."""
     s = ContactState(rve.cell, F0, state.w[0])
-    net = relaxation._Network(rve.cell, F0, s)
-    H = relaxation._matrix(rve.cell, F0, s, s.network, s.network, net.dof, net.n)
+    H = network_matrix(rve.cell, F0, s).H
     times = {"SuperLU": best_time(lambda: relaxation._factorise(H), 20)[0]}
     try:
         import qdldl
@@ -194,7 +220,17 @@ def factorisation_libraries(rve, F0, state):
         times["CHOLMOD"] = best_time(lambda: factor.cholesky_inplace(H), 20)[0]
     except ImportError:
         pass
-    return net.n, {k: 1e3 * v for k, v in times.items()}
+    return H.shape[0], {k: 1e3 * v for k, v in times.items()}
+
+
+def network_matrix(cell, F, s):
+    """The network's stiffness at the contact state s on the non-rattlers but the first, as
+    the SuperLU solver assembles it (``.H`` CSC, ``.dof``, ``.n``)."""
+    net = relaxation._SuperLUStiffness(cell)
+    free = s.keep.copy()
+    free[np.argmax(s.keep)] = False
+    net.assemble(F, s, s.network, s.network, int(np.argmax(s.keep)), free)
+    return net
 
 
 def block_ldlt_times(rve, F0, state, repeats=50):
@@ -204,8 +240,9 @@ def block_ldlt_times(rve, F0, state, repeats=50):
     difference of the two solutions relative to SuperLU's."""
     cell = rve.cell
     s = ContactState(cell, F0, state.w[0])
-    net = relaxation._Network(cell, F0, s)
-    H = relaxation._matrix(cell, F0, s, s.network, s.network, net.dof, net.n)
+    net = network_matrix(cell, F0, s)
+    H = net.H
+    lu, _ = relaxation._factorise(H)
     pinned = int(np.argmax(s.keep))
     shift = np.where(s.keep, 0.0, cell.K)
     args = (F0, cell.pi[: s.m], cell.pj[: s.m], s.lx, s.ly, s.d, s.e, cell.R[: s.m], cell.K,
@@ -215,14 +252,14 @@ def block_ldlt_times(rve, F0, state, repeats=50):
     own = np.c_[cell.pi, np.where(network, cell.pj, cell.pi)]  # (i, i): no block
     g = np.random.default_rng(0).normal(size=(cell.n_disks, 2))
     g[~s.keep] = 0.0
-    ref = relaxation._scatter(net.lu.solve(relaxation._gather(g, net.dof, net.n)), net.dof,
+    ref = relaxation._scatter(lu.solve(relaxation._gather(g, net.dof, net.n)), net.dof,
                               cell.n_disks)  # fmt: skip
     out = {"SuperLU": {
         "factorisation": best_time(lambda: relaxation._factorise(H), repeats // 2)[0],
-        "solve": best_time(lambda: net.lu.solve(np.ones(net.n)), repeats)[0],
+        "solve": best_time(lambda: lu.solve(np.ones(net.n)), repeats)[0],
         "assembly": best_time(lambda: relaxation._matrix(cell, F0, s, s.network, s.network,
                                                          net.dof, net.n), repeats)[0],
-        "nnz(L)": net.lu.L.nnz,
+        "nnz(L)": lu.L.nnz,
     }}  # fmt: skip
     for name, pairs in (("candidates", np.c_[cell.pi, cell.pj]), ("network", own)):
         p = block_ldlt.analyse(cell.n_disks, pairs, pinned=pinned)

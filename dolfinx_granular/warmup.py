@@ -83,7 +83,8 @@ def warm_api(particles: int = PARTICLES) -> None:
 
 def warm_relaxed(packing: Packing, F: np.ndarray) -> None:
     """The relaxed RVE's kernels (``demos/relaxed_study.py``, ``--rve relaxed``):
-    ``RelaxedRVE.evaluate`` at F (n, 2, 2) (Newton, the condensed tangent) and the micro solver's
+    ``RelaxedRVE.evaluate`` at F (n, 2, 2) (Newton, the condensed tangent, and the block LDL^T
+    they factorise with: its analysis, assembly, factorisation and solves) and the micro solver's
     FIRE fallback (:func:`~dolfinx_granular.laws.relaxation.fire`, which runs only where Newton
     stalls), each on a cell as built and on one whose candidate list grew."""
     from .laws import relaxation

@@ -165,12 +165,15 @@ def test_several_right_hand_sides_in_every_layout(big):
     np.testing.assert_array_equal(one, X[:, :, 0].ravel())
 
 
-@pytest.mark.parametrize("below", [3, 100])
-def test_a_negative_shift_makes_it_indefinite(big, network_eigenvalues, below):
-    """The network's stiffness shifted by -mu I, mu between its eigenvalues number ``below``
-    and ``below`` + 1: that many negative eigenvalues, solved as SuperLU solves it once
-    refined (without pivoting the D blocks can grow: the refinement takes that out)."""
+@pytest.mark.parametrize("near", [3, 100])
+def test_a_negative_shift_makes_it_indefinite(big, network_eigenvalues, near):
+    """The network's stiffness shifted by -mu I, mu in the widest gap of its spectrum near
+    eigenvalue number ``near`` (the condition number low enough that SuperLU resolves the
+    solution to 1e-12): as many negative eigenvalues as lie below mu, solved as SuperLU solves
+    it once refined (without pivoting the D blocks can grow: the refinement takes that out)."""
     lam = network_eigenvalues
+    lo = max(near - 3, 0)
+    below = lo + 1 + int(np.argmax(np.diff(lam[lo : near + 4])))
     mu = 0.5 * (lam[below - 1] + lam[below])
     shift = big.rattler_shift(1.0) - mu
     factor = big.pattern.new_factor()
@@ -324,3 +327,36 @@ def test_the_benchmark_times_it_beside_superlu():
         assert times[name]["agree"] < 1e-12 and times[name]["factorisation"] > 0.0
     assert times["network"]["nnz(L)"] <= 1.1 * times["SuperLU"]["nnz(L)"]
     assert times["candidates"]["flops"] > times["network"]["flops"]
+
+
+def test_the_micro_solver_gives_superlus_W_P_and_A():
+    """The relaxed RVE's Newton and tangent on the block LDL^T against the same on SuperLU
+    (the benchmark's comparison, on fewer disks and points)."""
+    import relaxed as benchmark  # benchmarks/relaxed.py
+
+    rve = RelaxedRVE(generate_packing(150, seed=0), benchmark.K_N)
+    F0, state = benchmark.committed(rve, 0.005, 20)
+    F = benchmark.steps(F0, 20, 1e-4)
+    block = rve.evaluate(F, state)
+    _, agree = benchmark.against_superlu(rve, F, state, block)
+    assert max(agree) < 1e-10 and rve.settings.factorisation == "block"
+
+
+def test_the_pattern_follows_the_candidate_list():
+    """Analysed once per list and pinned disk, again once Cell.extend grows the list."""
+    packing = generate_packing(70, seed=0)
+    cell = RelaxedRVE(packing, K_N).cell
+    p = cell.block_pattern(0)
+    assert cell.block_pattern(0) is p and cell.block_pattern(3) is not p
+    w = np.zeros((cell.n_disks, 2))
+    w[0] = 0.5 * packing.box  # one disk across the cell: new pairs within reach
+    cell.visited(np.eye(2), w)
+    grown = cell.block_pattern(0)
+    assert grown is not p and grown.pair_slot.size == cell.pi.size > p.pair_slot.size
+
+
+def test_an_unknown_factorisation_is_refused():
+    rve = RelaxedRVE(generate_packing(70, seed=0), K_N)
+    settings = relaxation.Settings(factorisation="cholesky")
+    with pytest.raises(ValueError, match="unknown factorisation"):
+        relaxation.relax(rve.cell, F0, np.zeros((rve.cell.n_disks, 2)), True, settings)

@@ -3,8 +3,10 @@ condensed tangent there.
 
 Unknowns: the fluctuations w (N, 2) of the disks in the reference frame (x_i = F (X_i + w_i),
 :mod:`~dolfinx_granular.laws.relaxed_kernel`), one disk pinned (the rigid translation). Newton
-minimises the contact energy with a sparse factorisation of the stiffness and a backtracking
-line search on the energy:
+minimises the contact energy with a sparse factorisation of the stiffness (a block LDL^T in 2 x 2
+blocks, :mod:`~dolfinx_granular.laws.block_ldlt`, on the pattern of the candidate pairs, analysed
+once per candidate list; SciPy's SuperLU with ``Settings.factorisation = "superlu"``) and a
+backtracking line search on the energy:
 
 * between non-rattlers the stiffness is exact; a contact that touches a rattler (fewer than 3
   contacts, removed recursively) enters by its positive part K n n^T, and the rattlers'
@@ -38,8 +40,8 @@ import numpy as np
 from scipy.sparse import coo_matrix, diags
 from scipy.sparse.linalg import splu
 
+from . import block_ldlt, taylor_kernel
 from . import relaxed_kernel as rk
-from . import taylor_kernel
 from .relaxed_cell import Cell, ContactState, RelaxationError
 
 #: Newton counts as stalled (FIRE takes over) when after this many steps the largest force is
@@ -85,6 +87,9 @@ class Settings:
             rattler without contacts stays where it is).
         chord_rate: a factorisation is reused while the largest force falls at least by this
             factor per step and the contacts stay the same.
+        factorisation: ``"block"``, the block LDL^T in 2 x 2 blocks on the candidates' pattern
+            (:mod:`~dolfinx_granular.laws.block_ldlt`), or ``"superlu"``, SciPy's SuperLU
+            (the earlier solver, kept for comparison).
     """
 
     force_tol: float = 1e-10
@@ -93,6 +98,7 @@ class Settings:
     fire_steps: int = 100_000
     rattler_shift: float = 1e-8
     chord_rate: float = 0.2
+    factorisation: str = "block"
 
 
 @dataclass
@@ -161,17 +167,96 @@ def _factorise(H):
     return lu, pd
 
 
+class _BlockStiffness:
+    """The stiffness in 2 x 2 blocks on the cell's candidate pattern
+    (:meth:`Cell.block_pattern`), assembled straight into the pattern's values; the disks with
+    no unknowns but the pinned one (the rattlers of the network's stiffness) keep K I alone on
+    their diagonal."""
+
+    def __init__(self, cell):
+        self.cell, self.factor = cell, None
+
+    def assemble(self, F, s, use, exact, pinned, free):
+        """The stiffness over the contacts ``use`` (``exact``: see :func:`_matrix`) on the
+        unknowns of the disks ``free`` (N,) bool, ``pinned`` not among them."""
+        p, c = self.cell.block_pattern(pinned), self.cell
+        if self.factor is None or self.factor.pattern is not p:
+            self.values, self.factor = p.zeros(), p.new_factor()
+        self.pattern, self.fixed = p, ~free
+        block_ldlt.assemble(
+            F, c.pi[: s.m], c.pj[: s.m], s.lx, s.ly, s.d, s.e, c.R[: s.m], c.K, use, exact,
+            p.diag_slot, p.pair_slot, self.values,
+        )  # fmt: skip
+
+    def diagonal(self, shift):
+        """The diagonal (n,) of the stiffness plus ``shift`` (N,) on the free unknowns."""
+        p = self.pattern
+        d = self.values[: p.n][:, [0, 1], [0, 1]] + shift[p.perm, None]
+        return d[~self.fixed[p.perm]].ravel()
+
+    def factorise(self, shift=None, mu=0.0):
+        """Factorise the stiffness plus ``shift`` (N,) per disk plus mu I; positive definite?"""
+        total = np.full(self.cell.n_disks, mu) if shift is None else shift + mu
+        total[self.fixed] = self.cell.K
+        block_ldlt.factorise(self.pattern, self.values, self.factor, total)
+        return self.factor.positive_definite
+
+    def solve(self, b):
+        """The last factorisation's solution for b (N, 2, ...), zero at the fixed disks."""
+        return block_ldlt.solve(self.factor.pattern, self.factor, b)
+
+
+class _SuperLUStiffness:
+    """The same with SciPy's SuperLU on the free disks' unknowns (:func:`_matrix`)."""
+
+    def __init__(self, cell):
+        self.cell, self.lu = cell, None
+
+    def assemble(self, F, s, use, exact, pinned, free):
+        self.dof = -np.ones(self.cell.n_disks, np.int64)
+        self.dof[free] = np.arange(int(free.sum()))
+        self.n = 2 * int(free.sum())
+        self.H = _matrix(self.cell, F, s, use, exact, self.dof, self.n)
+        self.free = free
+
+    def _shifted(self, shift):
+        return self.H + diags(np.repeat(shift[self.free], 2), format="csc")
+
+    def diagonal(self, shift):
+        return self._shifted(shift).diagonal()
+
+    def factorise(self, shift=None, mu=0.0):
+        H = self.H if shift is None else self._shifted(shift)
+        if mu:
+            H = H + diags(np.full(self.n, mu), format="csc")
+        self.lu, pd = _factorise(H)
+        return pd
+
+    def solve(self, b):
+        return _scatter(self.lu.solve(_gather(b, self.dof, self.n)), self.dof, b.shape[0])
+
+
+def _stiffness(cell, settings):
+    """The stiffness and its factorisation of ``settings.factorisation``."""
+    kind = "block" if settings is None else settings.factorisation
+    if kind not in ("block", "superlu"):
+        raise ValueError(f"unknown factorisation {kind!r}: 'block' or 'superlu'")
+    return _BlockStiffness(cell) if kind == "block" else _SuperLUStiffness(cell)
+
+
 class _Network:
     """The non-rattlers' exact stiffness at an equilibrium (one disk pinned) and its
     factorisation: the condensation of the tangent and the rigidity test."""
 
-    def __init__(self, cell, F, s):
+    def __init__(self, cell, F, s, settings=None):
         nr = np.flatnonzero(s.keep)
-        self.dof = -np.ones(cell.n_disks, np.int64)
-        self.dof[nr[1:]] = np.arange(nr.size - 1)
         self.n = 2 * (nr.size - 1)
-        H = _matrix(cell, F, s, s.network, s.network, self.dof, self.n)
-        self.lu, self.pd = _factorise(H) if self.n else (None, True)
+        self.stiffness, self.pd = _stiffness(cell, settings), True
+        if self.n:
+            free = s.keep.copy()
+            free[nr[0]] = False
+            self.stiffness.assemble(F, s, s.network, s.network, int(nr[0]), free)
+            self.pd = self.stiffness.factorise()
 
 
 class _Stepper:
@@ -182,7 +267,8 @@ class _Stepper:
 
     def __init__(self, cell, settings):
         self.cell, self.settings = cell, settings
-        self.lu = self.key = None
+        self.stiffness = _stiffness(cell, settings)
+        self.key = None
         self.last = np.inf
         self.mu = 0.0  # the last shift that made H positive definite (0: none needed)
 
@@ -191,35 +277,28 @@ class _Stepper:
         shifted)``."""
         key = np.packbits(s.keep).tobytes()
         factorised = shifted = False
-        if self.lu is None or key != self.key or residual > self.settings.chord_rate * self.last:
+        if self.key is None or key != self.key or residual > self.settings.chord_rate * self.last:
             shifted = self._factorise(F, s, g)
             factorised, self.key = True, key
         self.last = residual
-        v = -self.lu.solve(_gather(g, self.dof, self.n))
-        return _scatter(v, self.dof, g.shape[0]), factorised, shifted
+        return -self.stiffness.solve(g), factorised, shifted
 
     def _factorise(self, F, s, g):
         """Factorise the stiffness; True if it had to be shifted."""
-        cell = self.cell
-        self.dof = dof = np.arange(cell.n_disks, dtype=np.int64)
+        cell, st = self.cell, self.stiffness
         pinned = int(np.argmax(s.keep))
-        dof[pinned + 1 :] -= 1
-        dof[pinned] = -1
-        self.n = n = 2 * (cell.n_disks - 1)
-        H = _matrix(cell, F, s, s.on, s.network, dof, n)
-        shift = np.zeros(n)
+        free = np.ones(cell.n_disks, np.bool_)
+        free[pinned] = False
+        st.assemble(F, s, s.on, s.network, pinned, free)
+        shift = np.zeros(cell.n_disks)
         r = np.flatnonzero(~s.keep)
         reach = RATTLER_REACH * s.mean_overlap
         force = np.sqrt((g[r] ** 2).sum(axis=1))
-        shift[2 * dof[r]] = shift[2 * dof[r] + 1] = np.maximum(
-            self.settings.rattler_shift * cell.K, force / reach
-        )
-        H = H + diags(shift, format="csc")
-        self.lu, pd = _factorise(H)
-        if pd:
+        shift[r] = np.maximum(self.settings.rattler_shift * cell.K, force / reach)
+        if st.factorise(shift):
             self.mu = 0.0
             return False
-        diag = H.diagonal()
+        diag = st.diagonal(shift)
         scale = diag[diag > 0].mean() if np.any(diag > 0) else cell.K
         # the shift a buckling network needs changes little from one step to the next: start
         # a decade below the last one (each try is a factorisation)
@@ -227,16 +306,15 @@ class _Stepper:
         while True:
             if mu > 1e6 * scale:
                 raise RelaxationError("the shifted stiffness never became positive definite")
-            self.lu, pd = _factorise(H + diags(np.full(n, mu), format="csc"))
-            if pd:
+            if st.factorise(shift, mu):
                 self.mu = mu
                 return True
             mu *= 10.0
 
 
 def _gather(g, dof, n):
-    """The entries of g (N, 2) at the unknowns ``dof`` as a vector (n,)."""
-    v = np.zeros(n)
+    """The entries of g (N, 2, ...) at the unknowns ``dof`` as (n, ...)."""
+    v = np.zeros((n,) + g.shape[2:])
     k = dof >= 0
     v[2 * dof[k]] = g[k, 0]
     v[2 * dof[k] + 1] = g[k, 1]
@@ -356,30 +434,33 @@ def relax(
             cell, F, w, settings, settings.max_iterations, stall=False
         )
     return _equilibrium(
-        cell, F, w, s, tangent, residual, steps, factorisations, shifted, fire_steps
+        cell, F, w, s, tangent, settings, residual, steps, factorisations, shifted, fire_steps
     )
 
 
-def _equilibrium(cell, F, w, s, tangent, residual, *counts):
+def _equilibrium(cell, F, w, s, tangent, settings, residual, *counts):
     """The :class:`Equilibrium` at the contact state s (``counts``: steps, factorisations,
     shifted, fire_steps)."""
     if not s.keep.any():
         raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
-    A, dw = condensation(cell, F, s) if tangent else (None, None)
+    A, dw = condensation(cell, F, s, settings) if tangent else (None, None)
     W, P = stress(cell, F, s)
     network = np.flatnonzero(s.network)
     return Equilibrium(w, W, P, A, dw, network, int((~s.keep).sum()), *counts, residual)
 
 
-def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibrium:
+def at_rest(
+    cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool, settings: Settings | None = None
+) -> Equilibrium:
     """The :class:`Equilibrium` of disks at rest at F by construction, not relaxed again: a
     committed equilibrium at the same F, or the stress-free packing at F = I (whose contacts
-    have overlaps of ~1e-11 of a diameter that mark them, not forces in balance)."""
+    have overlaps of ~1e-11 of a diameter that mark them, not forces in balance); the tangent
+    with ``settings.factorisation`` (default: the block LDL^T)."""
     s = ContactState(cell, F, w)
     if not s.on.any():
         raise RigidityLostError("no two disks touch (the cell has come apart)")
     w = np.array(w, dtype=np.float64)
-    return _equilibrium(cell, F, w, s, tangent, _residual(cell, F, s), 0, 0, 0, 0)
+    return _equilibrium(cell, F, w, s, tangent, settings, _residual(cell, F, s), 0, 0, 0, 0)
 
 
 def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
@@ -412,37 +493,30 @@ def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
     raise RelaxationError(f"FIRE did not relax the cell in {settings.fire_steps} steps")
 
 
-def condensation(cell: Cell, F: np.ndarray, s: ContactState) -> tuple:
+def condensation(
+    cell: Cell, F: np.ndarray, s: ContactState, settings: Settings | None = None
+) -> tuple:
     """``(A, dw)`` at an equilibrium s: the tangent A (2, 2, 2, 2) and the sensitivities
     dw/dF = -W_ww^-1 W_wF (N, 2, 4) of the fluctuations (F flattened row-major; zero for the
-    rattlers and the pinned disk), both from one factorisation of the network's stiffness;
-    :class:`RigidityLostError` where it is not positive definite."""
+    rattlers and the pinned disk), both from one factorisation of the network's stiffness
+    (``settings.factorisation``); :class:`RigidityLostError` where it is not positive
+    definite."""
     A = _affine(cell, F, s)
-    net = _Network(cell, F, s)
+    net = _Network(cell, F, s, settings)
+    N = cell.n_disks
     if net.n == 0:
-        return A, np.zeros((cell.n_disks, 2, 4))
+        return A, np.zeros((N, 2, 4))
     if not net.pd:
         raise RigidityLostError(
             "the non-rattlers' stiffness (one disk pinned) is not positive definite"
         )
+    # W_wF on every disk's rows (zero but at the non-rattlers; the solve ignores the pinned one)
     B = rk.mixed(
-        F,
-        cell.pi[: s.m],
-        cell.pj[: s.m],
-        s.qx,
-        s.qy,
-        s.lx,
-        s.ly,
-        s.d,
-        s.e,
-        cell.R[: s.m],
-        cell.K,
-        s.network,
-        net.dof,
-        net.n,
-    )
-    X = net.lu.solve(B)
-    return A - (B.T @ X).reshape(2, 2, 2, 2), _scatter(-X, net.dof, cell.n_disks)
+        F, cell.pi[: s.m], cell.pj[: s.m], s.qx, s.qy, s.lx, s.ly, s.d, s.e, cell.R[: s.m],
+        cell.K, s.network, np.arange(N, dtype=np.int64), 2 * N,
+    ).reshape(N, 2, 4)  # fmt: skip
+    X = net.stiffness.solve(B)
+    return A - (B.reshape(-1, 4).T @ X.reshape(-1, 4)).reshape(2, 2, 2, 2), -X
 
 
 def _affine(cell, F, s):

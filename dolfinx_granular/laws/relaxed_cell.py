@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..packings import neighbours
+from . import block_ldlt
 from . import relaxed_kernel as rk
 from .protocol import LawEvaluationError
 from .tools import singular_values_2x2
@@ -128,6 +129,18 @@ class Cell:
         self._known = np.sort(np.concatenate([known, keys[fresh]]))
         for a in (self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.shift):
             a.flags.writeable = False  # as the list of Cell.of: one compiled kernel, not two
+
+    def block_pattern(self, pinned: int) -> block_ldlt.BlockPattern:
+        """The symbolic block LDL^T of the stiffness on the candidate pairs, disk ``pinned``
+        left out (:func:`~dolfinx_granular.laws.block_ldlt.analyse`): analysed once per list
+        and pinned disk, again when :meth:`extend` grows the list."""
+        key = (int(pinned), self.pi.shape[0])
+        cache = self.__dict__.setdefault("_patterns", {})
+        if key not in cache:
+            if any(k[1] != key[1] for k in cache):
+                cache.clear()  # patterns of a shorter list
+            cache[key] = block_ldlt.analyse(self.n_disks, np.c_[self.pi, self.pj], int(pinned))
+        return cache[key]
 
     def known_keys(self) -> np.ndarray:
         """Sorted (M,) :meth:`keys_of` of the candidates."""
