@@ -36,6 +36,7 @@ from numba import njit
 from scipy.sparse import coo_matrix, diags
 from scipy.sparse.linalg import splu
 
+from ..packings.cholesky import elimination_tree
 from .relaxed_kernel import _contact_hessian
 
 #: orderings of the blocks :func:`analyse` knows: SuperLU's multiple minimum degree on the
@@ -254,24 +255,6 @@ def _lower_rows(n, pi, pj, use):
 
 
 @njit(cache=True)
-def _etree(n, Ap, Ai):
-    """Parent (n,) of each block column of L in the elimination tree (-1: a root), Liu's
-    algorithm with path compression on the rows of A's lower triangle."""
-    parent = np.full(n, -1, np.int64)
-    ancestor = np.full(n, -1, np.int64)
-    for k in range(n):
-        for q in range(Ap[k], Ap[k + 1]):
-            i = Ai[q]
-            while i != -1 and i < k:
-                nxt = ancestor[i]
-                ancestor[i] = k
-                if nxt == -1:
-                    parent[i] = k
-                i = nxt
-    return parent
-
-
-@njit(cache=True)
 def _row_of_L(Ap, Ai, k, parent, mark, out):
     """The columns of row k of L below the diagonal, increasing, into ``out``; their count.
     ``mark`` (n,) holds k for the columns visited (the paths up the elimination tree from A's
@@ -292,7 +275,7 @@ def _row_of_L(Ap, Ai, k, parent, mark, out):
 @njit(cache=True)
 def _symbolic(n, Ap, Ai):
     """L's block structure: by columns ``(Lp, Li)`` and by rows ``(Rp, Rc, Rq)``."""
-    parent = _etree(n, Ap, Ai)
+    parent = elimination_tree(Ap, Ai)
     mark = np.full(n, -1, np.int64)
     row = np.empty(n, np.int64)
     count = np.zeros(n, np.int64)

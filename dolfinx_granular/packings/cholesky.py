@@ -191,9 +191,10 @@ def _grow_float(a, need):
 
 
 @njit(cache=True)
-def _elimination_tree(rp, ri):
+def elimination_tree(rp, ri):
     """Parent (M,) of each column of L in the elimination tree (-1: a root), from the rows on
-    and below the diagonal (Liu's algorithm with path compression)."""
+    and below the diagonal, (M + 1,) pointers ``rp`` into column indices ``ri`` (Liu's
+    algorithm with path compression; also the block L D L^T's, laws/block_ldlt.py)."""
     m = rp.shape[0] - 1
     parent = np.full(m, -1, np.int64)
     ancestor = np.full(m, -1, np.int64)
@@ -237,7 +238,7 @@ def _cholesky(rp, ri, rx):
     (up-looking, as CSparse's cs_chol): CSC ``(lp, li, lx, ok)``, the diagonal first in each
     column; ok False where a pivot is not positive."""
     m = rp.shape[0] - 1
-    parent = _elimination_tree(rp, ri)
+    parent = elimination_tree(rp, ri)
     mark = np.full(m, -1, np.int64)
     stack = np.empty(m, np.int64)
     path = np.empty(m, np.int64)
