@@ -42,7 +42,7 @@ from dolfinx_granular import (
     generate_packing,
 )
 from dolfinx_granular.io.commandline import Parser
-from dolfinx_granular.io.outfolder import claim_or_refuse, default_out
+from dolfinx_granular.io.outfolder import claim_or_refuse
 from dolfinx_granular.io.plotting import plot_sphere_densities
 
 import numpy as np
@@ -64,17 +64,11 @@ def parse_args(argv=None):
         "--strain", type=float, default=0.02, help="compressive strain and shear (0 < strain < 0.2)"
     )
     ap.add_argument("--delta", type=float, default=15.0, help="cone of influence in degrees")
-    ap.add_argument(
-        "--out", help="output folder (default results/fabric3d, --small: results/fabric3d-small)"
-    )
-    ap.add_argument("--force", action="store_true", help="replace the files in --out (no others)")
+    ap.add_output("fabric3d")
     ap.add_argument("--overwrite", action="store_true", help="deprecated: --force")
-    ap.add_argument("--small", action="store_true", help="the reduced run of the tests")
     a = ap.parse_args(argv)
     if not 0.0 < a.strain < 0.2:
         ap.error(f"--strain must lie in (0, 0.2), got {a.strain}")
-    a.small = a.small or os.environ.get("DEMO_SMALL") == "1"
-    a.out = a.out or default_out("fabric3d", a.small)
     if a.overwrite:  # (old command lines keep working)
         warnings.warn("--overwrite is deprecated: use --force", FutureWarning, stacklevel=2)
         a.force = True

@@ -30,7 +30,6 @@ old name, deprecated).
 
 from __future__ import annotations
 
-import os
 import sys
 import warnings
 
@@ -38,7 +37,7 @@ from dolfinx_granular.footing3d.geometry import FootingGeometry
 from dolfinx_granular.footing3d.run import FILES as FILES  # (what --force replaces)
 from dolfinx_granular.footing3d.run import FootingOptions, run_footing
 from dolfinx_granular.io.commandline import Parser
-from dolfinx_granular.io.outfolder import OutFolderError, default_out, refused
+from dolfinx_granular.io.outfolder import OutFolderError, refused
 from dolfinx_granular.slope.geometry import SlopeGeometry
 
 from mpi4py import MPI
@@ -67,18 +66,10 @@ def parse_args(argv=None):
     ap.add_argument("--footing-steps", type=int, default=4)
     ap.add_argument("--footing-factor", type=float, default=1.0, help="of the 2-D pressure")
     ap.add_argument("--linear-solver", choices=("direct", "iterative"), default="iterative")
-    ap.add_argument(
-        "--out", help="output folder (default results/footing3d, --small: results/footing3d-small)"
-    )
-    ap.add_argument(
-        "--force", action="store_true", help="replace the run in --out (its files, no others)"
-    )
+    ap.add_output("footing3d")
     ap.add_argument("--overwrite", action="store_true", help="deprecated: --force")
     ap.add_argument("--no-figure", action="store_true")
-    ap.add_argument("--small", action="store_true", help="the reduced run of the tests")
     a = ap.parse_args(argv)
-    a.small = a.small or os.environ.get("DEMO_SMALL") == "1"
-    a.out = a.out or default_out("footing3d", a.small)
     if a.overwrite:  # (old command lines keep working)
         warnings.warn("--overwrite is deprecated: use --force", FutureWarning, stacklevel=2)
         a.force = True

@@ -58,8 +58,8 @@ import time
 from dataclasses import dataclass
 
 from dolfinx_granular.drivers.material_point import ControlError, solve_point
-from dolfinx_granular.io.commandline import Parser
-from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
+from dolfinx_granular.io.commandline import Parser, world_comm
+from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out
 from dolfinx_granular.io.shear_figures import (
     dissipation_figure,
     hysteresis_figure,
@@ -554,44 +554,20 @@ def run(out="results/friction_study", small=False, use_cache=True, verbose=True,
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/friction_study[-small]``)."""
     parser = Parser(description=__doc__.split("\n")[0])
-    parser.add_argument(
-        "--out",
-        help="output folder (default results/friction_study, --small: "
-        "results/friction_study-small)",
-    )
-    parser.add_argument(
-        "--force", action="store_true", help="replace the study in --out (its files, no others)"
-    )
-    parser.add_argument(
-        "--small",
-        action="store_true",
-        default=os.environ.get("DEMO_SMALL") == "1",
-        help="reduced run (tests; also DEMO_SMALL=1)",
-    )
+    parser.add_output("friction_study")
     parser.add_argument("--no-cache", action="store_true", help="regenerate the packings")
-    args = parser.parse_args(argv)
-    args.out = args.out or default_out("friction_study", args.small)
-    return args
+    return parser.parse_args(argv)
 
 
 def main(argv=None):
     args = parse_args(argv)
-    comm = _world()
+    comm = world_comm()
     # every rank takes rank 0's answer (exit status 2 alike) before any work
     if claim_or_refuse(args.out, FILES, args.force, "friction_study", comm):
         return 2
     if comm is None or comm.rank == 0:  # a serial study: rank 0 runs it, the others rest
         run(args.out, small=args.small, use_cache=not args.no_cache, force=args.force)
     return 0
-
-
-def _world():
-    """MPI.COMM_WORLD, or None without mpi4py (the study needs no MPI)."""
-    try:
-        from mpi4py import MPI
-    except ImportError:
-        return None
-    return MPI.COMM_WORLD
 
 
 # %% [markdown]

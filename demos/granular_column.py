@@ -45,7 +45,7 @@ from dolfinx_granular.drivers.material_point import MaterialPoint
 from dolfinx_granular.fem.compat import repair_xdmf
 from dolfinx_granular.fem.fields import cauchy_output
 from dolfinx_granular.io.commandline import Parser
-from dolfinx_granular.io.outfolder import OutFolderError, claim_out, default_out, refused
+from dolfinx_granular.io.outfolder import OutFolderError, claim_out, refused
 
 import numpy as np
 import ufl
@@ -224,23 +224,8 @@ def run(out="results/granular_column", small=False, comm=MPI.COMM_WORLD, force=F
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/granular_column[-small]``)."""
     parser = Parser(description="A granular column under a surface load.")
-    parser.add_argument(
-        "--out",
-        help="output folder (default results/granular_column, --small: "
-        "results/granular_column-small)",
-    )
-    parser.add_argument(
-        "--force", action="store_true", help="replace the run in --out (its files, no others)"
-    )
-    parser.add_argument(
-        "--small",
-        action="store_true",
-        default=os.environ.get("DEMO_SMALL") == "1",
-        help="reduced run (tests; also DEMO_SMALL=1)",
-    )
-    args = parser.parse_args(argv)
-    args.out = args.out or default_out("granular_column", args.small)
-    return args
+    parser.add_output("granular_column")
+    return parser.parse_args(argv)
 
 
 def main(argv=None):

@@ -62,8 +62,8 @@ from dolfinx_granular import (
     generate_packing,
 )
 from dolfinx_granular.drivers.confinement import compress, ramp
-from dolfinx_granular.io.commandline import Parser
-from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out, default_out
+from dolfinx_granular.io.commandline import Parser, world_comm
+from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out
 from dolfinx_granular.io.shear_figures import save_figure
 from dolfinx_granular.laws import relaxation
 
@@ -307,42 +307,19 @@ def run(out="results/relaxed_study", small=False, verbose=True, force=False):
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/relaxed_study[-small]``)."""
     parser = Parser(description=__doc__.split("\n")[0])
-    parser.add_argument(
-        "--out",
-        help="output folder (default results/relaxed_study, --small: results/relaxed_study-small)",
-    )
-    parser.add_argument(
-        "--force", action="store_true", help="replace the study in --out (its files, no others)"
-    )
-    parser.add_argument(
-        "--small",
-        action="store_true",
-        default=os.environ.get("DEMO_SMALL") == "1",
-        help="reduced run (tests; also DEMO_SMALL=1)",
-    )
-    args = parser.parse_args(argv)
-    args.out = args.out or default_out("relaxed_study", args.small)
-    return args
+    parser.add_output("relaxed_study")
+    return parser.parse_args(argv)
 
 
 def main(argv=None):
     args = parse_args(argv)
-    comm = _world()
+    comm = world_comm()
     # every rank takes rank 0's answer (exit status 2 alike) before any work
     if claim_or_refuse(args.out, FILES, args.force, "relaxed_study", comm):
         return 2
     if comm is None or comm.rank == 0:  # a serial study: rank 0 runs it, the others rest
         run(args.out, small=args.small, force=args.force)
     return 0
-
-
-def _world():
-    """MPI.COMM_WORLD, or None without mpi4py (the study needs no MPI)."""
-    try:
-        from mpi4py import MPI
-    except ImportError:
-        return None
-    return MPI.COMM_WORLD
 
 
 # %% [markdown]

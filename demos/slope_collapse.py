@@ -35,7 +35,7 @@ import time
 
 from dolfinx_granular import generate_packing
 from dolfinx_granular.io.commandline import Parser
-from dolfinx_granular.io.outfolder import claim_or_refuse, default_out
+from dolfinx_granular.io.outfolder import claim_or_refuse
 from dolfinx_granular.io.runwriter import RunWriter
 from dolfinx_granular.slope import SlopeGeometry, SlopeOptions, run_slope
 from dolfinx_granular.slope.run import RUN_FILES
@@ -185,25 +185,10 @@ def parse_args(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, default=20, help="nominal footing steps")
     p.add_argument("--meshes", type=int, nargs="+", default=[1, 2], help="refinements K")
-    p.add_argument(
-        "--out",
-        help="output folder (default results/slope_collapse, --small: "
-        "results/slope_collapse-small)",
-    )
-    p.add_argument(
-        "--force", action="store_true", help="replace the study in --out (its files, no others)"
-    )
-    p.add_argument(
-        "--small",
-        action="store_true",
-        default=os.environ.get("DEMO_SMALL") == "1",
-        help=f"reduced run (tests; also DEMO_SMALL=1): {SMALL}, unless given",
-    )
+    p.add_output("slope_collapse", f"reduced run (tests; also DEMO_SMALL=1): {SMALL}, unless given")
     if p.parse_args(argv).small:
         p.set_defaults(**SMALL)
-    a = p.parse_args(argv)
-    a.out = a.out or default_out("slope_collapse", a.small)
-    return a
+    return p.parse_args(argv)
 
 
 def main(argv=None):

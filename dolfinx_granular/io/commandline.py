@@ -1,8 +1,10 @@
-"""Command lines under MPI: ``--help``, usage and argument errors printed once, by rank 0.
+"""Command lines under MPI: ``--help``, usage and argument errors printed once, by rank 0; the
+output options every demo shares.
 
 Every rank of ``mpirun -n 2 python demos/X.py --help`` parses the same arguments; argparse would
 print the help on each of them. :class:`Parser` prints on rank 0 alone and exits on every rank
-alike (status 0 for ``--help``, 2 for an error).
+alike (status 0 for ``--help``, 2 for an error). :meth:`Parser.add_output` gives a command
+``--out``, ``--force`` and ``--small`` with the rule of :mod:`.outfolder`.
 """
 
 from __future__ import annotations
@@ -10,6 +12,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+
+from .outfolder import default_out
 
 #: environment variables in which MPI launchers give a process its rank (Open MPI, MPICH/PMI)
 RANK_VARIABLES = ("OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK")
@@ -27,9 +31,43 @@ def world_rank() -> int:
     return 0
 
 
+def world_comm():
+    """MPI.COMM_WORLD, or None without mpi4py (for commands that need no MPI)."""
+    try:
+        from mpi4py import MPI
+    except ImportError:
+        return None
+    return MPI.COMM_WORLD
+
+
 class Parser(argparse.ArgumentParser):
     """:class:`argparse.ArgumentParser` that prints (help, usage, errors) on rank 0 only."""
+
+    _command = None  # (set by add_output)
 
     def _print_message(self, message, file=None):
         if world_rank() == 0:
             super()._print_message(message, file)
+
+    def add_output(self, command: str, small: str = "reduced run (tests; also DEMO_SMALL=1)"):
+        """``--out`` (default ``results/<command>``, ``results/<command>-small`` with
+        ``--small``: :func:`~.outfolder.default_out`), ``--force`` (replace the command's files
+        in it, no others) and ``--small`` (also ``DEMO_SMALL=1``; help text ``small``);
+        :meth:`parse_args` fills in the default ``out``."""
+        self._command = command
+        self.add_argument(
+            "--out",
+            help=f"output folder (default results/{command}, --small: results/{command}-small)",
+        )
+        self.add_argument(
+            "--force", action="store_true", help="replace the run in --out (its files, no others)"
+        )
+        self.add_argument(
+            "--small", action="store_true", default=os.environ.get("DEMO_SMALL") == "1", help=small
+        )
+
+    def parse_args(self, args=None, namespace=None):
+        parsed = super().parse_args(args, namespace)
+        if self._command is not None:
+            parsed.out = parsed.out or default_out(self._command, parsed.small)
+        return parsed
