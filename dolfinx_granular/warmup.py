@@ -100,7 +100,8 @@ def warm_relaxed(packing: Packing, F: np.ndarray) -> None:
     grown.cell.visited(np.eye(2), w)
     settings = relaxation.Settings(fire_steps=relaxation.FIRE_CHUNK)
     for rve in (built, grown):
-        rve.evaluate(F, rve.initial_state(len(F)))
+        _, _, _, state = rve.evaluate(F, rve.initial_state(len(F)))
+        rve.evaluate(F, state)  # at rest: the committed positions (relaxation.at_rest)
         try:  # one chunk of FIRE steps from the affine positions of a compression
             relaxation.fire(rve.cell, np.diag([0.99, 0.995]), np.zeros_like(w), settings)
         except relaxation.RelaxationError:

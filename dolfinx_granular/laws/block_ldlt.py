@@ -499,42 +499,40 @@ def solve(pattern: BlockPattern, factor: BlockFactor, b: np.ndarray, refine: int
 
 @njit(cache=True)
 def _solve(dims, n, perm, Lp, Li, Lx, Dinv, b, x):
-    """x[perm] = L^-T D^-1 L^-1 b[perm] for b, x (n_blocks, d, k), d = len(dims), one
-    right-hand side after the other."""
+    """x[perm] = L^-T D^-1 L^-1 b[perm] for b, x (n_blocks, d, k), d = len(dims), the k
+    right-hand sides together (innermost)."""
     d = len(dims)
-    z = np.empty((n, d))
-    t = np.empty(d)
-    for c in range(b.shape[2]):
-        for r in range(n):
+    k = b.shape[2]
+    z = np.empty((n, d, k))
+    t = np.empty((d, k))
+    for r in range(n):
+        z[r] = b[perm[r]]
+    for j in range(n):  # L z = b
+        for q in range(Lp[j], Lp[j + 1]):
+            r = Li[q]
             for a in range(d):
-                z[r, a] = b[perm[r], a, c]
-        for j in range(n):  # L z = b
-            for q in range(Lp[j], Lp[j + 1]):
-                r = Li[q]
-                for a in range(d):
-                    s = 0.0
-                    for e in range(d):
-                        s += Lx[q, a, e] * z[j, e]
-                    z[r, a] -= s
-        for j in range(n):  # D z = z
-            for a in range(d):
+                for e in range(d):
+                    v = Lx[q, a, e]
+                    for c in range(k):
+                        z[r, a, c] -= v * z[j, e, c]
+    for j in range(n):  # D z = z
+        for a in range(d):
+            for c in range(k):
                 s = 0.0
                 for e in range(d):
-                    s += Dinv[j, a, e] * z[j, e]
-                t[a] = s
+                    s += Dinv[j, a, e] * z[j, e, c]
+                t[a, c] = s
+        z[j] = t
+    for j in range(n - 1, -1, -1):  # L^T z = z
+        for q in range(Lp[j], Lp[j + 1]):
+            r = Li[q]
             for a in range(d):
-                z[j, a] = t[a]
-        for j in range(n - 1, -1, -1):  # L^T z = z
-            for q in range(Lp[j], Lp[j + 1]):
-                r = Li[q]
-                for a in range(d):
-                    s = 0.0
-                    for e in range(d):
-                        s += Lx[q, e, a] * z[r, e]
-                    z[j, a] -= s
-        for r in range(n):
-            for a in range(d):
-                x[perm[r], a, c] = z[r, a]
+                for e in range(d):
+                    v = Lx[q, e, a]
+                    for c in range(k):
+                        z[j, a, c] -= v * z[r, e, c]
+    for r in range(n):
+        x[perm[r]] = z[r]
 
 
 @njit(cache=True)

@@ -37,33 +37,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix, diags
-from scipy.sparse.linalg import splu
 
-from . import block_ldlt, taylor_kernel
 from . import relaxed_kernel as rk
+from . import relaxed_newton as rn
+from . import taylor_kernel
 from .relaxed_cell import Cell, ContactState, RelaxationError
+from .relaxed_newton import RATTLER_REACH, RESOLVED  # noqa: F401 (the solver's constants)
+from .tools import singular_values_2x2
 
-#: Newton counts as stalled (FIRE takes over) when after this many steps the largest force is
-#: still above this part of the mean contact force
-STALLED_AFTER, STALLED_ABOVE = 40, 1e-2
 #: FIRE counts the cell as unjammed once its energy falls below this part of the start's
 UNJAMMED = 1e-12
 #: FIRE steps between two updates of the candidate list
 FIRE_CHUNK = 200
-#: relative round-off of the energy: a smaller promised decrease is judged by the forces
-ROUND_OFF = 1e-12
-#: longest move of a disk in one step, relative to the smallest radius sum
-MAX_STEP = 0.1
-#: equilibrium also when the net forces are within this many times the round-off of the
-#: contact forces (:meth:`ContactState.resolution`): near F = I the overlaps are so small
-#: that no position resolves a net force of ``force_tol`` (Newton stalls at ~4 times it)
-RESOLVED = 30.0
-#: a rattler's Newton move is at most about this many mean overlaps: its unknowns are shifted
-#: by its net force over that length (a disk squeezed between two partners has no stiffness
-#: across them, and one such disk moving far would cut the whole network's line search); the
-#: shift stays in a reused factorisation, so that a shorter reach slows the chord steps
-RATTLER_REACH = 300.0
 
 
 class RigidityLostError(RelaxationError):
@@ -87,9 +72,6 @@ class Settings:
             rattler without contacts stays where it is).
         chord_rate: a factorisation is reused while the largest force falls at least by this
             factor per step and the contacts stay the same.
-        factorisation: ``"block"``, the block LDL^T in 2 x 2 blocks on the candidates' pattern
-            (:mod:`~dolfinx_granular.laws.block_ldlt`), or ``"superlu"``, SciPy's SuperLU
-            (the earlier solver, kept for comparison).
     """
 
     force_tol: float = 1e-10
@@ -98,7 +80,6 @@ class Settings:
     fire_steps: int = 100_000
     rattler_shift: float = 1e-8
     chord_rate: float = 0.2
-    factorisation: str = "block"
 
 
 @dataclass
@@ -109,10 +90,14 @@ class Equilibrium:
         w: (N, 2) fluctuations. W: energy (Pa). P: (2, 2) first Piola stress (Pa).
         A: (2, 2, 2, 2) tangent dP/dF (Pa) or None. sensitivity: (N, 2, 4) dw/dF
         (:func:`condensation`) with A, else None. network: candidate indices of the
-        contacts between non-rattlers. rattlers: their number. steps: Newton steps,
-        factorisations: stiffness factorisations for them, shifted: of which shifted.
-        fire_steps: FIRE steps before Newton took up again (0: Newton alone).
-        residual: largest net force over the mean contact force.
+        contacts between non-rattlers. rattlers: their number. steps: Newton steps (over
+        every start), factorisations: of them those that factorised the stiffness (the others
+        reused the last factorisation), shifted: of which shifted. fire_steps: FIRE steps
+        before Newton took up again (0: Newton alone). residual: largest net force over the
+        mean contact force. numeric_factorisations: every factorisation done, the shifted
+        tries and the tangent's included; solves: solves for a Newton direction (the
+        tangent's one solve for its 4 right-hand sides not counted); trial_states: contact
+        states of the line searches.
     """
 
     w: np.ndarray
@@ -127,207 +112,20 @@ class Equilibrium:
     shifted: int
     fire_steps: int
     residual: float
+    numeric_factorisations: int = 0
+    solves: int = 0
+    trial_states: int = 0
+
+
+#: the compiled loop's counts (:func:`~dolfinx_granular.laws.relaxed_newton.newton`), by their
+#: :class:`Equilibrium` names
+_COUNTS = ("steps", "factorisations", "shifted", "numeric_factorisations", "solves",
+           "trial_states")  # fmt: skip
 
 
 def _largest(f, disks):
     """max |f_i| over the disks ``disks`` (N,) bool (0 if none)."""
     return float(np.sqrt((f[disks] ** 2).sum(axis=1).max())) if disks.any() else 0.0
-
-
-def _matrix(cell, F, s, use, exact, dof, n):
-    """(n, n) CSC stiffness over the contacts ``use`` on the unknowns ``dof``."""
-    rows, cols, vals = rk.stiffness(
-        F,
-        cell.pi[: s.m],
-        cell.pj[: s.m],
-        s.lx,
-        s.ly,
-        s.d,
-        s.e,
-        cell.R[: s.m],
-        cell.K,
-        use,
-        exact,
-        dof,
-    )
-    ok = (rows >= 0) & (cols >= 0)
-    return coo_matrix((vals[ok], (rows[ok], cols[ok])), shape=(n, n)).tocsc()
-
-
-def _factorise(H):
-    """SuperLU of a symmetric matrix with symmetric (diagonal) pivoting, and whether it is
-    positive definite (every pivot > 0: Sylvester's law of inertia)."""
-    try:
-        lu = splu(
-            H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
-        )
-    except RuntimeError:  # exactly singular
-        return None, False
-    pd = bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0.0))
-    return lu, pd
-
-
-class _BlockStiffness:
-    """The stiffness in 2 x 2 blocks on the cell's candidate pattern
-    (:meth:`Cell.block_pattern`), assembled straight into the pattern's values; the disks with
-    no unknowns but the pinned one (the rattlers of the network's stiffness) keep K I alone on
-    their diagonal."""
-
-    def __init__(self, cell):
-        self.cell, self.factor = cell, None
-
-    def assemble(self, F, s, use, exact, pinned, free):
-        """The stiffness over the contacts ``use`` (``exact``: see :func:`_matrix`) on the
-        unknowns of the disks ``free`` (N,) bool, ``pinned`` not among them."""
-        p, c = self.cell.block_pattern(pinned), self.cell
-        if self.factor is None or self.factor.pattern is not p:
-            self.values, self.factor = p.zeros(), p.new_factor()
-        self.pattern, self.fixed = p, ~free
-        block_ldlt.assemble(
-            F, c.pi[: s.m], c.pj[: s.m], s.lx, s.ly, s.d, s.e, c.R[: s.m], c.K, use, exact,
-            p.diag_slot, p.pair_slot, self.values,
-        )  # fmt: skip
-
-    def diagonal(self, shift):
-        """The diagonal (n,) of the stiffness plus ``shift`` (N,) on the free unknowns."""
-        p = self.pattern
-        d = self.values[: p.n][:, [0, 1], [0, 1]] + shift[p.perm, None]
-        return d[~self.fixed[p.perm]].ravel()
-
-    def factorise(self, shift=None, mu=0.0):
-        """Factorise the stiffness plus ``shift`` (N,) per disk plus mu I; positive definite?"""
-        total = np.full(self.cell.n_disks, mu) if shift is None else shift + mu
-        total[self.fixed] = self.cell.K
-        block_ldlt.factorise(self.pattern, self.values, self.factor, total)
-        return self.factor.positive_definite
-
-    def solve(self, b):
-        """The last factorisation's solution for b (N, 2, ...), zero at the fixed disks."""
-        return block_ldlt.solve(self.factor.pattern, self.factor, b)
-
-
-class _SuperLUStiffness:
-    """The same with SciPy's SuperLU on the free disks' unknowns (:func:`_matrix`)."""
-
-    def __init__(self, cell):
-        self.cell, self.lu = cell, None
-
-    def assemble(self, F, s, use, exact, pinned, free):
-        self.dof = -np.ones(self.cell.n_disks, np.int64)
-        self.dof[free] = np.arange(int(free.sum()))
-        self.n = 2 * int(free.sum())
-        self.H = _matrix(self.cell, F, s, use, exact, self.dof, self.n)
-        self.free = free
-
-    def _shifted(self, shift):
-        return self.H + diags(np.repeat(shift[self.free], 2), format="csc")
-
-    def diagonal(self, shift):
-        return self._shifted(shift).diagonal()
-
-    def factorise(self, shift=None, mu=0.0):
-        H = self.H if shift is None else self._shifted(shift)
-        if mu:
-            H = H + diags(np.full(self.n, mu), format="csc")
-        self.lu, pd = _factorise(H)
-        return pd
-
-    def solve(self, b):
-        return _scatter(self.lu.solve(_gather(b, self.dof, self.n)), self.dof, b.shape[0])
-
-
-def _stiffness(cell, settings):
-    """The stiffness and its factorisation of ``settings.factorisation``."""
-    kind = "block" if settings is None else settings.factorisation
-    if kind not in ("block", "superlu"):
-        raise ValueError(f"unknown factorisation {kind!r}: 'block' or 'superlu'")
-    return _BlockStiffness(cell) if kind == "block" else _SuperLUStiffness(cell)
-
-
-class _Network:
-    """The non-rattlers' exact stiffness at an equilibrium (one disk pinned) and its
-    factorisation: the condensation of the tangent and the rigidity test."""
-
-    def __init__(self, cell, F, s, settings=None):
-        nr = np.flatnonzero(s.keep)
-        self.n = 2 * (nr.size - 1)
-        self.stiffness, self.pd = _stiffness(cell, settings), True
-        if self.n:
-            free = s.keep.copy()
-            free[nr[0]] = False
-            self.stiffness.assemble(F, s, s.network, s.network, int(nr[0]), free)
-            self.pd = self.stiffness.factorise()
-
-
-class _Stepper:
-    """Newton directions on every disk but one pinned non-rattler. An H that is not positive
-    definite gets the smallest shift mu I (Levenberg-Marquardt) that makes it so; a
-    factorisation is reused (a chord step, damped if it was shifted) while the rattlers stay
-    the same and the largest force falls by ``chord_rate`` per step."""
-
-    def __init__(self, cell, settings):
-        self.cell, self.settings = cell, settings
-        self.stiffness = _stiffness(cell, settings)
-        self.key = None
-        self.last = np.inf
-        self.mu = 0.0  # the last shift that made H positive definite (0: none needed)
-
-    def direction(self, F, s, g, residual):
-        """Direction (N, 2) for the gradient g (N, 2) at state s; ``(delta, factorised,
-        shifted)``."""
-        key = np.packbits(s.keep).tobytes()
-        factorised = shifted = False
-        if self.key is None or key != self.key or residual > self.settings.chord_rate * self.last:
-            shifted = self._factorise(F, s, g)
-            factorised, self.key = True, key
-        self.last = residual
-        return -self.stiffness.solve(g), factorised, shifted
-
-    def _factorise(self, F, s, g):
-        """Factorise the stiffness; True if it had to be shifted."""
-        cell, st = self.cell, self.stiffness
-        pinned = int(np.argmax(s.keep))
-        free = np.ones(cell.n_disks, np.bool_)
-        free[pinned] = False
-        st.assemble(F, s, s.on, s.network, pinned, free)
-        shift = np.zeros(cell.n_disks)
-        r = np.flatnonzero(~s.keep)
-        reach = RATTLER_REACH * s.mean_overlap
-        force = np.sqrt((g[r] ** 2).sum(axis=1))
-        shift[r] = np.maximum(self.settings.rattler_shift * cell.K, force / reach)
-        if st.factorise(shift):
-            self.mu = 0.0
-            return False
-        diag = st.diagonal(shift)
-        scale = diag[diag > 0].mean() if np.any(diag > 0) else cell.K
-        # the shift a buckling network needs changes little from one step to the next: start
-        # a decade below the last one (each try is a factorisation)
-        mu = max(1e-8 * scale, 0.1 * self.mu)
-        while True:
-            if mu > 1e6 * scale:
-                raise RelaxationError("the shifted stiffness never became positive definite")
-            if st.factorise(shift, mu):
-                self.mu = mu
-                return True
-            mu *= 10.0
-
-
-def _gather(g, dof, n):
-    """The entries of g (N, 2, ...) at the unknowns ``dof`` as (n, ...)."""
-    v = np.zeros((n,) + g.shape[2:])
-    k = dof >= 0
-    v[2 * dof[k]] = g[k, 0]
-    v[2 * dof[k] + 1] = g[k, 1]
-    return v
-
-
-def _scatter(v, dof, N):
-    """Values (n, ...) on the unknowns ``dof`` as (N, 2, ...), zero at the fixed disks."""
-    x = np.zeros((N, 2) + v.shape[1:])
-    k = dof >= 0
-    x[k, 0] = v[2 * dof[k]]
-    x[k, 1] = v[2 * dof[k] + 1]
-    return x
 
 
 def _residual(cell, F, s):
@@ -336,74 +134,62 @@ def _residual(cell, F, s):
     return _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
 
 
-def _line_search(cell, F, w, s, delta, g, expand=False):
-    """Backtracking (Armijo) on the energy, from a step that moves no disk by more than
-    ``MAX_STEP`` of the smallest radius sum; ``(w, state, cut)``, cut the factor the line
-    search took off that first step. With ``expand`` (a shifted step, whose length says little)
-    a first step that is taken whole is doubled while the energy keeps falling (:func:`_expand`):
-    a buckling network leaves its saddle in a few steps, not in many short ones."""
-    E0 = s.energy(cell, s.on)
-    r0 = _residual(cell, F, s)
-    slope = float((g * delta).sum())
-    longest = np.sqrt((delta * delta).sum(axis=1).max())
-    alpha = first = min(1.0, MAX_STEP * cell.R.min() / longest) if longest > 0 else 1.0
-    for _ in range(60):
-        try:
-            trial = ContactState(cell, F, w + alpha * delta)
-        except RelaxationError:  # beyond the candidate list: a shorter step
-            alpha *= 0.5
-            continue
-        E = trial.energy(cell, trial.on)
-        if E <= E0 + 1e-4 * alpha * slope:
-            if expand and alpha == first:
-                return _expand(cell, F, w, delta, alpha, trial, E, longest)
-            return w + alpha * delta, trial, alpha / first
-        # where the decrease a step promises is below the energy's round-off, the energy
-        # cannot tell: take the step if it lowers the largest force
-        if -alpha * slope <= ROUND_OFF * abs(E0) and _residual(cell, F, trial) < r0:
-            return w + alpha * delta, trial, alpha / first
-        alpha *= 0.5
-    raise RelaxationError("the line search found no lower energy")
+def _pattern(cell, pinned, m):
+    """The block pattern for the pinned disk and prefix m as the compiled loop takes it
+    (``pat``, ``fac``: :mod:`~dolfinx_granular.laws.relaxed_newton`)."""
+    p, f, cover = cell.block_pattern(pinned, m)
+    pat = (p.pinned, cover, p.n, p.perm, p.Lp, p.Li, p.Rp, p.Rc, p.Rq, p.Ap, p.Ai,
+           p.diag_slot, p.pair_slot)  # fmt: skip
+    return pat, (f.values, f.Lx, f.D, f.Dinv, f.y)
 
 
-def _expand(cell, F, w, delta, alpha, state, E, longest):
-    """Double the step alpha delta (taken, energy E at ``state``) while the energy falls and no
-    disk moves by more than ``MAX_STEP`` of the smallest radius sum; ``(w, state, cut)``."""
-    first = alpha
-    while 2.0 * alpha * longest <= MAX_STEP * cell.R.min():
-        try:
-            trial = ContactState(cell, F, w + 2.0 * alpha * delta)
-        except RelaxationError:
+#: re-entries of the compiled loop (a new pattern, a longer list) before it counts as stuck
+_REENTRIES = 100
+
+
+def _newton(cell, F, w, settings, budget, counts, stall=True):
+    """Newton from w until equilibrium (:func:`~dolfinx_granular.laws.relaxed_newton.newton`):
+    ``(w, state, residual)``, adding to ``counts`` (6,) (:data:`_COUNTS`); RelaxationError
+    after ``budget``
+    steps, a failed line search or a shift that never makes the stiffness positive definite."""
+    F = np.ascontiguousarray(F, dtype=np.float64)
+    w = np.array(w, dtype=np.float64)
+    s_min = float(singular_values_2x2(F[None])[1][0])
+    solver = np.array([0.0, np.inf, 0.0, np.inf])
+    counts[0] = 0  # the step budget is per start; the other counts add up
+    key = np.zeros(cell.n_disks, np.bool_)
+    request, trial = np.zeros(2, np.int64), np.empty_like(w)
+    pat, fac = _pattern(cell, *cell.__dict__.get("_last_request", (0, 0)))
+    tol = (settings.force_tol, settings.rattler_shift, settings.chord_rate)
+    for _ in range(_REENTRIES):
+        status = rn.newton(
+            F, s_min, w, *cell.geometry(), *cell.verlet(), *pat, *fac, *tol, budget, stall,
+            solver, key, counts, request, trial,
+        )  # fmt: skip
+        if status == rn.NEED_PATTERN:
+            cell._last_request = (int(request[0]), int(request[1]))
+            pat, fac = _pattern(cell, *cell._last_request)
+        elif status == rn.NEED_LIST:
+            cell.grow(F, trial)
+            solver[2] = 0.0  # the step is taken again: factorise afresh
+        else:
             break
-        E2 = trial.energy(cell, trial.on)
-        if not E2 < E:
-            break
-        alpha, state, E = 2.0 * alpha, trial, E2
-    return w + alpha * delta, state, alpha / first
-
-
-def _newton(cell, F, w, settings, budget, stall=True):
-    """Newton from w until equilibrium: ``(w, state, residual, steps, factorisations,
-    shifted)``; RelaxationError after ``budget`` steps or a failed line search."""
-    s = ContactState(cell, F, w)
-    stepper = _Stepper(cell, settings)
-    steps = factorisations = shifted = 0
-    while True:
-        if not s.on.any():
-            raise RigidityLostError("no two disks touch (the cell has come apart)")
-        g, f = s.forces(cell, F, s.on)
-        residual = _largest(f, np.ones(cell.n_disks, np.bool_)) / s.force_scale(cell)
-        if residual <= max(settings.force_tol, RESOLVED * s.resolution(cell)):
-            return w, s, residual, steps, factorisations, shifted
-        if steps == budget or (stall and steps >= STALLED_AFTER and residual > STALLED_ABOVE):
-            raise RelaxationError(
-                f"no equilibrium after {steps} Newton steps (largest net force "
-                f"{residual:.3g} of the mean contact force)"
-            )
-        delta, factorised, was_shifted = stepper.direction(F, s, g, residual)
-        w, s, _ = _line_search(cell, F, w, s, delta, g, expand=was_shifted)
-        steps, factorisations = steps + 1, factorisations + factorised
-        shifted += was_shifted
+    else:
+        raise RelaxationError("the micro solver kept asking for new patterns")
+    if status == rn.CONVERGED:
+        s = ContactState(cell, F, w, int(request[1]))
+        return w, s, float(solver[3])
+    if status == rn.NO_CONTACT:
+        raise RigidityLostError("no two disks touch (the cell has come apart)")
+    if status == rn.NO_EQUILIBRIUM:
+        residual = _residual(cell, F, ContactState(cell, F, w))
+        raise RelaxationError(
+            f"no equilibrium after {counts[0]} Newton steps (largest net force "
+            f"{residual:.3g} of the mean contact force)"
+        )
+    if status == rn.LINE_SEARCH:
+        raise RelaxationError("the line search found no lower energy")
+    raise RelaxationError("the shifted stiffness never became positive definite")
 
 
 def relax(
@@ -418,49 +204,47 @@ def relax(
     Where Newton stalls, it starts again from ``fallback`` (N, 2) if given, and then FIRE
     relaxes the cell from there (from w0 without it) before Newton takes up again."""
     w0 = np.array(w0, dtype=np.float64)
-    fire_steps = 0
+    fire_steps, counts, steps = 0, np.zeros(len(_COUNTS), np.int64), 0
     starts = [w0] if fallback is None else [w0, np.array(fallback, dtype=np.float64)]
     for start in starts:
         try:
-            w, s, residual, steps, factorisations, shifted = _newton(
-                cell, F, start, settings, settings.max_iterations
-            )
+            w, s, residual = _newton(cell, F, start, settings, settings.max_iterations, counts)
             break
         except RelaxationError:
+            steps += int(counts[0])
             continue
     else:  # FIRE from where Newton last started, not from where it strayed
         w, fire_steps = fire(cell, F, starts[-1], settings)
-        w, s, residual, steps, factorisations, shifted = _newton(
-            cell, F, w, settings, settings.max_iterations, stall=False
-        )
-    return _equilibrium(
-        cell, F, w, s, tangent, settings, residual, steps, factorisations, shifted, fire_steps
-    )
+        w, s, residual = _newton(cell, F, w, settings, settings.max_iterations, counts, False)
+    counts[0] += steps
+    return _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps)
 
 
-def _equilibrium(cell, F, w, s, tangent, settings, residual, *counts):
-    """The :class:`Equilibrium` at the contact state s (``counts``: steps, factorisations,
-    shifted, fire_steps)."""
+def _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps=0):
+    """The :class:`Equilibrium` at the contact state s (``counts``: see :data:`_COUNTS`,
+    the tangent's factorisation added here)."""
     if not s.keep.any():
         raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
-    A, dw = condensation(cell, F, s, settings) if tangent else (None, None)
+    A, dw = condensation(cell, F, s, counts) if tangent else (None, None)
     W, P = stress(cell, F, s)
     network = np.flatnonzero(s.network)
-    return Equilibrium(w, W, P, A, dw, network, int((~s.keep).sum()), *counts, residual)
+    n = dict(zip(_COUNTS, (int(c) for c in counts)))
+    return Equilibrium(
+        w, W, P, A, dw, network, int((~s.keep).sum()), fire_steps=fire_steps,
+        residual=residual, **n,
+    )  # fmt: skip
 
 
-def at_rest(
-    cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool, settings: Settings | None = None
-) -> Equilibrium:
+def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibrium:
     """The :class:`Equilibrium` of disks at rest at F by construction, not relaxed again: a
     committed equilibrium at the same F, or the stress-free packing at F = I (whose contacts
-    have overlaps of ~1e-11 of a diameter that mark them, not forces in balance); the tangent
-    with ``settings.factorisation`` (default: the block LDL^T)."""
+    have overlaps of ~1e-11 of a diameter that mark them, not forces in balance)."""
     s = ContactState(cell, F, w)
     if not s.on.any():
         raise RigidityLostError("no two disks touch (the cell has come apart)")
     w = np.array(w, dtype=np.float64)
-    return _equilibrium(cell, F, w, s, tangent, settings, _residual(cell, F, s), 0, 0, 0, 0)
+    counts = np.zeros(len(_COUNTS), np.int64)
+    return _equilibrium(cell, F, w, s, tangent, _residual(cell, F, s), counts)
 
 
 def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
@@ -494,28 +278,38 @@ def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
 
 
 def condensation(
-    cell: Cell, F: np.ndarray, s: ContactState, settings: Settings | None = None
+    cell: Cell, F: np.ndarray, s: ContactState, counts: np.ndarray | None = None
 ) -> tuple:
     """``(A, dw)`` at an equilibrium s: the tangent A (2, 2, 2, 2) and the sensitivities
     dw/dF = -W_ww^-1 W_wF (N, 2, 4) of the fluctuations (F flattened row-major; zero for the
     rattlers and the pinned disk), both from one factorisation of the network's stiffness
-    (``settings.factorisation``); :class:`RigidityLostError` where it is not positive
-    definite."""
+    (added to ``counts``, :data:`_COUNTS`, if given); :class:`RigidityLostError` where it is
+    not positive definite."""
     A = _affine(cell, F, s)
-    net = _Network(cell, F, s, settings)
     N = cell.n_disks
-    if net.n == 0:
+    if s.keep.sum() < 2:  # one non-rattler, pinned: nothing to condense
         return A, np.zeros((N, 2, 4))
-    if not net.pd:
+    pat, fac = _pattern(cell, int(np.argmax(s.keep)), s.m)
+    pd, B, X = rn.network_tangent(
+        F,
+        s.m,
+        s.qx,
+        s.qy,
+        s.lx,
+        s.ly,
+        s.d,
+        s.e,
+        s.keep,
+        s.network,
+        *cell.geometry(),
+        *pat,
+        *fac,
+        np.zeros(len(_COUNTS), np.int64) if counts is None else counts,
+    )
+    if not pd:
         raise RigidityLostError(
             "the non-rattlers' stiffness (one disk pinned) is not positive definite"
         )
-    # W_wF on every disk's rows (zero but at the non-rattlers; the solve ignores the pinned one)
-    B = rk.mixed(
-        F, cell.pi[: s.m], cell.pj[: s.m], s.qx, s.qy, s.lx, s.ly, s.d, s.e, cell.R[: s.m],
-        cell.K, s.network, np.arange(N, dtype=np.int64), 2 * N,
-    ).reshape(N, 2, 4)  # fmt: skip
-    X = net.stiffness.solve(B)
     return A - (B.reshape(-1, 4).T @ X.reshape(-1, 4)).reshape(2, 2, 2, 2), -X
 
 

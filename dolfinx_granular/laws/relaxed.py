@@ -200,7 +200,7 @@ class RelaxedRVE:
         :class:`~dolfinx_granular.laws.relaxation.Equilibrium`, with the solver's counts): what
         :meth:`evaluate` does for each point. A committed F is not relaxed again."""
         if np.array_equal(F, state.F[q]):  # the committed positions are at rest
-            return relaxation.at_rest(self.cell, F, state.w[q], tangent, self.settings)
+            return relaxation.at_rest(self.cell, F, state.w[q], tangent)
         w, dw, Fc = state.w[q], state.sensitivity[q], state.F[q]
         return relaxed_path.follow(self.cell, F, w, dw, Fc, tangent, self.settings)
 
@@ -234,7 +234,7 @@ class RelaxedRVE:
         with overlaps ~1e-11 of a diameter that a relaxation would only open), condensed over
         the non-rattlers."""
         N = self.packing.radii.shape[0]
-        return relaxation.at_rest(self.cell, np.eye(2), np.zeros((N, 2)), True, self.settings).A
+        return relaxation.at_rest(self.cell, np.eye(2), np.zeros((N, 2)), True).A
 
     def contacts(self, F: ArrayLike, state: RelaxedState) -> ContactSet:
         """The contacts (rattlers' included) of one point of ``state``, relaxed at F (2, 2): its

@@ -24,6 +24,10 @@ MIN_CONTACTS = 3
 #: Verlet skin of the candidates added beyond the reference list, relative to the smallest
 #: radius sum
 SKIN = 0.1
+#: a block pattern holds this part of the visited prefix more (:meth:`Cell.block_pattern`)
+PATTERN_MARGIN = 0.05
+#: block patterns a cell keeps (each about 1 MB at 700 disks)
+PATTERNS_KEPT = 8
 
 
 class RelaxationError(LawEvaluationError):
@@ -130,17 +134,54 @@ class Cell:
         for a in (self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.shift):
             a.flags.writeable = False  # as the list of Cell.of: one compiled kernel, not two
 
-    def block_pattern(self, pinned: int) -> block_ldlt.BlockPattern:
-        """The symbolic block LDL^T of the stiffness on the candidate pairs, disk ``pinned``
-        left out (:func:`~dolfinx_granular.laws.block_ldlt.analyse`): analysed once per list
-        and pinned disk, again when :meth:`extend` grows the list."""
-        key = (int(pinned), self.pi.shape[0])
-        cache = self.__dict__.setdefault("_patterns", {})
-        if key not in cache:
-            if any(k[1] != key[1] for k in cache):
-                cache.clear()  # patterns of a shorter list
-            cache[key] = block_ldlt.analyse(self.n_disks, np.c_[self.pi, self.pj], int(pinned))
-        return cache[key]
+    def geometry(self) -> tuple:
+        """The cell as the compiled Newton loop takes it
+        (:mod:`~dolfinx_granular.laws.relaxed_newton`): ``(pi, pj, X, Y, R, ratio, n_sorted,
+        n_candidates, 1 / min_stretch, min R, n_disks, K)``."""
+        return (
+            self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.n_sorted,
+            self.pi.shape[0], 1.0 / self.min_stretch, float(self.R.min()), self.n_disks, self.K,
+        )  # fmt: skip
+
+    def verlet(self) -> tuple:
+        """The Verlet reference of the list ``(w (N, 2), s_min, skin, valid)`` (valid False
+        while the list has not grown)."""
+        ref = self.__dict__.get("_verlet")
+        if ref is None:
+            return np.zeros((self.n_disks, 2)), 1.0, 0.0, False
+        return ref[0], float(ref[1]), float(ref[2]), True
+
+    def grow(self, F, w):
+        """Bring the list up to fluctuations w (N, 2) at F (:meth:`extend`), whatever
+        :meth:`visited` would say, and make w the Verlet reference."""
+        s_min = float(singular_values_2x2(F[None])[1][0])
+        skin = SKIN * self.R.min()
+        self.extend(w, s_min, skin)
+        self._verlet = (np.array(w, dtype=np.float64), s_min, skin)
+
+    def block_pattern(self, pinned: int, m: int | None = None) -> tuple:
+        """``(pattern, factor, cover)``: the symbolic block LDL^T of the stiffness on a prefix of
+        the candidate pairs that holds the first m (all without m), disk ``pinned`` left out
+        (:func:`~dolfinx_granular.laws.block_ldlt.analyse`), a numeric factor on it and the
+        length of that prefix.
+
+        The prefix reaches :data:`PATTERN_MARGIN` beyond m, so that the small changes of m
+        along a point's Newton steps and its neighbours' find it again; the last
+        :data:`PATTERNS_KEPT` patterns are kept (a pattern holds for a longer list too: the
+        list only grows at its end)."""
+        total = self.pi.shape[0]
+        m = total if m is None else int(m)
+        cache = self.__dict__.setdefault("_patterns", [])
+        for k, (p, factor, cover) in enumerate(cache):
+            if p.pinned == pinned and m <= cover:
+                cache.append(cache.pop(k))
+                return p, factor, cover
+        cover = min(total, m + max(32, int(PATTERN_MARGIN * m)))
+        pairs = np.c_[self.pi[:cover], self.pj[:cover]]
+        p = block_ldlt.analyse(self.n_disks, pairs, int(pinned))
+        cache.append((p, p.new_factor(), cover))
+        del cache[:-PATTERNS_KEPT]
+        return cache[-1]
 
     def known_keys(self) -> np.ndarray:
         """Sorted (M,) :meth:`keys_of` of the candidates."""
@@ -160,7 +201,8 @@ class Cell:
 
 
 class ContactState:
-    """The contacts of a cell at F (2, 2) and fluctuations w (N, 2).
+    """The contacts of a cell at F (2, 2) and fluctuations w (N, 2) over the first m candidates
+    (by default :meth:`Cell.visited`).
 
     Attributes:
         m: candidates visited (a prefix of the cell's list).
@@ -173,8 +215,8 @@ class ContactState:
         rattling: (m,) contacts that touch a rattler.
     """
 
-    def __init__(self, cell: Cell, F: np.ndarray, w: np.ndarray) -> None:
-        self.m = m = cell.visited(F, w)
+    def __init__(self, cell: Cell, F: np.ndarray, w: np.ndarray, m: int | None = None) -> None:
+        self.m = m = cell.visited(F, w) if m is None else m
         self.qx, self.qy, self.lx, self.ly, self.d, self.e = rk.contact_state(
             F, w, cell.pi, cell.pj, cell.X, cell.Y, cell.R, m
         )
