@@ -3,12 +3,14 @@
 # Debian packages (sudo only when not root), a venv .venv on Debian's /usr/bin/python3 with the
 # system site packages (DOLFINx lives there), the package editable and pyvista, with pip
 # constrained so that numpy & co. stay Debian's versions (a numpy 2 breaks DOLFINx 0.5).
+# The BLAS and LAPACK of numpy, SciPy, PETSc and MUMPS: Debian's serial OpenBLAS (one thread, so
+# one per MPI rank), selected in Debian's alternatives (docs/performance.md, section 11).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 DEB_PACKAGES="python3-dolfinx python3-gmsh python3-numba python3-scipy python3-pytest \
 python3-matplotlib python3-venv python3-pip python3-setuptools python3-wheel mpi-default-bin \
-libgl1 libxrender1 libegl1"
+libgl1 libxrender1 libegl1 libopenblas0-serial"
 
 missing=""
 for p in $DEB_PACKAGES; do
@@ -20,6 +22,18 @@ if [ -n "$missing" ]; then
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $missing >/dev/null
 fi
+
+# libblas.so.3 and liblapack.so.3 -> the serial OpenBLAS, also where another BLAS ranks higher in
+# the alternatives (the multithreaded libopenblas0-pthread would oversubscribe the cores under MPI)
+for lib in blas lapack; do
+  target=$(dpkg -L libopenblas0-serial | grep -E "/openblas-serial/lib$lib\.so\.3$" | head -n 1)
+  name="lib$lib.so.3-$(basename "$(dirname "$(dirname "$target")")")"  # e.g. ...-x86_64-linux-gnu
+  if [ "$(update-alternatives --query "$name" | sed -n 's/^Value: //p')" != "$target" ]; then
+    echo "setup: $name -> $target (update-alternatives)"
+    SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    $SUDO update-alternatives --set "$name" "$target"
+  fi
+done
 
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv from /usr/bin/python3 with system site packages"
