@@ -1,44 +1,54 @@
-"""Relaxed RVE speed: ms per quadrature point beside the Taylor kernel, and where the time goes.
+"""Relaxed RVE speed: ms per quadrature point beside the Taylor kernel, what a point costs, and
+the floor its arithmetic sets.
 
-Run: ``.venv/bin/python benchmarks/relaxed.py [--points 100] [--particles 700] [--step 1e-4]``.
+Run: ``.venv/bin/python benchmarks/relaxed.py [--points 100] [--particles 700] [--step 1e-4]
+[--save W.npz] [--against W.npz]``.
 
 A generated packing (seed 0, k_n = 2.8e7 N/m²) is relaxed once at an isotropic compression
 ``--compression`` (default 0.5 %, p / k_n ~ 1e-3), and that equilibrium is the committed state of
 every point. Each point then takes its own strain step of size ``--step`` in a random direction
-(a Newton iterate of the next load step) and is timed:
+(a Newton iterate of the next load step). Printed:
 
-- ``Taylor P+A``: :class:`TaylorRVE` ``evaluate`` at the same F (µs per point);
-- ``relaxed P+A``: :class:`RelaxedRVE` ``evaluate`` warm-started from the committed state, in ms
-  per point, split into the points whose contact network stayed and those that rearranged;
-- ``ratio``: relaxed over Taylor, per point, in this one run;
-- Newton steps, factorisations and FIRE steps per point, and the time of one contact state
-  (overlaps, forces, rattlers) and one tangent (a factorisation and the condensation) at the
-  committed state;
-- where the time goes: assembly, factorisations, solves, line search, FIRE and the tangent, in
-  ms per point over one more pass under cProfile;
-- one factorisation of the network's stiffness at the committed state by other sparse
-  libraries, where they are installed (none is a dependency): QDLDL (``pip install qdldl``) and
-  CHOLMOD (``pip install scikit-sparse`` on SuiteSparse's headers), each refactorising on a
-  symbolic analysis done once, the least any of them could cost per factorisation;
-- the block LDL^T in 2 x 2 blocks (:mod:`~dolfinx_granular.laws.block_ldlt`) beside SuperLU:
-  its factorisation on the pattern of every candidate pair (as a solver keeps it while the list
-  holds) and on the network's own pairs (the least it could be), its flops and the blocks of L
-  (in scalar entries beside SuperLU's nnz(L)), one solve, and the assembly straight into its
-  values beside the COO triplets and their conversion to CSC that SuperLU needs.
+- ``Taylor P+A``: :class:`TaylorRVE` ``evaluate`` at the same F (µs per point, best of 3);
+- ``relaxed P+A``: :class:`RelaxedRVE` ``evaluate`` warm-started from the committed state (ms
+  per point, best of ``--repeats``), and its ratio to Taylor's in this one run;
+- per point, split into the points whose network stayed and those that rearranged: time,
+  Newton steps, the steps that factorised, every numeric factorisation (the shifted tries and
+  the tangent's included), solves, line-search trial states and FIRE steps;
+- the parts, each timed alone at the committed state (best of many): one factorisation on the
+  solver's pattern (the prefix of the candidates that holds the contacts) with its flops and
+  rate, one solve; the same factorisation on the network's own pattern (the least any pattern
+  could cost), SciPy's SuperLU, and QDLDL's and CHOLMOD's refactorisations where they are
+  installed (none is a dependency: ``pip install qdldl``, ``pip install scikit-sparse``);
+- the floor: the mean counts times those parts' times (the factorisations and solves alone, no
+  line search, no contact states, no Python), in ms per point and MFLOP per point, beside the
+  measured time;
+- ``--save`` writes the points' W, P and A to an ``.npz``; ``--against`` compares them with such
+  a file (from another version of the solver: the largest relative difference per quantity and
+  the points beyond 1e-10).
 """
 
 import argparse
-import dataclasses
 import time
 
 from dolfinx_granular import TaylorRVE, generate_packing
-from dolfinx_granular.laws import block_ldlt, relaxation
-from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
-from dolfinx_granular.laws.relaxed_cell import ContactState
+from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState, at_rest, block_ldlt, newton
+from dolfinx_granular.laws.relaxed.assembly import assemble
+from dolfinx_granular.laws.relaxed.contact_state import ContactState
 
 import numpy as np
+from scipy.sparse.linalg import splu
 
 K_N = 2.8e7
+#: the counts of a point (:class:`~dolfinx_granular.laws.relaxed.Equilibrium`), as printed
+COUNTS = {
+    "steps": "Newton steps",
+    "factorisations": "factorised",
+    "numeric_factorisations": "factorisations",
+    "solves": "solves",
+    "trial_states": "trial states",
+    "fire_steps": "FIRE steps",
+}
 
 
 def best_time(fn, repeats=3):
@@ -65,82 +75,100 @@ def steps(F0, n, size, seed=0):
     return F0[None] + size * d
 
 
-def against_superlu(rve, F, state, block):
-    """Seconds of ``rve.evaluate(F, state)`` with the SuperLU factorisation on the same cell,
-    and the largest difference over the points of its W, P and A from ``block`` (the block
-    LDL^T's ``(W, P, A, state)``), each relative to the point's largest entry."""
-    settings = rve.settings
-    rve.settings = dataclasses.replace(settings, factorisation="superlu")
-    try:
-        t, ref = best_time(lambda: rve.evaluate(F, state), 1)
-    finally:
-        rve.settings = settings
-    return t, [relative_difference(a, b) for a, b in zip(block[:3], ref[:3])]
-
-
 def relative_difference(a, b):
-    """max over points of max|a - b| / max|b| ((n, ...) arrays)."""
+    """Per point max|a - b| / max|b| ((n, ...) arrays): (n,)."""
     a, b = np.reshape(a, (len(a), -1)), np.reshape(b, (len(b), -1))
-    return float((np.abs(a - b).max(axis=1) / np.abs(b).max(axis=1)).max())
+    return np.abs(a - b).max(axis=1) / np.abs(b).max(axis=1)
 
 
 def per_point(rve, F0, F, state):
-    """Time (s), steps, factorisations and FIRE steps of each point, and whether its network
-    (the contacts between non-rattlers) differs from the committed one at F0."""
-    committed = relaxation.at_rest(rve.cell, F0, state.w[0], False).network  # (all points')
+    """Each point's time (s) and counts (:data:`COUNTS`), and whether its network (the
+    contacts between non-rattlers) differs from the committed one at F0."""
+    committed = at_rest(rve.cell, F0, state.w[0], False).network  # (all points')
     rows, rearranged = [], []
     for q in range(F.shape[0]):
         t = time.perf_counter()
         eq = rve.equilibrium(F[q], state, q)
-        rows.append((time.perf_counter() - t, eq.steps, eq.factorisations, eq.fire_steps))
+        rows.append([time.perf_counter() - t] + [getattr(eq, k) for k in COUNTS])
         rearranged.append(not np.array_equal(eq.network, committed))
     return np.array(rows), np.array(rearranged)
 
 
-_BLOCK, _SUPERLU = relaxation._BlockStiffness, relaxation._SuperLUStiffness
-#: the micro solver's parts, by the functions that do each (cumulative time under cProfile;
-#: both factorisations' methods)
-PARTS = {
-    "assembly": (_BLOCK.assemble, _SUPERLU.assemble),
-    "factorisation": (_BLOCK.factorise, _SUPERLU.factorise),
-    "solves": (_BLOCK.solve, _SUPERLU.solve),
-    "line search": (relaxation._line_search,),
-    "FIRE": (relaxation.fire,),
-    "tangent": (relaxation.condensation,),
-}
+def network_values(cell, F, s, pattern):
+    """The network's stiffness at the contact state s in ``pattern``'s values, and the shift
+    that puts K on the rattlers' diagonal (the tangent's matrix)."""
+    values = pattern.zeros()
+    assemble(
+        F, cell.pi[: s.m], cell.pj[: s.m], s.lx, s.ly, s.d, s.e, cell.R[: s.m], cell.K,
+        s.network, s.network, pattern.diag_slot, pattern.pair_slot, values,
+    )  # fmt: skip
+    return values, np.where(s.keep, 0.0, cell.K)
 
 
-def where_time_goes(rve, F, state):
-    """ms per point in each of :data:`PARTS` over one pass of the points, under cProfile
-    (which slows the Python parts: read the shares, not the sum), and the factorisations per
-    point, the shifted tries included."""
-    import cProfile
-    import pstats
+def parts(rve, F0, state, repeats=50):
+    """One factorisation of the network's stiffness at the committed state (s) on the solver's
+    pattern, on the network's own, by SuperLU and by the libraries installed; one solve on
+    the solver's pattern; the flops of both patterns."""
+    cell = rve.cell
+    s = ContactState(cell, F0, state.w[0])
+    pinned = int(np.argmax(s.keep))
+    solver_pattern, _, _ = cell.block_pattern(pinned, newton.held(s.network, cell.pi, cell.pj, s.m))
+    network = np.zeros(cell.pi.size, np.bool_)
+    network[: s.m] = s.network
+    own = block_ldlt.analyse(cell.n_disks, np.c_[cell.pi, np.where(network, cell.pj, cell.pi)],
+                             pinned)  # fmt: skip
+    out = {}
+    for name, p in (("solver's pattern", solver_pattern), ("network's own pattern", own)):
+        values, shift = network_values(cell, F0, s, p)
+        out[name] = time_pattern(p, values, shift, repeats)
+    H = own.to_csc(values, shift)
+    keep = np.repeat(np.arange(cell.n_disks) != pinned, 2)
+    H = H[keep][:, keep].tocsc()
+    out["SuperLU"] = {"factorisation": best_time(lambda: splu(H), repeats // 2)[0]}
+    for name, refactorise in libraries(H).items():
+        out[name] = {"factorisation": best_time(refactorise, repeats)[0]}
+    return out
 
-    profile = cProfile.Profile()
-    profile.enable()
-    for q in range(F.shape[0]):
-        rve.equilibrium(F[q], state, q)
-    profile.disable()
-    stats = pstats.Stats(profile).stats  # {(file, line, name): (cc, nc, tt, ct, callers)}
-    keys = {(f.__code__.co_filename, f.__code__.co_firstlineno, f.__name__): k
-            for k, fs in PARTS.items() for f in fs}  # fmt: skip
-    times, factorisations = {}, 0
-    for key, (_, nc, _, ct, _) in stats.items():
-        if key in keys:
-            times[keys[key]] = times.get(keys[key], 0.0) + ct
-            factorisations += nc if keys[key] == "factorisation" else 0
-    n = F.shape[0]
-    return {k: 1e3 * v / n for k, v in times.items()}, factorisations / n
+
+def time_pattern(p, values, shift, repeats):
+    """Seconds of one factorisation of ``values`` + ``shift`` on the pattern p and of one solve
+    (the compiled substitution the solver calls), and the factorisation's flops."""
+    factor = p.new_factor()
+    t, _ = best_time(lambda: block_ldlt.factorise(p, values, factor, shift), repeats)
+    b = np.ones((p.n_blocks, p.d, 1))
+    x = np.zeros_like(b)
+    args = (p.dims, p.n, p.perm, p.Lp, p.Li, factor.Lx, factor.Dinv, b, x)
+    solve, _ = best_time(lambda: block_ldlt.substitute(*args), repeats)
+    return {"factorisation": t, "flops": p.flops, "solve": solve}
 
 
-def phases(rve, F0, state):
-    """Seconds of one contact state and one tangent (the network's factorisation and the
-    condensation) at the committed state."""
-    w = state.w[0]
-    t_state, s = best_time(lambda: ContactState(rve.cell, F0, w), 20)
-    t_tangent, _ = best_time(lambda: relaxation.condensation(rve.cell, F0, s), 5)
-    return t_state, t_tangent
+def libraries(H):
+    """Refactorisations of H on a kept symbolic analysis by the sparse libraries installed."""
+    out = {}
+    try:
+        import qdldl
+
+        solver = qdldl.Solver(H)
+        out["QDLDL"] = lambda: solver.update(H)
+    except ImportError:
+        pass
+    try:
+        from sksparse.cholmod import cholesky
+
+        factor = cholesky(H)
+        out["CHOLMOD"] = lambda: factor.cholesky_inplace(H)
+    except ImportError:
+        pass
+    return out
+
+
+def floor(counts, timed):
+    """ms and MFLOP per point of the factorisations and solves alone, at the mean counts."""
+    p = timed["solver's pattern"]
+    ms = 1e3 * (
+        counts["numeric_factorisations"] * p["factorisation"] + counts["solves"] * p["solve"]
+    )
+    return ms, counts["numeric_factorisations"] * p["flops"] / 1e6
 
 
 def main(argv=None):
@@ -149,153 +177,70 @@ def main(argv=None):
     ap.add_argument("--particles", type=int, default=700)
     ap.add_argument("--step", type=float, default=1e-4)
     ap.add_argument("--compression", type=float, default=0.005)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--save", help="write the points' W, P, A to this .npz")
+    ap.add_argument("--against", help="compare the points' W, P, A with this .npz")
     a = ap.parse_args(argv)
     packing = generate_packing(a.particles, seed=0)
     rve, taylor = RelaxedRVE(packing, K_N), TaylorRVE(packing, K_N)
     F0, state = committed(rve, a.compression, a.points)
     F = steps(F0, a.points, a.step)
     t_taylor, _ = best_time(lambda: taylor.evaluate(F))
-    t_relaxed, block = best_time(lambda: rve.evaluate(F, state), 1)
-    t_superlu, agree = against_superlu(rve, F, state, block)
+    t_relaxed, (W, P, A, _) = best_time(lambda: rve.evaluate(F, state), a.repeats)
     rows, rearranged = per_point(rve, F0, F, state)
-    t_state, t_tangent = phases(rve, F0, state)
-    us = 1e6 / a.points
     print(
         f"{a.particles} particles, {a.points} points, step {a.step:g} at compression "
         f"{a.compression:g}"
     )
-    print(f"Taylor P+A    {t_taylor * us:9.2f} µs/point")
-    print(f"relaxed P+A   {t_relaxed * us / 1e3:9.2f} ms/point   ratio {t_relaxed / t_taylor:.0f}")
+    ms = 1e3 * t_relaxed / a.points
+    print(f"Taylor P+A    {1e6 * t_taylor / a.points:9.2f} µs/point")
+    print(f"relaxed P+A   {ms:9.2f} ms/point   ratio {t_relaxed / t_taylor:.0f}")
+    print_counts(rows, rearranged)
+    timed = parts(rve, F0, state)
+    print_parts(timed)
+    counts = dict(zip(COUNTS, rows[:, 1:].mean(axis=0)))
+    f_ms, f_mflop = floor(counts, timed)
     print(
-        f"  with SuperLU {t_superlu * us / 1e3:9.2f} ms/point (the earlier factorisation); W, P, "
-        f"A agree to {agree[0]:.1e}, {agree[1]:.1e}, {agree[2]:.1e} (largest relative "
-        "difference over the points)"
+        f"floor: {counts['numeric_factorisations']:.2f} factorisations and "
+        f"{counts['solves']:.2f} solves per point take {f_ms:.2f} ms ({f_mflop:.2f} MFLOP) of "
+        f"the {ms:.2f}"
     )
+    if a.save:
+        np.savez(a.save, W=W, P=P, A=A)
+    if a.against:
+        print_against(np.load(a.against), W, P, A)
+
+
+def print_counts(rows, rearranged):
+    """The per-point lines of :func:`per_point`."""
     for name, mask in (("kept network", ~rearranged), ("rearranged", rearranged)):
         if mask.any():
-            r = rows[mask]
+            r = rows[mask].mean(axis=0)
             print(
-                f"  {name:13s} {mask.sum():4d} points: {1e3 * r[:, 0].mean():8.2f} ms, "
-                f"{r[:, 1].mean():.1f} Newton steps, {r[:, 2].mean():.1f} factorisations, "
-                f"{r[:, 3].mean():.0f} FIRE steps per point"
+                f"  {name:13s} {mask.sum():4d} points: {1e3 * r[0]:6.2f} ms, "
+                + ", ".join(f"{v:.2f} {label}" for v, label in zip(r[1:], COUNTS.values()))
             )
-    print(
-        f"one contact state {1e3 * t_state:.3f} ms, one tangent (factorisation and "
-        f"condensation) {1e3 * t_tangent:.3f} ms"
-    )
-    parts, factorisations = where_time_goes(rve, F, state)
-    print(
-        f"where the time goes (ms per point under cProfile; {factorisations:.1f} "
-        "factorisations per point, the shifted tries included):"
-    )
-    print("  " + ", ".join(f"{k} {v:.1f}" for k, v in parts.items()))
-    print("  (the tangent holds its own assembly and factorisation; the line search the contact")
-    print("  states of its tries)")
-    n, libraries = factorisation_libraries(rve, F0, state)
-    print(
-        f"one factorisation of the network's stiffness ({n} unknowns), ms: "
-        + ", ".join(f"{k} {v:.2f}" for k, v in libraries.items())
-    )
-    print_block_ldlt(block_ldlt_times(rve, F0, state))
 
 
-def factorisation_libraries(rve, F0, state):
-    """ms of one factorisation of the network's stiffness at the committed state: SuperLU as
-    the micro solver calls it, and QDLDL's and CHOLMOD's refactorisations (their symbolic
-    analysis reused) where the libraries are installed."""
-    s = ContactState(rve.cell, F0, state.w[0])
-    H = network_matrix(rve.cell, F0, s).H
-    times = {"SuperLU": best_time(lambda: relaxation._factorise(H), 20)[0]}
-    try:
-        import qdldl
-
-        solver = qdldl.Solver(H)
-        times["QDLDL"] = best_time(lambda: solver.update(H), 20)[0]
-    except ImportError:
-        pass
-    try:
-        from sksparse.cholmod import cholesky
-
-        factor = cholesky(H)
-        times["CHOLMOD"] = best_time(lambda: factor.cholesky_inplace(H), 20)[0]
-    except ImportError:
-        pass
-    return H.shape[0], {k: 1e3 * v for k, v in times.items()}
+def print_parts(timed):
+    """The lines of :func:`parts`."""
+    print("one factorisation of the network's stiffness at the committed state (ms, best of 50):")
+    for name, t in timed.items():
+        line = f"  {name:22s} {1e3 * t['factorisation']:.3f}"
+        if "flops" in t:
+            line += (
+                f" ({t['flops'] / 1e6:.2f} MFLOP, {t['flops'] / t['factorisation'] / 1e9:.1f} "
+                f"GFLOP/s; one solve {1e3 * t['solve']:.3f})"
+            )
+        print(line)
 
 
-def network_matrix(cell, F, s):
-    """The network's stiffness at the contact state s on the non-rattlers but the first, as
-    the SuperLU solver assembles it (``.H`` CSC, ``.dof``, ``.n``)."""
-    net = relaxation._SuperLUStiffness(cell)
-    free = s.keep.copy()
-    free[np.argmax(s.keep)] = False
-    net.assemble(F, s, s.network, s.network, int(np.argmax(s.keep)), free)
-    return net
-
-
-def block_ldlt_times(rve, F0, state, repeats=50):
-    """The block LDL^T beside SuperLU on the network's stiffness at the committed state (the
-    tangent's matrix; the rattlers' unknowns on the diagonal alone): ms per factorisation,
-    solve and assembly (best of ``repeats``), flops, nnz(L) in scalar entries, and the largest
-    difference of the two solutions relative to SuperLU's."""
-    cell = rve.cell
-    s = ContactState(cell, F0, state.w[0])
-    net = network_matrix(cell, F0, s)
-    H = net.H
-    lu, _ = relaxation._factorise(H)
-    pinned = int(np.argmax(s.keep))
-    shift = np.where(s.keep, 0.0, cell.K)
-    args = (F0, cell.pi[: s.m], cell.pj[: s.m], s.lx, s.ly, s.d, s.e, cell.R[: s.m], cell.K,
-            s.network, s.network)  # fmt: skip
-    network = np.zeros(cell.pi.size, np.bool_)
-    network[: s.m] = s.network
-    own = np.c_[cell.pi, np.where(network, cell.pj, cell.pi)]  # (i, i): no block
-    g = np.random.default_rng(0).normal(size=(cell.n_disks, 2))
-    g[~s.keep] = 0.0
-    ref = relaxation._scatter(lu.solve(relaxation._gather(g, net.dof, net.n)), net.dof,
-                              cell.n_disks)  # fmt: skip
-    out = {"SuperLU": {
-        "factorisation": best_time(lambda: relaxation._factorise(H), repeats // 2)[0],
-        "solve": best_time(lambda: lu.solve(np.ones(net.n)), repeats)[0],
-        "assembly": best_time(lambda: relaxation._matrix(cell, F0, s, s.network, s.network,
-                                                         net.dof, net.n), repeats)[0],
-        "nnz(L)": lu.L.nnz,
-    }}  # fmt: skip
-    for name, pairs in (("candidates", np.c_[cell.pi, cell.pj]), ("network", own)):
-        p = block_ldlt.analyse(cell.n_disks, pairs, pinned=pinned)
-        values, factor = p.zeros(), p.new_factor()
-        assemble = lambda p=p, v=values: block_ldlt.assemble(  # noqa: E731
-            *args, p.diag_slot, p.pair_slot, v
-        )
-        assemble()
-        out[name] = {
-            "factorisation": best_time(
-                lambda p=p, v=values, f=factor: block_ldlt.factorise(p, v, f, shift), repeats
-            )[0],
-            "solve": best_time(lambda p=p, f=factor: block_ldlt.solve(p, f, g), repeats)[0],
-            "assembly": best_time(assemble, repeats)[0],
-            "nnz(L)": 4 * p.nnz_L + 3 * p.n,
-            "flops": p.flops,
-            "agree": float(np.abs(block_ldlt.solve(p, factor, g) - ref).max() / np.abs(ref).max()),
-        }
-    return out
-
-
-def print_block_ldlt(times):
-    """The lines of :func:`block_ldlt_times`."""
-    su = times["SuperLU"]
-    print(
-        f"block LDL^T beside SuperLU (ms, best of many; nnz(L) in scalar entries): SuperLU "
-        f"factorisation {1e3 * su['factorisation']:.3f}, solve {1e3 * su['solve']:.3f}, COO "
-        f"assembly and CSC {1e3 * su['assembly']:.3f}, nnz(L) {su['nnz(L)']}"
-    )
-    for name, label in (("candidates", "candidates'"), ("network", "network's")):
-        t = times[name]
-        print(
-            f"  on the {label} pattern: factorisation {1e3 * t['factorisation']:.3f} "
-            f"({t['flops'] / 1e6:.2f} MFLOP), solve {1e3 * t['solve']:.3f}, assembly "
-            f"{1e3 * t['assembly']:.3f}, nnz(L) {t['nnz(L)']}, agrees to {t['agree']:.1e}"
-        )
+def print_against(ref, W, P, A):
+    """The largest relative differences of W, P, A from ``ref``'s, and the points beyond 1e-10."""
+    for name, x in (("W", W), ("P", P), ("A", A)):
+        d = relative_difference(x, ref[name])
+        far = np.flatnonzero(d > 1e-10)
+        print(f"  {name}: largest relative difference {d.max():.1e}; points beyond 1e-10: {far}")
 
 
 if __name__ == "__main__":

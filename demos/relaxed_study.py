@@ -65,7 +65,7 @@ from dolfinx_granular.drivers.confinement import compress, ramp
 from dolfinx_granular.io.commandline import Parser, world_comm
 from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out
 from dolfinx_granular.io.shear_figures import save_figure
-from dolfinx_granular.laws import relaxation
+from dolfinx_granular.laws.relaxed import at_rest
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -110,7 +110,7 @@ def moduli(F, P, A):
 
 def coordination(rve, F, state):
     """z over the non-rattlers of the relaxed state at F, and the rattler fraction."""
-    eq = relaxation.at_rest(rve.cell, F, state.w[0], False)
+    eq = at_rest(rve.cell, F, state.w[0], False)
     n = rve.packing.radii.shape[0]
     return 2.0 * eq.network.size / (n - eq.rattlers), eq.rattlers / n
 

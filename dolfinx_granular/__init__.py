@@ -20,8 +20,7 @@ from .laws.contacts import ContactCandidates
 from .laws.friction import FrictionalRVE, FrictionState
 from .laws.levels import AdaptiveRVE, SmallStrainRVE
 from .laws.protocol import HistoryLaw, HistoryState, LawEvaluationError, MaterialLaw, law_dimension
-from .laws.relaxation import RelaxationError, RigidityLostError
-from .laws.relaxed import RelaxedRVE, RelaxedState
+from .laws.relaxed import RelaxationError, RelaxedRVE, RelaxedState, RigidityLostError
 from .laws.taylor import ContactSet, TaylorRVE, UnsupportedDeformationError
 from .laws.validity import OVERLAP_THRESHOLD, OverlapMonitor, OverlapSummary, ValidityWarning
 from .packings.fabric import (

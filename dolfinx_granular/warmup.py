@@ -85,10 +85,10 @@ def warm_relaxed(packing: Packing, F: np.ndarray) -> None:
     """The relaxed RVE's kernels (``demos/relaxed_study.py``, ``--rve relaxed``):
     ``RelaxedRVE.evaluate`` at F (n, 2, 2) (Newton, the condensed tangent, and the block LDL^T
     they factorise with: its analysis, assembly, factorisation and solves) and the micro solver's
-    FIRE fallback (:func:`~dolfinx_granular.laws.relaxation.fire`, which runs only where Newton
+    FIRE fallback (:func:`~dolfinx_granular.laws.relaxed.fire.fire`, which runs only where Newton
     stalls), each on a cell as built and on one whose candidate list grew."""
-    from .laws import relaxation
-    from .laws.relaxed import RelaxedRVE
+    from .laws.relaxed import RelaxationError, RelaxedRVE, Settings
+    from .laws.relaxed.fire import FIRE_CHUNK, fire
 
     built, grown = RelaxedRVE(packing, 2.8e7), RelaxedRVE(packing, 2.8e7)
     # A list grows (Cell.extend) where a disk moves out of reach of its candidates, in a
@@ -98,13 +98,13 @@ def warm_relaxed(packing: Packing, F: np.ndarray) -> None:
     w = np.zeros((packing.n_particles, 2))
     w[0] = 0.5 * packing.box
     grown.cell.visited(np.eye(2), w)
-    settings = relaxation.Settings(fire_steps=relaxation.FIRE_CHUNK)
+    settings = Settings(fire_steps=FIRE_CHUNK)
     for rve in (built, grown):
         _, _, _, state = rve.evaluate(F, rve.initial_state(len(F)))
         rve.evaluate(F, state)  # at rest: the committed positions (relaxation.at_rest)
         try:  # one chunk of FIRE steps from the affine positions of a compression
-            relaxation.fire(rve.cell, np.diag([0.99, 0.995]), np.zeros_like(w), settings)
-        except relaxation.RelaxationError:
+            fire(rve.cell, np.diag([0.99, 0.995]), np.zeros_like(w), settings)
+        except RelaxationError:
             pass  # (not relaxed within the chunk: compiled all the same)
 
 

@@ -1,16 +1,19 @@
-"""The block LDL^T factorisation (laws/block_ldlt.py) against SuperLU and dense eigenvalues, on
-the stiffness the relaxed RVE's micro solver assembles at a relaxed state of real packings, and
-on synthetic 3 x 3 block matrices."""
+"""The block LDL^T factorisation (laws/relaxed/block_ldlt.py) against SuperLU and dense
+eigenvalues, on the stiffness the relaxed RVE's micro solver assembles at a relaxed state of real
+packings (against an assembly in numpy, contact by contact), and on synthetic 3 x 3 block
+matrices; the shift bound of the Newton loop against dense eigenvalues; the condensed tangent
+against a dense condensation."""
 
 from dolfinx_granular import generate_packing
-from dolfinx_granular.laws import block_ldlt, relaxation
-from dolfinx_granular.laws.relaxed import RelaxedRVE
-from dolfinx_granular.laws.relaxed_cell import ContactState
+from dolfinx_granular.laws.relaxed import RelaxedRVE, at_rest, block_ldlt, newton, relax
+from dolfinx_granular.laws.relaxed.assembly import assemble, mixed
+from dolfinx_granular.laws.relaxed.contact_state import ContactState
+from dolfinx_granular.laws.relaxed.tangent import _affine
 from dolfinx_granular.packings.reference_packing import reference_packing
 
 import numpy as np
 import pytest
-from scipy.sparse import diags
+from scipy.sparse import coo_matrix, diags
 from scipy.sparse.linalg import splu, spsolve
 
 K_N = 2.8e7
@@ -40,28 +43,67 @@ class Relaxed:
         """The stiffness over the contacts on (``exact`` the exact ones) in block values."""
         F, s, c = (self.F if F is None else F), (self.s if s is None else s), self.cell
         v = self.pattern.zeros()
-        block_ldlt.assemble(
+        assemble(
             F, c.pi[: s.m], c.pj[: s.m], s.lx, s.ly, s.d, s.e, c.R[: s.m], c.K, s.on, exact,
             self.pattern.diag_slot, self.pattern.pair_slot, v,
         )  # fmt: skip
         return v
 
     def superlu_matrix(self, exact, F=None, s=None):
-        """relaxation._matrix of the same contacts (CSC on the unknowns without the pinned
-        disk)."""
+        """The same stiffness assembled in numpy, contact by contact (CSC on the unknowns
+        without the pinned disk)."""
         F, s = (self.F if F is None else F), (self.s if s is None else s)
-        return relaxation._matrix(self.cell, F, s, s.on, exact, self.dof, self.n)
+        return stiffness_matrix(self.cell, F, s, s.on, exact, self.dof, self.n)
 
     def gather(self, g):
-        return relaxation._gather(g, self.dof, self.n)
+        """g (N, 2) on the unknowns without the pinned disk, (n,)."""
+        k = self.dof >= 0
+        v = np.zeros(self.n)
+        v[2 * self.dof[k]], v[2 * self.dof[k] + 1] = g[k, 0], g[k, 1]
+        return v
 
     def scatter(self, v):
-        return relaxation._scatter(v, self.dof, self.cell.n_disks)
+        """v (n, ...) on the unknowns as (N, 2, ...), zero at the pinned disk."""
+        k = self.dof >= 0
+        x = np.zeros((self.cell.n_disks, 2) + v.shape[1:])
+        x[k, 0], x[k, 1] = v[2 * self.dof[k]], v[2 * self.dof[k] + 1]
+        return x
 
     def rattler_shift(self, scale=1e-8):
         shift = np.zeros(self.cell.n_disks)
         shift[~self.s.keep] = scale * self.cell.K
         return shift
+
+
+def stiffness_matrix(cell, F, s, use, exact, dof, n):
+    """d2W/dw2 over the contacts ``use`` on the unknowns ``dof`` (N,) (-1: fixed), CSC (n, n),
+    in numpy from the contact Hessian H_c = K [(R/d) n n^T - (e/d) I] (its positive part
+    K n n^T where not ``exact``): +F^T H_c F on the blocks (i, i), (j, j), minus on (i, j)."""
+    c = np.flatnonzero(use & (cell.pi[: s.m] != cell.pj[: s.m]))
+    nrm = np.stack([s.lx[c], s.ly[c]], axis=1) / s.d[c, None]
+    a = np.where(exact[c], cell.K * cell.R[c] / s.d[c], cell.K)
+    b = np.where(exact[c], cell.K * s.e[c] / s.d[c], 0.0)
+    H = a[:, None, None] * nrm[:, :, None] * nrm[:, None, :] - b[:, None, None] * np.eye(2)
+    k = np.einsum("ba,cbd,de->cae", F, H, F)
+    rows, cols, vals = [], [], []
+    for p, q, sign in ((0, 0, 1), (1, 1, 1), (0, 1, -1), (1, 0, -1)):
+        dp, dq = dof[(cell.pi, cell.pj)[p][c]], dof[(cell.pi, cell.pj)[q][c]]
+        ok = (dp >= 0) & (dq >= 0)
+        for r in range(2):
+            for t in range(2):
+                rows.append(2 * dp[ok] + r)
+                cols.append(2 * dq[ok] + t)
+                vals.append(sign * k[ok, r, t])
+    rows, cols, vals = map(np.concatenate, (rows, cols, vals))
+    return coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsc()
+
+
+def factorise_superlu(H):
+    """SuperLU of a symmetric matrix with symmetric pivoting, and whether it is positive
+    definite (every pivot > 0)."""
+    lu = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+              options={"SymmetricMode": True})  # fmt: skip
+    return lu, bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0.0))
 
 
 @pytest.fixture(scope="module")
@@ -244,7 +286,7 @@ def test_minimum_degree_fills_as_little_as_superlu(big):
         p = block_ldlt.analyse(c.n_disks, pairs, pinned=big.pinned, ordering=ordering)
         fill[ordering] = 4 * p.nnz_L + 3 * p.n
     H = big.superlu_matrix(s.network) + diags(unknowns_of(big.rattler_shift(), big.dof))
-    lu, pd = relaxation._factorise(H.tocsc())
+    lu, pd = factorise_superlu(H.tocsc())
     assert pd and fill["mmd"] <= 1.1 * lu.L.nnz
     assert fill["rcm"] > 2 * fill["mmd"]
 
@@ -317,46 +359,97 @@ def test_three_by_three_blocks(pinned):
     assert rel_err(block_ldlt.solve(pattern, factor, b, refine=1), ref) < 1e-12
 
 
-def test_the_benchmark_times_it_beside_superlu():
+def test_the_benchmark_times_the_parts():
     import relaxed as benchmark  # benchmarks/relaxed.py
 
     rve = RelaxedRVE(generate_packing(70, seed=0), benchmark.K_N)
     F, state = benchmark.committed(rve, 0.005, 1)
-    times = benchmark.block_ldlt_times(rve, F, state, repeats=2)
-    for name in ("candidates", "network"):
-        assert times[name]["agree"] < 1e-12 and times[name]["factorisation"] > 0.0
-    assert times["network"]["nnz(L)"] <= 1.1 * times["SuperLU"]["nnz(L)"]
-    assert times["candidates"]["flops"] > times["network"]["flops"]
+    timed = benchmark.parts(rve, F, state, repeats=2)
+    solver, own = timed["solver's pattern"], timed["network's own pattern"]
+    assert solver["factorisation"] > 0.0 and solver["solve"] > 0.0 and timed["SuperLU"]
+    assert solver["flops"] >= own["flops"] > 0
+    ms, mflop = benchmark.floor({"numeric_factorisations": 2.0, "solves": 3.0}, timed)
+    assert mflop == 2.0 * solver["flops"] / 1e6
+    assert ms == pytest.approx(1e3 * (2.0 * solver["factorisation"] + 3.0 * solver["solve"]))
 
 
-def test_the_micro_solver_gives_superlus_W_P_and_A():
-    """The relaxed RVE's Newton and tangent on the block LDL^T against the same on SuperLU
-    (the benchmark's comparison, on fewer disks and points)."""
-    import relaxed as benchmark  # benchmarks/relaxed.py
+def test_the_tangent_is_the_dense_condensation(big):
+    """A = W_FF - B^T H^-1 B with B = d2W/dw dF and H the network's stiffness (the rattlers'
+    and the pinned disk's unknowns out), dense in numpy, against the relaxed RVE's tangent and
+    its sensitivities dw/dF = -H^-1 B at the same equilibrium."""
+    c, s, F = big.cell, big.s, big.F
+    eq = at_rest(c, F, big.w, True)
+    free = s.keep.copy()
+    free[big.pinned] = False
+    dof = -np.ones(c.n_disks, np.int64)
+    dof[free] = np.arange(free.sum())
+    n = 2 * int(free.sum())
+    H = stiffness_matrix(c, F, s, s.network, s.network, dof, n).toarray()
+    B = mixed(F, c.pi[: s.m], c.pj[: s.m], s.qx, s.qy, s.lx, s.ly, s.d, s.e, c.R[: s.m], c.K,
+              s.network, dof, n)  # fmt: skip
+    X = np.linalg.solve(H, B)
+    A = _affine(c, F, s) - (B.T @ X).reshape(2, 2, 2, 2)
+    assert rel_err(eq.A, A) < 1e-10
+    dw = np.zeros((c.n_disks, 2, 4))
+    dw[free] = -X.reshape(-1, 2, 4)
+    assert rel_err(eq.sensitivity, dw) < 1e-8
 
-    rve = RelaxedRVE(generate_packing(150, seed=0), benchmark.K_N)
-    F0, state = benchmark.committed(rve, 0.005, 20)
-    F = benchmark.steps(F0, 20, 1e-4)
-    block = rve.evaluate(F, state)
-    _, agree = benchmark.against_superlu(rve, F, state, block)
-    assert max(agree) < 1e-10 and rve.settings.factorisation == "block"
+
+@pytest.mark.parametrize("near", [0, 2, 40])
+def test_the_shift_bound_is_below_the_least_shift_that_works(big, network_eigenvalues, near):
+    """The bound a failed factorisation gives (newton.shift_bound): M + t I is not positive
+    definite for t at or below it (t < -lam_min(M), from dense eigenvalues), and not far below
+    (within a factor 1e3 here: the ladder's rungs below it are skipped)."""
+    lam = network_eigenvalues
+    mu = 0.5 * (lam[near] + lam[near + 1])
+    shift = big.rattler_shift(1.0) - mu
+    p = big.pattern
+    factor = p.new_factor()
+    ok, inertia = block_ldlt.factorise(p, big.values(big.s.network), factor, shift)
+    assert inertia[1] == near + 1
+    pat = (p.pinned, 0, p.n, p.perm, p.Lp, p.Li, p.Rp, p.Rc, p.Rq, p.Ap, p.Ai, p.diag_slot,
+           p.pair_slot)  # fmt: skip
+    fac = (factor.values, factor.Lx, factor.D, factor.Dinv, factor.y)
+    bound = newton.shift_bound(pat, fac)
+    needed = -(lam[0] - mu)
+    assert 0.0 < bound <= needed and bound > 1e-3 * needed
 
 
-def test_the_pattern_follows_the_candidate_list():
-    """Analysed once per list and pinned disk, again once Cell.extend grows the list."""
+def test_the_pattern_serves_the_prefix_it_is_asked_for():
+    """The smallest kept pattern that holds the prefix serves it, unless it reaches too far
+    beyond; another pinned disk, a longer prefix get their own; the list's growth keeps them."""
     packing = generate_packing(70, seed=0)
     cell = RelaxedRVE(packing, K_N).cell
-    p = cell.block_pattern(0)
-    assert cell.block_pattern(0) is p and cell.block_pattern(3) is not p
+    p, _, cover = cell.block_pattern(0, 100)
+    assert cover >= 100 and p.pair_slot.size == cover
+    assert cell.block_pattern(0, cover)[0] is p and cell.block_pattern(3, 100)[0] is not p
+    longer, _, c2 = cell.block_pattern(0, cover + 1)
+    assert longer is not p and c2 > cover
+    assert cell.block_pattern(0, 100)[0] is p  # (not the longer one)
     w = np.zeros((cell.n_disks, 2))
     w[0] = 0.5 * packing.box  # one disk across the cell: new pairs within reach
+    n = cell.pi.size
     cell.visited(np.eye(2), w)
-    grown = cell.block_pattern(0)
-    assert grown is not p and grown.pair_slot.size == cell.pi.size > p.pair_slot.size
+    assert cell.pi.size > n and cell.block_pattern(0, 100)[0] is p
+    assert cell.block_pattern(0)[2] == cell.pi.size
 
 
-def test_an_unknown_factorisation_is_refused():
-    rve = RelaxedRVE(generate_packing(70, seed=0), K_N)
-    settings = relaxation.Settings(factorisation="cholesky")
-    with pytest.raises(ValueError, match="unknown factorisation"):
-        relaxation.relax(rve.cell, F0, np.zeros((rve.cell.n_disks, 2)), True, settings)
+def test_a_list_that_grows_mid_solve_gives_the_same_equilibrium():
+    """A disk pushed far across the cell: the Newton loop asks for a longer candidate list and
+    a pattern on it (it stops, and goes on once they are there); relaxed again from the same
+    start on the grown list, the same equilibrium."""
+    packing = generate_packing(70, seed=0)
+    rve = RelaxedRVE(packing, K_N)
+    F = np.diag([0.99, 0.995])
+    w = np.zeros((rve.cell.n_disks, 2))
+    w[5] = 0.3 * packing.box
+    n = rve.cell.pi.size
+    first = newton_relax(rve, F, w)
+    assert rve.cell.pi.size > n
+    again = newton_relax(rve, F, w)
+    assert abs(first.W - again.W) <= 1e-12 * abs(again.W)
+    assert rel_err(first.P, again.P) < 1e-10
+
+
+def newton_relax(rve, F, w):
+    return relax(rve.cell, F, w, False, rve.settings)

@@ -6,8 +6,8 @@ import warnings
 from dolfinx_granular import LawEvaluationError, RelaxedRVE, TaylorRVE, generate_packing
 from dolfinx_granular.drivers.confinement import MAX_HALVINGS, compress, confined_packing, ramp
 from dolfinx_granular.drivers.material_point import MaterialPoint
-from dolfinx_granular.laws import relaxation
-from dolfinx_granular.laws.relaxed_cell import ContactState
+from dolfinx_granular.laws.relaxed import newton, relax
+from dolfinx_granular.laws.relaxed.contact_state import ContactState
 from dolfinx_granular.slope.options import SlopeOptions
 
 import numpy as np
@@ -149,12 +149,12 @@ def test_equilibrium_is_judged_against_the_round_off_of_tiny_overlaps():
     # round-off of ~eps R / e of themselves: the solver stops there, not at force_tol
     rve = RelaxedRVE(generate_packing(70, seed=1, pressure=1e-3), K_N)
     F = (1.0 - 1e-7) * np.eye(2)
-    eq = relaxation.relax(rve.cell, F, rve.initial_state(1).w[0], False, rve.settings)
+    eq = relax(rve.cell, F, rve.initial_state(1).w[0], False, rve.settings)
     s = ContactState(rve.cell, F, eq.w)
     on = s.on
     expected = np.finfo(float).eps * rve.cell.R[: s.m][on].mean() / s.e[on].mean()
     assert s.resolution(rve.cell) == pytest.approx(expected, rel=1e-12)
-    assert 1e-10 < expected and eq.residual <= relaxation.RESOLVED * expected
+    assert 1e-10 < expected and eq.residual <= newton.RESOLVED * expected
 
 
 class FailsAtTheEnd:

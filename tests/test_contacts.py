@@ -32,10 +32,18 @@ LAW_MODULES = (
     "levels",
     "taylor",
     "validity",
-    "relaxed",
-    "relaxation",
-    "relaxed_cell",
-    "relaxed_kernel",
+    "relaxed/errors",
+    "relaxed/settings",
+    "relaxed/cell",
+    "relaxed/block_ldlt",
+    "relaxed/contact_state",
+    "relaxed/assembly",
+    "relaxed/newton",
+    "relaxed/fire",
+    "relaxed/tangent",
+    "relaxed/equilibrium",
+    "relaxed/path",
+    "relaxed/law",
 )
 
 

@@ -14,11 +14,9 @@ from dolfinx_granular import (
     TaylorRVE,
     generate_packing,
 )
-from dolfinx_granular.laws import relaxation
-from dolfinx_granular.laws.relaxation import RigidityLostError
-from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState
-from dolfinx_granular.laws.relaxed_cell import ContactState
-from dolfinx_granular.laws.relaxed_path import predicted, substeps
+from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState, RigidityLostError, relax
+from dolfinx_granular.laws.relaxed.contact_state import ContactState
+from dolfinx_granular.laws.relaxed.path import predicted, substeps
 from dolfinx_granular.packings.reference_packing import reference_packing
 
 import numpy as np
@@ -140,7 +138,7 @@ def test_the_sensitivities_are_the_derivative_of_the_relaxed_positions(rve, rela
             E = np.zeros(4)
             E[k] = h
             wp, wm = (
-                relaxation.relax(rve.cell, F + s * E.reshape(2, 2), state.w[q], False,
+                relax(rve.cell, F + s * E.reshape(2, 2), state.w[q], False,
                                  rve.settings).w
                 for s in (1.0, -1.0)
             )  # fmt: skip
@@ -278,15 +276,15 @@ def test_small_steps_from_an_equilibrium_need_no_fire():
     """Warm-started strain steps of 1e-4 from an equilibrium of 700 disks at 0.5 % compression
     (the speed benchmark's case) converge by Newton alone, to 1e-9 of the mean contact force.
     A rattler squeezed between two partners has no stiffness across them: before its Newton
-    move was bounded (relaxation.RATTLER_REACH), 3 of these 20 points stalled and went through
+    move was bounded (newton.RATTLER_REACH), 3 of these 20 points stalled and went through
     FIRE."""
     rve = RelaxedRVE(reference_packing(), 2.8e7)
     F0 = 0.995 * np.eye(2)
-    w0 = relaxation.relax(rve.cell, F0, np.zeros((700, 2)), False, rve.settings).w
+    w0 = relax(rve.cell, F0, np.zeros((700, 2)), False, rve.settings).w
     d = np.random.default_rng(0).normal(size=(20, 2, 2))
     d /= np.linalg.norm(d, axis=(1, 2))[:, None, None]
     for q in range(20):
-        eq = relaxation.relax(rve.cell, F0 + 1e-4 * d[q], w0, False, rve.settings)
+        eq = relax(rve.cell, F0 + 1e-4 * d[q], w0, False, rve.settings)
         assert eq.fire_steps == 0, f"point {q} went through FIRE"
         assert eq.residual <= 1e-9, f"point {q}: net force {eq.residual:.3g} of the mean"
 

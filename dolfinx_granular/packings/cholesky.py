@@ -194,7 +194,7 @@ def _grow_float(a, need):
 def elimination_tree(rp, ri):
     """Parent (M,) of each column of L in the elimination tree (-1: a root), from the rows on
     and below the diagonal, (M + 1,) pointers ``rp`` into column indices ``ri`` (Liu's
-    algorithm with path compression; also the block L D L^T's, laws/block_ldlt.py)."""
+    algorithm with path compression; also the block L D L^T's, laws/relaxed/block_ldlt.py)."""
     m = rp.shape[0] - 1
     parent = np.full(m, -1, np.int64)
     ancestor = np.full(m, -1, np.int64)

@@ -36,8 +36,7 @@ from numba import njit
 from scipy.sparse import coo_matrix, diags
 from scipy.sparse.linalg import splu
 
-from ..packings.cholesky import elimination_tree
-from .relaxed_kernel import _contact_hessian
+from ...packings.cholesky import elimination_tree
 
 #: orderings of the blocks :func:`analyse` knows: SuperLU's multiple minimum degree on the
 #: block graph, reverse Cuthill-McKee, the given order
@@ -334,7 +333,7 @@ def factorise(pattern: BlockPattern, values: np.ndarray, factor: BlockFactor, sh
     p = pattern
     factor.values[:] = values
     factor.shift[:] = _shifts(p, shift)
-    ok, pos, neg, zero = _numeric(
+    ok, pos, neg, zero = numeric_factorisation(
         p.dims, p.n, p.perm, p.Ap, p.Ai, factor.values, factor.shift, p.Lp, p.Li, p.Rp, p.Rc,
         p.Rq, factor.Lx, factor.D, factor.Dinv, factor.y,
     )  # fmt: skip
@@ -343,7 +342,7 @@ def factorise(pattern: BlockPattern, values: np.ndarray, factor: BlockFactor, sh
 
 
 @njit(cache=True)
-def _numeric(dims, n, perm, Ap, Ai, values, shift, Lp, Li, Rp, Rc, Rq, Lx, D, Dinv, y):
+def numeric_factorisation(dims, n, perm, Ap, Ai, values, shift, Lp, Li, Rp, Rc, Rq, Lx, D, Dinv, y):
     """Up-looking block LDL^T: row k of L from the rows before it, Y_i = L_ki D_i solved for
     in increasing i (a topological order of the elimination tree). Returns
     ``(ok, positive, negative, zero)``. ``dims`` (d,) any tuple of the block size: its
@@ -488,51 +487,53 @@ def solve(pattern: BlockPattern, factor: BlockFactor, b: np.ndarray, refine: int
     p = pattern
     B = np.ascontiguousarray(np.asarray(b, dtype=np.float64).reshape(p.n_blocks, p.d, -1))
     x = np.zeros_like(B)
-    _solve(p.dims, p.n, p.perm, p.Lp, p.Li, factor.Lx, factor.Dinv, B, x)
+    substitute(p.dims, p.n, p.perm, p.Lp, p.Li, factor.Lx, factor.Dinv, B, x)
     for _ in range(refine):
         r = B - _matvec(p.dims, p.n, p.perm, p.Ap, p.Ai, factor.values, factor.shift, x)
         dx = np.zeros_like(B)
-        _solve(p.dims, p.n, p.perm, p.Lp, p.Li, factor.Lx, factor.Dinv, r, dx)
+        substitute(p.dims, p.n, p.perm, p.Lp, p.Li, factor.Lx, factor.Dinv, r, dx)
         x += dx
     return x.reshape(np.shape(b))
 
 
 @njit(cache=True)
-def _solve(dims, n, perm, Lp, Li, Lx, Dinv, b, x):
-    """x[perm] = L^-T D^-1 L^-1 b[perm] for b, x (n_blocks, d, k), d = len(dims), the k
-    right-hand sides together (innermost)."""
+def substitute(dims, n, perm, Lp, Li, Lx, Dinv, b, x):
+    """x[perm] = L^-T D^-1 L^-1 b[perm] for b, x (n_blocks, d, k), d = len(dims), one
+    right-hand side after the other."""
     d = len(dims)
-    k = b.shape[2]
-    z = np.empty((n, d, k))
-    t = np.empty((d, k))
-    for r in range(n):
-        z[r] = b[perm[r]]
-    for j in range(n):  # L z = b
-        for q in range(Lp[j], Lp[j + 1]):
-            r = Li[q]
+    z = np.empty((n, d))
+    t = np.empty(d)
+    for c in range(b.shape[2]):
+        for r in range(n):
             for a in range(d):
-                for e in range(d):
-                    v = Lx[q, a, e]
-                    for c in range(k):
-                        z[r, a, c] -= v * z[j, e, c]
-    for j in range(n):  # D z = z
-        for a in range(d):
-            for c in range(k):
+                z[r, a] = b[perm[r], a, c]
+        for j in range(n):  # L z = b
+            for q in range(Lp[j], Lp[j + 1]):
+                r = Li[q]
+                for a in range(d):
+                    s = 0.0
+                    for e in range(d):
+                        s += Lx[q, a, e] * z[j, e]
+                    z[r, a] -= s
+        for j in range(n):  # D z = z
+            for a in range(d):
                 s = 0.0
                 for e in range(d):
-                    s += Dinv[j, a, e] * z[j, e, c]
-                t[a, c] = s
-        z[j] = t
-    for j in range(n - 1, -1, -1):  # L^T z = z
-        for q in range(Lp[j], Lp[j + 1]):
-            r = Li[q]
+                    s += Dinv[j, a, e] * z[j, e]
+                t[a] = s
             for a in range(d):
-                for e in range(d):
-                    v = Lx[q, e, a]
-                    for c in range(k):
-                        z[j, a, c] -= v * z[r, e, c]
-    for r in range(n):
-        x[perm[r]] = z[r]
+                z[j, a] = t[a]
+        for j in range(n - 1, -1, -1):  # L^T z = z
+            for q in range(Lp[j], Lp[j + 1]):
+                r = Li[q]
+                for a in range(d):
+                    s = 0.0
+                    for e in range(d):
+                        s += Lx[q, e, a] * z[r, e]
+                    z[j, a] -= s
+        for r in range(n):
+            for a in range(d):
+                x[perm[r], a, c] = z[r, a]
 
 
 @njit(cache=True)
@@ -584,33 +585,3 @@ def _triplets(pattern, values, shift):
     return (np.concatenate([x.ravel() for x in rows]),
             np.concatenate([x.ravel() for x in cols]),
             np.concatenate([x.ravel() for x in vals]))  # fmt: skip
-
-
-@njit(cache=True)
-def assemble(F, pi, pj, lx, ly, d, e, R, K, use, exact, diag_slot, pair_slot, values):
-    """The relaxed RVE's stiffness d2W/dw2 over the contacts ``use`` (m,) bool straight into
-    ``values`` (n_values, 2, 2) of a pattern analysed on the candidates (pi, pj) (slots
-    ``diag_slot``, ``pair_slot``), zeroed first; the inputs of
-    :func:`~dolfinx_granular.laws.relaxed_kernel.stiffness` otherwise. Contacts not ``exact``
-    contribute their positive part only. A contact's off-diagonal block -F^T H_c F is symmetric,
-    so a slot holding A[j, i] takes it as it is."""
-    values[:] = 0.0
-    for c in range(e.shape[0]):
-        i = pi[c]
-        j = pj[c]
-        if not use[c] or i == j:
-            continue
-        k00, k01, k10, k11, _, _, _, _ = _contact_hessian(F, lx, ly, d, e, R, K, c, exact[c])
-        for s in (diag_slot[i], diag_slot[j]):
-            if s >= 0:
-                values[s, 0, 0] += k00
-                values[s, 0, 1] += k01
-                values[s, 1, 0] += k10
-                values[s, 1, 1] += k11
-        s = pair_slot[c]
-        if s >= 0:
-            values[s, 0, 0] -= k00
-            values[s, 0, 1] -= k01
-            values[s, 1, 0] -= k10
-            values[s, 1, 1] -= k11
-    return values

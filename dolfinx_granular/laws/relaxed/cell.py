@@ -1,10 +1,11 @@
-"""One relaxed RVE's geometry and its contact state at (F, w).
+"""One relaxed RVE's geometry: its candidate contacts, kept complete as the disks move, and the
+block patterns of its stiffness.
 
 :class:`Cell` holds a packing's candidate contacts as the relaxed kernels take them and makes
-sure the fluctuations never carry two disks into contact that are no candidate pair.
-:class:`ContactState` is everything the micro solver reads at one (F, w): overlaps, contacts,
-rattlers (fewer than :data:`MIN_CONTACTS` contacts, removed recursively) and the network of the
-others.
+sure the fluctuations never carry two disks into contact that are no candidate pair (a prefix
+of the list sorted by reference distance, a Verlet list beyond it); it keeps the symbolic
+factorisations of the stiffness on prefixes of that list
+(:mod:`~dolfinx_granular.laws.relaxed.block_ldlt`).
 """
 
 from __future__ import annotations
@@ -13,26 +14,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..packings import neighbours
+from ...packings import neighbours
+from ..tools import singular_values_2x2
 from . import block_ldlt
-from . import relaxed_kernel as rk
-from .protocol import LawEvaluationError
-from .tools import singular_values_2x2
 
-#: contacts a disk needs to be no rattler (d + 1 in d = 2 dimensions)
-MIN_CONTACTS = 3
 #: Verlet skin of the candidates added beyond the reference list, relative to the smallest
 #: radius sum
 SKIN = 0.1
-#: a block pattern holds this part of the visited prefix more (:meth:`Cell.block_pattern`)
-PATTERN_MARGIN = 0.05
+#: a block pattern holds this part of the prefix asked for more, and 16 pairs
+#: (:meth:`Cell.block_pattern`)
+PATTERN_MARGIN = 0.02
 #: block patterns a cell keeps (each about 1 MB at 700 disks)
 PATTERNS_KEPT = 8
-
-
-class RelaxationError(LawEvaluationError):
-    """The micro solver could not relax a point (no equilibrium reached, or its candidate
-    contacts no longer cover the fluctuations)."""
 
 
 @dataclass
@@ -56,6 +49,9 @@ class Cell:
     #: length of the list built from the reference packing, sorted by |L| / R (pairs appended
     #: by :meth:`extend` follow it)
     n_sorted: int
+    #: (pinned disk, prefix) of the last pattern the Newton loop asked for: the next point's
+    #: first guess
+    pattern_hint: tuple = (0, 0)
 
     @classmethod
     def of(cls, candidates, packing, stiffness_per_area):
@@ -136,7 +132,7 @@ class Cell:
 
     def geometry(self) -> tuple:
         """The cell as the compiled Newton loop takes it
-        (:mod:`~dolfinx_granular.laws.relaxed_newton`): ``(pi, pj, X, Y, R, ratio, n_sorted,
+        (:mod:`~dolfinx_granular.laws.relaxed.newton`): ``(pi, pj, X, Y, R, ratio, n_sorted,
         n_candidates, 1 / min_stretch, min R, n_disks, K)``."""
         return (
             self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.n_sorted,
@@ -160,28 +156,41 @@ class Cell:
         self._verlet = (np.array(w, dtype=np.float64), s_min, skin)
 
     def block_pattern(self, pinned: int, m: int | None = None) -> tuple:
-        """``(pattern, factor, cover)``: the symbolic block LDL^T of the stiffness on a prefix of
-        the candidate pairs that holds the first m (all without m), disk ``pinned`` left out
-        (:func:`~dolfinx_granular.laws.block_ldlt.analyse`), a numeric factor on it and the
-        length of that prefix.
+        """``(pattern, factor, cover)``: the symbolic block LDL^T of the stiffness on the first
+        ``cover`` candidate pairs, at least m of them (all without m), disk ``pinned`` left out
+        (:func:`~dolfinx_granular.laws.relaxed.block_ldlt.analyse`), and a numeric factor on it.
 
-        The prefix reaches :data:`PATTERN_MARGIN` beyond m, so that the small changes of m
-        along a point's Newton steps and its neighbours' find it again; the last
-        :data:`PATTERNS_KEPT` patterns are kept (a pattern holds for a longer list too: the
-        list only grows at its end)."""
+        The compiled loop asks for the prefix that holds the contacts it assembles (the list is
+        sorted by reference distance: fewer than the visited ones). The prefix reaches
+        :data:`PATTERN_MARGIN` beyond m, so that the small changes of m along a point's Newton
+        steps and its neighbours' find it again; the smallest kept pattern that holds m
+        serves, unless it reaches twice the margin beyond; the last :data:`PATTERNS_KEPT`
+        patterns are kept (a pattern holds for a longer list too: the list only grows at its
+        end)."""
         total = self.pi.shape[0]
         m = total if m is None else int(m)
+        margin = 16 + int(PATTERN_MARGIN * m)
         cache = self.__dict__.setdefault("_patterns", [])
-        for k, (p, factor, cover) in enumerate(cache):
-            if p.pinned == pinned and m <= cover:
+        fits = [k for k, (p, _, c) in enumerate(cache) if p.pinned == pinned and m <= c]
+        if fits:
+            k = min(fits, key=lambda k: cache[k][2])
+            if cache[k][2] <= min(total, m + 2 * margin):
                 cache.append(cache.pop(k))
-                return p, factor, cover
-        cover = min(total, m + max(32, int(PATTERN_MARGIN * m)))
+                return cache[-1]
+        cover = min(total, m + margin)
         pairs = np.c_[self.pi[:cover], self.pj[:cover]]
         p = block_ldlt.analyse(self.n_disks, pairs, int(pinned))
         cache.append((p, p.new_factor(), cover))
         del cache[:-PATTERNS_KEPT]
         return cache[-1]
+
+    def kernel_pattern(self, pinned: int, m: int) -> tuple:
+        """:meth:`block_pattern` as the compiled kernels take it: ``(pat, fac)``, the tuples
+        of :mod:`~dolfinx_granular.laws.relaxed.newton`."""
+        p, f, cover = self.block_pattern(pinned, m)
+        pat = (p.pinned, cover, p.n, p.perm, p.Lp, p.Li, p.Rp, p.Rc, p.Rq, p.Ap, p.Ai,
+               p.diag_slot, p.pair_slot)  # fmt: skip
+        return pat, (f.values, f.Lx, f.D, f.Dinv, f.y)
 
     def known_keys(self) -> np.ndarray:
         """Sorted (M,) :meth:`keys_of` of the candidates."""
@@ -198,58 +207,3 @@ class Cell:
     def pair_keys(self, idx: np.ndarray) -> np.ndarray:
         """(k,) identity of the candidates ``idx``, independent of their order in the list."""
         return self.keys_of(self.pi[idx], self.pj[idx], np.asarray(self.shift)[idx])
-
-
-class ContactState:
-    """The contacts of a cell at F (2, 2) and fluctuations w (N, 2) over the first m candidates
-    (by default :meth:`Cell.visited`).
-
-    Attributes:
-        m: candidates visited (a prefix of the cell's list).
-        qx, qy, lx, ly, d, e: (m,) relaxed reference branch Q, current branch l = F Q, |l| and
-            the overlap e = R - |l|.
-        on: (m,) contacts, e > 0.
-        mean_overlap: mean e over the contacts (0 without contacts).
-        keep: (N,) the non-rattlers.
-        network: (m,) contacts between two non-rattlers.
-        rattling: (m,) contacts that touch a rattler.
-    """
-
-    def __init__(self, cell: Cell, F: np.ndarray, w: np.ndarray, m: int | None = None) -> None:
-        self.m = m = cell.visited(F, w) if m is None else m
-        self.qx, self.qy, self.lx, self.ly, self.d, self.e = rk.contact_state(
-            F, w, cell.pi, cell.pj, cell.X, cell.Y, cell.R, m
-        )
-        self.on = self.e > 0.0
-        self.mean_overlap = float(self.e[self.on].mean()) if self.on.any() else 0.0
-        self.keep = rk.non_rattlers(cell.pi, cell.pj, self.e, cell.n_disks, MIN_CONTACTS)
-        both = self.both(cell, self.keep)
-        self.network = self.on & both
-        self.rattling = self.on & ~both
-
-    def both(self, cell: Cell, keep: np.ndarray) -> np.ndarray:
-        """(m,) candidates whose two disks are in ``keep`` (N,)."""
-        return keep[cell.pi[: self.m]] & keep[cell.pj[: self.m]]
-
-    def forces(self, cell: Cell, F: np.ndarray, use: np.ndarray) -> tuple:
-        """``(g, f)`` (N, 2) each over the contacts ``use``: see :func:`relaxed_kernel.forces`."""
-        return rk.forces(
-            F, cell.pi, cell.pj, self.lx, self.ly, self.d, self.e, cell.K, cell.n_disks, use
-        )
-
-    def energy(self, cell: Cell, use: np.ndarray) -> float:
-        """Energy of the contacts ``use`` (Pa)."""
-        return rk.energy(self.e, cell.K, use)
-
-    def resolution(self, cell: Cell) -> float:
-        """The net force, relative to the mean contact force, below which (F, w) resolve no
-        more: an overlap is the difference of lengths of the order of R, good to eps R, so a
-        contact force is good to eps R / e of itself (~ eps mean R / mean e; inf without
-        contacts)."""
-        if not self.on.any():
-            return np.inf
-        return float(np.finfo(float).eps * cell.R[: self.m][self.on].mean() / self.mean_overlap)
-
-    def force_scale(self, cell: Cell) -> float:
-        """Mean contact force K e over the contacts (K times length; 0 without contacts)."""
-        return cell.K * self.mean_overlap

@@ -2,20 +2,33 @@
 
 Each step reads the contact state at the iterate (overlaps, rattlers, the network), the net
 forces and the residual; factorises the stiffness where the chord rule asks for it (assembled
-straight into the block pattern's values, :mod:`~dolfinx_granular.laws.block_ldlt`, shifted by
-Levenberg-Marquardt where it is not positive definite); solves for the direction; and takes a
-backtracking line search on the energy (doubled where the step was shifted). The algorithm and
-its constants are :mod:`~dolfinx_granular.laws.relaxation`'s, which drives this loop.
+straight into the block pattern's values, :mod:`~dolfinx_granular.laws.relaxed.block_ldlt`,
+shifted by Levenberg-Marquardt where it is not positive definite); solves for the direction;
+and takes a backtracking line search on the energy (doubled where the step was shifted).
+:mod:`~dolfinx_granular.laws.relaxed.equilibrium` drives this loop. In detail:
+
+* between non-rattlers the stiffness is exact; a contact that touches a rattler (fewer than 3
+  contacts, removed recursively, recomputed at every step) enters by its positive part
+  K n n^T, and the rattlers' unknowns get an extra diagonal, their net force over
+  :data:`RATTLER_REACH` mean overlaps (a small floor where that is smaller), so that a rattler
+  is pushed out of its overlaps (it ends force-free) without flying across its cage;
+* where the stiffness is not positive definite (the network buckles: a rearrangement), the
+  step is taken on H + mu I (Levenberg-Marquardt, in effect a trust region), mu the first of
+  a ladder of decades that makes the factorisation positive definite (the rungs below a bound
+  read off the failed factorisation, :func:`shift_bound`, skipped); the next step tries plain
+  Newton again;
+* while the rattlers stay the same and the forces fall fast, the last factorisation is reused
+  (a chord step: one solve instead of a factorisation).
 
 The loop runs until it converges or fails, or until it needs Python for something it cannot do
 itself; it then returns a status, and everything it needs to go on is in its arguments:
 
 * :data:`NEED_PATTERN`: the factorisation needs a block pattern for another pinned disk or a
-  longer prefix of the candidates (``request`` holds both);
+  longer prefix of the candidates, one that holds every contact (``request`` holds both);
 * :data:`NEED_LIST`: a trial position ``trial`` reaches past the candidate list (the Verlet list
   must grow); the step in progress is taken again after that.
 
-Arguments, by the tuples :mod:`~dolfinx_granular.laws.relaxation` builds:
+Arguments, by the tuples :class:`~dolfinx_granular.laws.relaxed.cell.Cell` builds:
 
 * ``geo``: the cell, ``(pi, pj, X, Y, R, ratio, n_sorted, n_candidates, inv_min_stretch,
   R_min, n_disks, K)``;
@@ -34,10 +47,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .block_ldlt import _numeric, _solve
-from .block_ldlt import assemble as assemble_blocks
-from .relaxed_cell import MIN_CONTACTS
-from .relaxed_kernel import contact_state, energy, forces, mixed, non_rattlers
+from .assembly import assemble as assemble_blocks
+from .assembly import mixed
+from .block_ldlt import numeric_factorisation, substitute
+from .contact_state import MIN_CONTACTS, contact_state, energy, forces, non_rattlers
 
 #: what :func:`newton` stopped at
 CONVERGED, NEED_PATTERN, NEED_LIST, NO_CONTACT = 0, 1, 2, 3
@@ -146,7 +159,7 @@ def _factorise_shifted(pat, fac, total, mu, n_disks, counts):
     for i in range(n_disks):
         shift[i, 0] = total[i] + mu
         shift[i, 1] = total[i] + mu
-    ok, _, neg, zero = _numeric(
+    ok, _, neg, zero = numeric_factorisation(
         _DIMS, pat[2], pat[3], pat[9], pat[10], fac[0], shift, pat[4], pat[5], pat[6], pat[7],
         pat[8], fac[1], fac[2], fac[3], fac[4],
     )  # fmt: skip
@@ -240,12 +253,22 @@ def shift_bound(pat, fac):
 
 
 @njit(cache=True)
+def held(use, pi, pj, m):
+    """The prefix of the candidates that holds the contacts ``use`` (m,) a pattern must hold
+    (a disk's contact with its own image has no block)."""
+    for c in range(m - 1, -1, -1):
+        if use[c] and pi[c] != pj[c]:
+            return c + 1
+    return 0
+
+
+@njit(cache=True)
 def _direction(pat, fac, g, n_disks):
     """-H^-1 g (N, 2) on the factorisation in ``fac``, zero at the pinned disk."""
     b = np.empty((n_disks, 2, 1))
     b[:, :, 0] = g
     x = np.zeros((n_disks, 2, 1))
-    _solve(_DIMS, pat[2], pat[3], pat[4], pat[5], fac[1], fac[3], b, x)
+    substitute(_DIMS, pat[2], pat[3], pat[4], pat[5], fac[1], fac[3], b, x)
     return -x[:, :, 0]
 
 
@@ -356,8 +379,9 @@ def run_newton(F, F_smin, w, geo, verlet, pat, fac, tol, budget, stall, solver, 
         shifted = False
         if renew:
             pinned = np.argmax(keep)
-            if pinned != pat[0] or m > pat[1]:
-                request[0], request[1] = pinned, m
+            held_prefix = held(on, geo[0], geo[1], m)
+            if pinned != pat[0] or held_prefix > pat[1]:
+                request[0], request[1] = pinned, held_prefix
                 return NEED_PATTERN
             network = on & keep[geo[0][:m]] & keep[geo[1][:m]]
             ok, shifted = factorise_newton(
@@ -424,5 +448,5 @@ def network_tangent(F, m, qx, qy, lx, ly, d, e, keep, network, pi, pj, X, Y, R, 
     ).reshape(N, 2, 4)
     X = np.zeros((N, 2, 4))
     if pd:
-        _solve(_DIMS, pat[2], pat[3], pat[4], pat[5], fac[1], fac[3], B, X)
+        substitute(_DIMS, pat[2], pat[3], pat[4], pat[5], fac[1], fac[3], B, X)
     return pd, B, X

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import relaxation
+from . import equilibrium
 
 #: longest substep |U_k+1 - U_k| (Frobenius norm of the right stretch)
 MAX_SUBSTEP = 1e-3
@@ -43,9 +43,10 @@ def substeps(Fc: np.ndarray, F: np.ndarray, longest: float = MAX_SUBSTEP) -> lis
     return [Uc + (k / m) * (U - Uc) for k in range(1, m)]
 
 
-def follow(cell, F, w, dw, Fc, tangent, settings) -> relaxation.Equilibrium:
-    """The :class:`~dolfinx_granular.laws.relaxation.Equilibrium` at F (2, 2) reached from the
-    equilibrium (w (N, 2), sensitivities dw (N, 2, 4)) at Fc along the quasi-static path."""
+def follow(cell, F, w, dw, Fc, tangent, settings) -> equilibrium.Equilibrium:
+    """The :class:`~dolfinx_granular.laws.relaxed.equilibrium.Equilibrium` at F (2, 2) reached
+    from the equilibrium (w (N, 2), sensitivities dw (N, 2, 4)) at Fc along the quasi-static
+    path."""
     for Uk in substeps(Fc, F):
         eq = _step(cell, Uk, w, dw, Fc, True, settings)
         w, dw, Fc = eq.w, eq.sensitivity, Uk
@@ -56,6 +57,6 @@ def _step(cell, F, w, dw, Fc, tangent, settings):
     """Relax at F from the predicted positions; where Newton stalls from there, from w as it
     is (carried affinely), and FIRE from that."""
     if not dw.any():
-        return relaxation.relax(cell, F, w, tangent, settings)
+        return equilibrium.relax(cell, F, w, tangent, settings)
     start = predicted(w, dw, Fc, F)
-    return relaxation.relax(cell, F, start, tangent, settings, fallback=w)
+    return equilibrium.relax(cell, F, start, tangent, settings, fallback=w)

@@ -2,10 +2,10 @@
 
 Under the Taylor assumption every disk follows F (an upper bound of the response). Here the
 disks move to the minimum of the contact energy in the cell spanned by F, and the tangent is the
-exact derivative of that relaxed response (:mod:`~dolfinx_granular.laws.relaxation`). The state
-of a point is where its disks are: fluctuations w (N, 2) in the reference frame, x_i =
+exact derivative of that relaxed response (:mod:`~dolfinx_granular.laws.relaxed.equilibrium`).
+The state of a point is where its disks are: fluctuations w (N, 2) in the reference frame, x_i =
 F (X_i + w_i), so that a new F carries them with fixed fractional coordinates. A new F is
-reached along the quasi-static path (:mod:`~dolfinx_granular.laws.relaxed_path`), each
+reached along the quasi-static path (:mod:`~dolfinx_granular.laws.relaxed.path`), each
 relaxation warm-started by the first-order change dw/dF that the last tangent computed (the
 committed one's sensitivities are kept in the state).
 """
@@ -17,13 +17,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..packings.packing import Packing, require_disks
-from . import relaxation, relaxed_path
-from .contacts import ContactCandidates
-from .relaxed_cell import Cell, ContactState, RelaxationError
-from .taylor import ContactSet
-from .tools import as_batch, output_buffers, push_forward, to_float
-from .tools import normal_stiffness as normal_stiffness_of
+from ...packings.packing import Packing, require_disks
+from ..contacts import ContactCandidates
+from ..taylor import ContactSet
+from ..tools import as_batch, output_buffers, push_forward, to_float
+from ..tools import normal_stiffness as normal_stiffness_of
+from . import equilibrium, path
+from .cell import Cell
+from .contact_state import ContactState
+from .errors import RelaxationError
+from .settings import Settings
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping
@@ -127,10 +130,10 @@ class RelaxedRVE:
     Attributes:
         candidates: the packing's :class:`~dolfinx_granular.ContactCandidates`.
         cell: the candidates as the micro solver takes them
-            (:class:`~dolfinx_granular.laws.relaxed_cell.Cell`; pairs a rearrangement brings
+            (:class:`~dolfinx_granular.laws.relaxed.cell.Cell`; pairs a rearrangement brings
             within reach are appended to it).
         settings: the micro solver's tolerances
-            (:class:`~dolfinx_granular.laws.relaxation.Settings`).
+            (:class:`~dolfinx_granular.laws.relaxed.settings.Settings`).
 
     A point whose F equals the committed one is not relaxed again: its committed positions are
     at rest (the initial state, the stress-free packing at F = I, included). Where the micro
@@ -157,7 +160,7 @@ class RelaxedRVE:
         self.packing = packing
         self.normal_stiffness = k
         self.min_stretch = self.candidates.min_stretch
-        self.settings = relaxation.Settings(force_tol=to_float(force_tol, "force_tol"))
+        self.settings = Settings(force_tol=to_float(force_tol, "force_tol"))
         self.cell = Cell.of(self.candidates, packing, k / packing.area)
 
     def initial_state(self, n: int) -> RelaxedState:
@@ -195,14 +198,14 @@ class RelaxedRVE:
 
     def equilibrium(
         self, F: np.ndarray, state: RelaxedState, q: int, tangent: bool = True
-    ) -> relaxation.Equilibrium:
+    ) -> equilibrium.Equilibrium:
         """Point q of ``state`` relaxed at F (2, 2) along its quasi-static path (the
-        :class:`~dolfinx_granular.laws.relaxation.Equilibrium`, with the solver's counts): what
-        :meth:`evaluate` does for each point. A committed F is not relaxed again."""
+        :class:`~dolfinx_granular.laws.relaxed.equilibrium.Equilibrium`, with the solver's
+        counts): what :meth:`evaluate` does for each point. A committed F is not relaxed again."""
         if np.array_equal(F, state.F[q]):  # the committed positions are at rest
-            return relaxation.at_rest(self.cell, F, state.w[q], tangent)
+            return equilibrium.at_rest(self.cell, F, state.w[q], tangent)
         w, dw, Fc = state.w[q], state.sensitivity[q], state.F[q]
-        return relaxed_path.follow(self.cell, F, w, dw, Fc, tangent, self.settings)
+        return path.follow(self.cell, F, w, dw, Fc, tangent, self.settings)
 
     def evaluate(self, F: ArrayLike, state: RelaxedState, out: tuple | None = None) -> tuple:
         """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F relaxed from
@@ -234,7 +237,7 @@ class RelaxedRVE:
         with overlaps ~1e-11 of a diameter that a relaxation would only open), condensed over
         the non-rattlers."""
         N = self.packing.radii.shape[0]
-        return relaxation.at_rest(self.cell, np.eye(2), np.zeros((N, 2)), True).A
+        return equilibrium.at_rest(self.cell, np.eye(2), np.zeros((N, 2)), True).A
 
     def contacts(self, F: ArrayLike, state: RelaxedState) -> ContactSet:
         """The contacts (rattlers' included) of one point of ``state``, relaxed at F (2, 2): its
