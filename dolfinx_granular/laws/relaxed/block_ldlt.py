@@ -346,8 +346,11 @@ def numeric_factorisation(dims, n, perm, Ap, Ai, values, shift, Lp, Li, Rp, Rc, 
     """Up-looking block LDL^T: row k of L from the rows before it, Y_i = L_ki D_i solved for
     in increasing i (a topological order of the elimination tree). Returns
     ``(ok, positive, negative, zero)``. ``dims`` (d,) any tuple of the block size: its
-    length is a constant of the compiled code (the d x d loops unrolled), one kernel per d."""
+    length is a constant of the compiled code (the d x d loops unrolled), one kernel per d;
+    d = 2 (a disk) has its own kernel in scalars (a fifth faster)."""
     d = len(dims)
+    if d == 2:
+        return _numeric_2(n, perm, Ap, Ai, values, shift, Lp, Li, Rp, Rc, Rq, Lx, D, Dinv, y)
     Dk = np.empty((d, d))
     Yi = np.empty((d, d))
     pos = neg = zero = 0
@@ -362,6 +365,45 @@ def numeric_factorisation(dims, n, perm, Ap, Ai, values, shift, Lp, Li, Rp, Rc, 
             _row_block(Lp, Li, Lx, Dinv, y, Yi, Dk, Rc[t], Rq[t], dims)
         D[k] = Dk
         good, p, m, z = _invert(Dk, Dinv[k], dims)
+        pos, neg, zero = pos + p, neg + m, zero + z
+        if not good:
+            return False, pos, neg, zero
+    return True, pos, neg, zero
+
+
+@njit(cache=True)
+def _numeric_2(n, perm, Ap, Ai, values, shift, Lp, Li, Rp, Rc, Rq, Lx, D, Dinv, y):
+    """:func:`numeric_factorisation` for 2 x 2 blocks, every block entry a scalar."""
+    pos = neg = zero = 0
+    for k in range(n):
+        for q in range(Ap[k], Ap[k + 1]):
+            i = Ai[q]
+            y[i, 0, 0], y[i, 0, 1] = values[n + q, 0, 0], values[n + q, 0, 1]
+            y[i, 1, 0], y[i, 1, 1] = values[n + q, 1, 0], values[n + q, 1, 1]
+        b = perm[k]
+        d00, d01 = values[k, 0, 0] + shift[b, 0], values[k, 0, 1]
+        d10, d11 = values[k, 1, 0], values[k, 1, 1] + shift[b, 1]
+        for t in range(Rp[k], Rp[k + 1]):
+            i, at = Rc[t], Rq[t]
+            y00, y01, y10, y11 = y[i, 0, 0], y[i, 0, 1], y[i, 1, 0], y[i, 1, 1]
+            y[i, 0, 0] = y[i, 0, 1] = y[i, 1, 0] = y[i, 1, 1] = 0.0
+            for q in range(Lp[i], at):  # y[r] -= Y_i L_ri^T for the rows r before k
+                r = Li[q]
+                l00, l01, l10, l11 = Lx[q, 0, 0], Lx[q, 0, 1], Lx[q, 1, 0], Lx[q, 1, 1]
+                y[r, 0, 0] -= y00 * l00 + y01 * l01
+                y[r, 0, 1] -= y00 * l10 + y01 * l11
+                y[r, 1, 0] -= y10 * l00 + y11 * l01
+                y[r, 1, 1] -= y10 * l10 + y11 * l11
+            e00, e01, e10, e11 = Dinv[i, 0, 0], Dinv[i, 0, 1], Dinv[i, 1, 0], Dinv[i, 1, 1]
+            a00, a01 = y00 * e00 + y01 * e10, y00 * e01 + y01 * e11  # L_ki = Y_i D_i^-1
+            a10, a11 = y10 * e00 + y11 * e10, y10 * e01 + y11 * e11
+            Lx[at, 0, 0], Lx[at, 0, 1], Lx[at, 1, 0], Lx[at, 1, 1] = a00, a01, a10, a11
+            d00 -= a00 * y00 + a01 * y01  # D_k -= L_ki Y_i^T
+            d01 -= a00 * y10 + a01 * y11
+            d10 -= a10 * y00 + a11 * y01
+            d11 -= a10 * y10 + a11 * y11
+        D[k, 0, 0], D[k, 0, 1], D[k, 1, 0], D[k, 1, 1] = d00, d01, d10, d11
+        good, p, m, z = _invert(D[k], Dinv[k], (0, 1))
         pos, neg, zero = pos + p, neg + m, zero + z
         if not good:
             return False, pos, neg, zero
@@ -499,8 +541,11 @@ def solve(pattern: BlockPattern, factor: BlockFactor, b: np.ndarray, refine: int
 @njit(cache=True)
 def substitute(dims, n, perm, Lp, Li, Lx, Dinv, b, x):
     """x[perm] = L^-T D^-1 L^-1 b[perm] for b, x (n_blocks, d, k), d = len(dims), one
-    right-hand side after the other."""
+    right-hand side after the other (d = 2 in scalars: a third faster)."""
     d = len(dims)
+    if d == 2:
+        _substitute_2(n, perm, Lp, Li, Lx, Dinv, b, x)
+        return
     z = np.empty((n, d))
     t = np.empty(d)
     for c in range(b.shape[2]):
@@ -534,6 +579,34 @@ def substitute(dims, n, perm, Lp, Li, Lx, Dinv, b, x):
         for r in range(n):
             for a in range(d):
                 x[perm[r], a, c] = z[r, a]
+
+
+@njit(cache=True)
+def _substitute_2(n, perm, Lp, Li, Lx, Dinv, b, x):
+    """:func:`substitute` for 2 x 2 blocks (the same operations in the same order)."""
+    z = np.empty((n, 2))
+    for c in range(b.shape[2]):
+        for r in range(n):
+            z[r, 0], z[r, 1] = b[perm[r], 0, c], b[perm[r], 1, c]
+        for j in range(n):  # L z = b
+            z0, z1 = z[j, 0], z[j, 1]
+            for q in range(Lp[j], Lp[j + 1]):
+                r = Li[q]
+                z[r, 0] -= Lx[q, 0, 0] * z0 + Lx[q, 0, 1] * z1
+                z[r, 1] -= Lx[q, 1, 0] * z0 + Lx[q, 1, 1] * z1
+        for j in range(n):  # D z = z
+            z0, z1 = z[j, 0], z[j, 1]
+            z[j, 0] = Dinv[j, 0, 0] * z0 + Dinv[j, 0, 1] * z1
+            z[j, 1] = Dinv[j, 1, 0] * z0 + Dinv[j, 1, 1] * z1
+        for j in range(n - 1, -1, -1):  # L^T z = z
+            s0, s1 = z[j, 0], z[j, 1]
+            for q in range(Lp[j], Lp[j + 1]):
+                r = Li[q]
+                s0 -= Lx[q, 0, 0] * z[r, 0] + Lx[q, 1, 0] * z[r, 1]
+                s1 -= Lx[q, 0, 1] * z[r, 0] + Lx[q, 1, 1] * z[r, 1]
+            z[j, 0], z[j, 1] = s0, s1
+        for r in range(n):
+            x[perm[r], 0, c], x[perm[r], 1, c] = z[r, 0], z[r, 1]
 
 
 @njit(cache=True)

@@ -203,7 +203,3 @@ class Cell:
         n = np.int64(self.n_disks)
         sh = np.asarray(shift, dtype=np.int64) + 64
         return ((np.asarray(i, np.int64) * n + j) * 128 + sh[:, 0]) * 128 + sh[:, 1]
-
-    def pair_keys(self, idx: np.ndarray) -> np.ndarray:
-        """(k,) identity of the candidates ``idx``, independent of their order in the list."""
-        return self.keys_of(self.pi[idx], self.pj[idx], np.asarray(self.shift)[idx])

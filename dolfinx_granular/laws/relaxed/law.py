@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import njit
 
 from ...packings.packing import Packing, require_disks
 from ..contacts import ContactCandidates
@@ -100,15 +101,18 @@ class RelaxedState:
         )
 
 
-def _fingerprint(contacts: np.ndarray) -> np.uint64:
-    """An order-free hash of a set of pair keys (:meth:`Cell.pair_keys`; splitmix64 summed mod
-    2^64)."""
-    z = contacts.astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15)
-    with np.errstate(over="ignore"):
+@njit(cache=True)
+def _fingerprint(pi, pj, shift, contacts, n_disks):
+    """An order-free hash of the set of candidates ``contacts`` (k,) (splitmix64 of their
+    :meth:`Cell.keys_of`, summed mod 2^64)."""
+    total = np.uint64(0)
+    for c in contacts:
+        key = ((pi[c] * n_disks + pj[c]) * 128 + shift[c, 0] + 64) * 128 + shift[c, 1] + 64
+        z = np.uint64(key) + np.uint64(0x9E3779B97F4A7C15)
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        z = z ^ (z >> np.uint64(31))
-        return np.uint64(z.sum(dtype=np.uint64))
+        total += z ^ (z >> np.uint64(31))
+    return total
 
 
 class RelaxedRVE:
@@ -189,7 +193,8 @@ class RelaxedRVE:
                 A[q], dw[q] = eq.A, eq.sensitivity
             u = eq.w @ F[q].T
             moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / mean_radius
-            network[q] = _fingerprint(self.cell.pair_keys(eq.network))
+            c = self.cell
+            network[q] = _fingerprint(c.pi, c.pj, c.shift, eq.network, c.n_disks)
             rearranged[q] = network[q] != state.network[q]
         new = RelaxedState(w, F.copy(), moved, rearranged, network, dw)
         if single:

@@ -26,7 +26,7 @@ def predicted(w: np.ndarray, dw: np.ndarray, Fc: np.ndarray, F: np.ndarray) -> n
     Fc^-T (C - C_c) / 2 the increment that changes C as F does (dF itself would be first-order
     only: a finite rotation, which changes nothing, would move the disks)."""
     dF = 0.5 * np.linalg.solve(Fc.T, F.T @ F - Fc.T @ Fc)
-    return w + dw @ dF.ravel()
+    return w + (dw.reshape(-1, 4) @ dF.ravel()).reshape(w.shape)
 
 
 def stretch(F: np.ndarray) -> np.ndarray:
