@@ -30,9 +30,11 @@ def predicted(w: np.ndarray, dw: np.ndarray, Fc: np.ndarray, F: np.ndarray) -> n
 
 
 def stretch(F: np.ndarray) -> np.ndarray:
-    """The right stretch U = (F^T F)^(1/2) (2, 2) of F (2, 2)."""
-    lam, V = np.linalg.eigh(F.T @ F)
-    return (V * np.sqrt(lam)) @ V.T
+    """The right stretch U = (F^T F)^(1/2) (2, 2) of F (2, 2): for a 2 x 2 C = F^T F,
+    U = (C + s I) / t with s = (det C)^(1/2) = |det F| and t = (tr C + 2 s)^(1/2)."""
+    C = F.T @ F
+    s = abs(F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0])
+    return (C + s * np.eye(2)) / np.sqrt(C[0, 0] + C[1, 1] + 2.0 * s)
 
 
 def substeps(Fc: np.ndarray, F: np.ndarray, longest: float = MAX_SUBSTEP) -> list:
