@@ -126,10 +126,20 @@ def test_demo_reduced_size_writes_everything(serial_run):
 
 @pytest.mark.slow
 def test_serial_and_two_ranks_agree(tmp_path, serial_run):
-    run_slope_demo(tmp_path / "np2", *SMALL, "--no-figure", ranks=2)
+    proc, _ = run_slope_demo(tmp_path / "np2", *SMALL, "--no-figure", ranks=2)
     s1, r1 = read(serial_run[0])
     s2, r2 = read(tmp_path / "np2")
     assert s1["ranks"] == 1 and s2["ranks"] == 2
+    # each rank's RVE seconds, and how evenly they divide: in summary.json and the last line
+    for s in (s1, s2):
+        assert len(s["time_rve_ranks"]) == len(s["time_rve_ranks_cpu"]) == s["ranks"]
+        assert s["time_rve_kernel"] == max(s["time_rve_ranks"])
+        for key in ("rve_imbalance", "rve_imbalance_cpu", "rve_imbalance_per_update"):
+            assert s[key] >= 1.0, key
+    assert s1["rve_imbalance"] == s1["rve_imbalance_per_update"] == 1.0
+    assert s2["rve_imbalance_per_update"] >= s2["rve_imbalance"] * (1 - 1e-12)
+    last = proc.stdout.strip().splitlines()[-1]
+    assert last.startswith("slope: RVE seconds per rank ") and "max / mean" in last, last
     assert s1["converged"] and s2["converged"]
     # A step may stop one iteration apart when its last residual sits at the round-off threshold.
     assert all(abs(a - b) <= 1 for a, b in zip(s1["iterations"], s2["iterations"]))
@@ -182,3 +192,17 @@ def test_prestressed_packing_is_reported(tmp_path):
     assert np.allclose(summary["prestress"], rve.prestress, rtol=1e-12, atol=0)
     assert summary["prestress_ratio"] == pytest.approx(rve.prestress_ratio, rel=1e-12)
     assert 1e-3 < summary["prestress_ratio"] < 0.1 and summary["prestress"][0][0] < -1e5
+
+
+def test_rve_imbalance_of_the_ranks_and_of_every_update():
+    """max / mean of the ranks' RVE seconds, and summed over the updates, where every rank
+    waits for the slowest: two ranks that take turns being slow balance in total only."""
+    from dolfinx_granular.slope.summary import rve_imbalance, rve_imbalance_per_update
+
+    assert rve_imbalance([3.0, 1.0]) == 1.5 and rve_imbalance([0.0, 0.0]) == 1.0
+    assert rve_imbalance([2.0]) == 1.0
+    turns = [[3.0, 1.0], [1.0, 3.0]]
+    assert rve_imbalance([sum(t) for t in turns]) == 1.0
+    assert rve_imbalance_per_update(turns) == 1.5
+    assert rve_imbalance_per_update([[], []]) == 1.0
+    assert rve_imbalance_per_update([[1.0], [1.0, 2.0]]) is None  # counted differently

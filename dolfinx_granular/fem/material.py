@@ -66,6 +66,8 @@ class GranularMaterial(QuadratureMaterial):
             :meth:`restore_state`.
         trial_state: state at the last ``update`` (committed by :meth:`commit`); read-only.
         n_open: points at the last ``update`` whose RVE had no loaded contact.
+        update_seconds: wall seconds of the law's evaluation in each ``update`` (this rank's
+            points; failed updates included): ranks wait for the slowest at every update.
         P_stab: quadrature Function with the stabilising stress of the last ``update`` (None
             without a stabiliser).
         (and those of :class:`~dolfinx_granular.QuadratureMaterial`: dx, F, points,
@@ -106,6 +108,7 @@ class GranularMaterial(QuadratureMaterial):
         self._P_data = _PointData(self.P, self._slots, (d, d))
         self._A_data = _PointData(self.A, self._slots, (d, d, d, d))
         self.n_updates = 0
+        self.update_seconds = []
         self.n_open = 0
         self._scalar = None
         self._state = check_state(rve.initial_state(n)) if self.has_state else None
@@ -171,6 +174,7 @@ class GranularMaterial(QuadratureMaterial):
                 names the cells and their coordinates.
         """
         F = self.deformation_gradient()
+        start = self.clock.wall["rve"]
         try:
             with self.clock("rve"):
                 self._evaluate(F, tangent)
@@ -183,6 +187,8 @@ class GranularMaterial(QuadratureMaterial):
                 err.points,
                 err.status,
             ) from None
+        finally:
+            self.update_seconds.append(self.clock.wall["rve"] - start)
         opened = np.flatnonzero(self.W == 0.0)
         self.n_open = opened.size
         if self._C_stab is not None:

@@ -658,4 +658,18 @@ def run_slope(
         f"{t['footing_settlement']:.4f} m; von Mises {t['min_von_mises']:.4g} .. "
         f"{t['max_von_mises']:.4g} Pa; results in {run.writer.out}"
     )
+    if comm.size > 1:
+        run.say(
+            "slope: RVE seconds per rank "
+            + ", ".join(f"{s:.1f}" for s in t["time_rve_ranks"])
+            + f" (max / mean {t['rve_imbalance']:.2f}"
+            + (
+                f"; summed over the evaluations, slowest / mean {per_update:.2f})"
+                if (per_update := t["rve_imbalance_per_update"]) is not None
+                else ")"
+            )
+            + "; CPU "
+            + ", ".join(f"{s:.1f}" for s in t["time_rve_ranks_cpu"])
+            + f" (max / mean {t['rve_imbalance_cpu']:.2f})"
+        )
     return summary

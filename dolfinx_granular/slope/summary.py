@@ -111,6 +111,9 @@ def summarise(
     t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in m.solver.timings.items()}
     status = run_status(run)
     info = run.step_info
+    rve_ranks = comm.allgather(float(m.material.timings["rve"]))
+    rve_cpu = comm.allgather(float(m.material.clock.cpu["rve"]))
+    updates = comm.allgather(m.material.update_seconds)
     prestress = getattr(run.law, "prestress", None)
     return {
         "ranks": comm.size,
@@ -160,7 +163,17 @@ def summarise(
         "wall_time": time.perf_counter() - run.t_start,
         "time_setup": run.setup_time,
         "time_rve": t["rve"],
-        "time_rve_kernel": comm.allreduce(m.material.timings["rve"], op=MPI.MAX),
+        "time_rve_kernel": max(rve_ranks),
+        # each rank's RVE seconds (wall, its own points' law evaluations) and max / mean: how
+        # evenly the points' work divides (1: evenly)
+        "time_rve_ranks": rve_ranks,
+        "rve_imbalance": rve_imbalance(rve_ranks),
+        # CPU seconds alike (what a shared machine's load does not inflate)
+        "time_rve_ranks_cpu": rve_cpu,
+        "rve_imbalance_cpu": rve_imbalance(rve_cpu),
+        # the same per evaluation (every rank waits for the slowest at each one): the sum over
+        # the evaluations of the slowest rank's seconds over that of the ranks' mean
+        "rve_imbalance_per_update": rve_imbalance_per_update(updates),
         "time_assembly": t["assembly"],
         "time_solve": t["solve"],
         "time_output": run.time_output + figure_time,
@@ -175,6 +188,23 @@ def summarise(
         if path is None
         else path,
     }
+
+
+def rve_imbalance(seconds: Sequence[float]) -> float:
+    """max / mean of the ranks' RVE seconds (1.0: evenly divided, or no time at all)."""
+    mean = float(np.mean(seconds))
+    return float(np.max(seconds)) / mean if mean > 0.0 else 1.0
+
+
+def rve_imbalance_per_update(per_rank: Sequence[Sequence[float]]) -> float | None:
+    """sum over the updates of the slowest rank's RVE seconds / sum of the ranks' mean: at every
+    update the ranks wait for the slowest (1.0: evenly divided); None if the ranks counted
+    different numbers of updates."""
+    if len({len(u) for u in per_rank}) != 1:
+        return None
+    t = np.array(per_rank, dtype=float).reshape(len(per_rank), -1)
+    mean = t.mean(axis=0).sum()
+    return float(t.max(axis=0).sum() / mean) if mean > 0.0 else 1.0
 
 
 def run_status(run: Any) -> str:
