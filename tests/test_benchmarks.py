@@ -18,13 +18,16 @@ def test_kernel_benchmark_runs(capsys):
     assert len(rows) == 1 and rows[0].endswith("x")
 
 
-def test_relaxed_benchmark_runs_and_says_where_the_time_goes(capsys):
-    relaxed.main(["--points", "3", "--particles", "70"])
+def test_relaxed_benchmark_counts_and_times_the_parts(capsys, tmp_path):
+    saved = tmp_path / "wpa.npz"
+    relaxed.main(["--points", "3", "--particles", "70", "--repeats", "1", "--save", str(saved)])
     out = capsys.readouterr().out
-    assert "relaxed P+A" in out and "ratio" in out
-    parts = out.split("where the time goes")[1]
-    for part in ("assembly", "factorisation", "solves", "line search", "tangent"):
-        assert f"{part} " in parts, part
+    assert "relaxed P+A" in out and "ratio" in out and "floor:" in out
+    for part in ("Newton steps", "factorisations", "solves", "trial states", "solver's pattern"):
+        assert part in out, part
+    relaxed.main(["--points", "3", "--particles", "70", "--repeats", "1", "--against", str(saved)])
+    out = capsys.readouterr().out
+    assert "A: largest relative difference 0.0e+00; points beyond 1e-10: []" in out
 
 
 def test_kernel_comparison_agrees_and_times_every_implementation():
