@@ -66,8 +66,8 @@ class GranularMaterial(QuadratureMaterial):
             :meth:`restore_state`.
         trial_state: state at the last ``update`` (committed by :meth:`commit`); read-only.
         n_open: points at the last ``update`` whose RVE had no loaded contact.
-        update_seconds: wall seconds of the law's evaluation in each ``update`` (this rank's
-            points; failed updates included): ranks wait for the slowest at every update.
+        update_seconds: (of :class:`QuadratureMaterial`) failed updates included: ranks wait
+            for the slowest at every update.
         P_stab: quadrature Function with the stabilising stress of the last ``update`` (None
             without a stabiliser).
         (and those of :class:`~dolfinx_granular.QuadratureMaterial`: dx, F, points,
@@ -108,7 +108,6 @@ class GranularMaterial(QuadratureMaterial):
         self._P_data = _PointData(self.P, self._slots, (d, d))
         self._A_data = _PointData(self.A, self._slots, (d, d, d, d))
         self.n_updates = 0
-        self.update_seconds = []
         self.n_open = 0
         self._scalar = None
         self._state = check_state(rve.initial_state(n)) if self.has_state else None

@@ -125,6 +125,8 @@ class QuadratureMaterial:
             of ``cells``), set by the subclasses.
         clock: :class:`~dolfinx_granular.timing.Stopwatch` of ``"F"`` (evaluating grad u) and
             ``"rve"`` (the law); ``timings`` is its wall-time table.
+        update_seconds: wall seconds of the law's evaluation in each update (this rank's
+            points; empty for a material without a law to evaluate).
     """
 
     def __init__(
@@ -145,6 +147,7 @@ class QuadratureMaterial:
         self._F_expr = dfx.expression(ufl.Identity(d) + ufl.grad(u), X)
         self._x_expr = dfx.expression(ufl.SpatialCoordinate(msh), X)
         self.clock = Stopwatch()
+        self.update_seconds = []
 
     # -- points --------------------------------------------------------------------------------
 
