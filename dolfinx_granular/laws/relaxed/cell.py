@@ -147,11 +147,13 @@ class Cell:
             return np.zeros((self.n_disks, 2)), 1.0, 0.0, False
         return ref[0], float(ref[1]), float(ref[2]), True
 
-    def grow(self, F, w):
+    def grow(self, F, w, skin=None):
         """Bring the list up to fluctuations w (N, 2) at F (:meth:`extend`), whatever
-        :meth:`visited` would say, and make w the Verlet reference."""
+        :meth:`visited` would say, and make w the Verlet reference: the list then holds while
+        no disk moves by more than ``skin`` / 2 (default :data:`SKIN` times the smallest radius
+        sum) from w, relative to their mean move."""
         s_min = float(singular_values_2x2(F[None])[1][0])
-        skin = SKIN * self.R.min()
+        skin = SKIN * self.R.min() if skin is None else float(skin)
         self.extend(w, s_min, skin)
         self._verlet = (np.array(w, dtype=np.float64), s_min, skin)
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..tools import singular_values_2x2
 from . import newton as rn
-from .cell import Cell
+from .cell import SKIN, Cell
 from .contact_state import ContactState
 from .errors import RelaxationError, RigidityLostError
 from .fire import fire
@@ -107,7 +107,10 @@ def _newton(cell, F, w, settings, budget, counts, stall=True):
             cell.pattern_hint = (int(request[0]), int(request[1]))
             pat, fac = cell.kernel_pattern(*cell.pattern_hint)
         elif status == rn.NEED_LIST:
-            cell.grow(F, trial)
+            # at the iterate, so that every trial of its line search stays on the list: each
+            # moves a disk by at most MAX_STEP of the smallest radius sum, twice that relative
+            # to the mean move (a list grown at the trial sent the next trial off it again)
+            cell.grow(F, w, max(SKIN, 4.0 * rn.MAX_STEP) * cell.R.min())
             solver[2] = 0.0  # the step is taken again: factorise afresh
         else:
             break

@@ -25,8 +25,9 @@ itself; it then returns a status, and everything it needs to go on is in its arg
 
 * :data:`NEED_PATTERN`: the factorisation needs a block pattern for another pinned disk or a
   longer prefix of the candidates, one that holds every contact (``request`` holds both);
-* :data:`NEED_LIST`: a trial position ``trial`` reaches past the candidate list (the Verlet list
-  must grow); the step in progress is taken again after that.
+* :data:`NEED_LIST`: the iterate or a trial position of its line search reaches past the
+  candidate list (the Verlet list must grow, around the iterate ``w``); the step in progress
+  is taken again after that.
 
 Arguments, by the tuples :class:`~dolfinx_granular.laws.relaxed.cell.Cell` builds:
 
@@ -277,7 +278,7 @@ def line_search(F, F_smin, w, delta, g, E0, r0, expand, geo, verlet, trial, coun
     """Backtracking (Armijo) on the energy from a step that moves no disk by more than
     :data:`MAX_STEP` of the smallest radius sum, then doubled while the energy falls where
     ``expand`` and the first step was taken whole: ``(status, new w, its prefix m)``; status
-    NEED_LIST with the position in ``trial`` (N, 2), or LINE_SEARCH."""
+    NEED_LIST (``trial`` (N, 2) is the work space of the trial positions), or LINE_SEARCH."""
     R_min = geo[9]
     slope = (g * delta).sum()
     longest = _largest_force(delta)
