@@ -80,7 +80,7 @@ __all__ = [
     "SolveFailedWarning",
     "LoadPathWarning",
 ]
-__version__ = "0.4.0"
+__version__ = "0.5.0"
 #: the DOLFINx releases this version supports and tests (Debian bookworm, trixie, PyPI wheel)
 SUPPORTED_DOLFINX = (">=0.5.2", "<0.12")
 
