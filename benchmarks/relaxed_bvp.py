@@ -1,7 +1,7 @@
 """The relaxed RVE in boundary value problems: relaxed against Taylor on a confined column and on
 the confined slope, Newton iterations per step, time, and the speed-up on 2 ranks.
 
-Run: ``.venv/bin/python benchmarks/relaxed_bvp.py`` (about 10 minutes on 2 cores; ``make bench``
+Run: ``.venv/bin/python benchmarks/relaxed_bvp.py`` (about a minute on 2 cores; ``make bench``
 does not run it).
 
 Both problems start from a confined state: the packing (70 disks) is jammed at the confining
