@@ -43,6 +43,7 @@ LAW_MODULES = (
     "relaxed/tangent",
     "relaxed/equilibrium",
     "relaxed/path",
+    "relaxed/batch",
     "relaxed/law",
 )
 

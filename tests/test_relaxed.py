@@ -308,3 +308,35 @@ def test_a_big_step_follows_the_quasi_static_path():
             Wp, Pp, _, state = rve.evaluate((np.eye(2) + 0.01 * d[k] * step / 50)[None], state)
         np.testing.assert_allclose(W, Wp, rtol=1e-9)
         np.testing.assert_allclose(P, Pp, rtol=1e-7, atol=1e-9 * np.abs(Pp).max())
+
+
+def test_the_batch_is_the_python_path():
+    """evaluate relaxes a rank's points in one compiled call (laws/relaxed/batch.py); each
+    point on its own Python path (RelaxedRVE.equilibrium) ends in the same place: strain steps
+    of 1e-4, one of 3e-3 (substeps), the committed F (at rest), and a point whose committed
+    positions reach past the candidate list (the batch hands it to the Python path)."""
+    packing = generate_packing(70, seed=0)
+    rve = RelaxedRVE(packing, K_N)
+    F0 = np.diag([0.995, 0.995])
+    _, _, _, one = rve.evaluate(F0[None], rve.initial_state(1))
+    state = RelaxedState.concatenate([one] * 5)
+    far = state.w.copy()
+    far[4, 7] += 0.3 * np.asarray(packing.box)  # one disk across the cell
+    state = RelaxedState.from_arrays({**state.to_arrays(), "w": far})
+    d = np.random.default_rng(2).normal(size=(5, 2, 2))
+    F = F0 + 1e-4 * d / np.linalg.norm(d, axis=(1, 2))[:, None, None]
+    F[1] = F0 + 3e-3 * np.array([[0.6, 0.8], [0.0, 0.0]])
+    F[2] = F0
+    W, P, A, new = RelaxedRVE(packing, K_N).evaluate(F, state)
+    for q in range(5):
+        eq = rve.equilibrium(F[q], state, q)
+        assert abs(W[q] - eq.W) <= 1e-12 * abs(eq.W)
+        assert np.abs(P[q] - eq.P).max() <= 1e-11 * np.abs(eq.P).max()
+        assert np.abs(A[q] - eq.A).max() <= 1e-10 * np.abs(eq.A).max()
+        assert np.abs(new.w[q] - eq.w).max() <= 1e-9 * np.abs(eq.w).max()
+        assert (
+            np.abs(new.sensitivity[q] - eq.sensitivity).max() <= 1e-8 * np.abs(eq.sensitivity).max()
+        )
+    _, P2, without = RelaxedRVE(packing, K_N).stress(F, state)
+    assert np.abs(P2 - P).max() <= 1e-11 * np.abs(P).max() and not without.sensitivity.any()
+    np.testing.assert_array_equal(without.network, new.network)

@@ -11,7 +11,9 @@ The modules follow the data, each using only those before it:
 6. :mod:`.tangent`: the stress and the condensed tangent at an equilibrium;
 7. :mod:`.equilibrium`: one point relaxed at one F; :mod:`.path`: its quasi-static path from
    the committed positions;
-8. :mod:`.law`: :class:`RelaxedRVE` and its :class:`RelaxedState`, the material.
+8. :mod:`.batch`: a rank's points along their paths in one compiled call (a point that needs
+   more goes the Python way of 7);
+9. :mod:`.law`: :class:`RelaxedRVE` and its :class:`RelaxedState`, the material.
 """
 
 from .equilibrium import Equilibrium, at_rest, relax

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ...packings import neighbours
 from ..tools import singular_values_2x2
@@ -205,3 +206,17 @@ class Cell:
         n = np.int64(self.n_disks)
         sh = np.asarray(shift, dtype=np.int64) + 64
         return ((np.asarray(i, np.int64) * n + j) * 128 + sh[:, 0]) * 128 + sh[:, 1]
+
+
+@njit(cache=True)
+def fingerprint(pi, pj, shift, contacts, n_disks):
+    """An order-free hash of the set of candidates ``contacts`` (k,) (splitmix64 of their
+    :meth:`Cell.keys_of`, summed mod 2^64)."""
+    total = np.uint64(0)
+    for c in contacts:
+        key = ((pi[c] * n_disks + pj[c]) * 128 + shift[c, 0] + 64) * 128 + shift[c, 1] + 64
+        z = np.uint64(key) + np.uint64(0x9E3779B97F4A7C15)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        total += z ^ (z >> np.uint64(31))
+    return total

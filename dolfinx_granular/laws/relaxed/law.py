@@ -16,15 +16,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
 
 from ...packings.packing import Packing, require_disks
 from ..contacts import ContactCandidates
 from ..taylor import ContactSet
 from ..tools import as_batch, output_buffers, push_forward, to_float
 from ..tools import normal_stiffness as normal_stiffness_of
-from . import equilibrium, path
-from .cell import Cell
+from . import batch, equilibrium, path
+from .cell import Cell, fingerprint
 from .contact_state import ContactState
 from .errors import RelaxationError
 from .settings import Settings
@@ -101,20 +100,6 @@ class RelaxedState:
         )
 
 
-@njit(cache=True)
-def _fingerprint(pi, pj, shift, contacts, n_disks):
-    """An order-free hash of the set of candidates ``contacts`` (k,) (splitmix64 of their
-    :meth:`Cell.keys_of`, summed mod 2^64)."""
-    total = np.uint64(0)
-    for c in contacts:
-        key = ((pi[c] * n_disks + pj[c]) * 128 + shift[c, 0] + 64) * 128 + shift[c, 1] + 64
-        z = np.uint64(key) + np.uint64(0x9E3779B97F4A7C15)
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        total += z ^ (z >> np.uint64(31))
-    return total
-
-
 class RelaxedRVE:
     """Frictionless periodic disk packing relaxed to static equilibrium at every F.
 
@@ -179,27 +164,36 @@ class RelaxedRVE:
         n = F.shape[0]
         if state.n_points != n:
             raise ValueError(f"state has {state.n_points} points, F has {n}")
+        res = batch.Outputs(n, self.cell.n_disks)
+        q = 0
+        while q < n:  # the points in compiled code, one that needs more on its own path
+            q = batch.relax_points(self.cell, self.settings, F, state, tangent, q, res)
+            if q < n:
+                self._one_point(F, state, q, tangent, res)
+                q += 1
         W, P, A = output_buffers(n, tangent, out)
-        w, dw = np.empty_like(state.w), np.zeros_like(state.sensitivity)
-        moved, rearranged, network = np.empty(n), np.empty(n, bool), np.empty(n, np.uint64)
-        mean_radius = float(self.packing.radii.mean())
-        for q in range(n):
-            try:
-                eq = self.equilibrium(F[q], state, q, tangent)
-            except RelaxationError as err:
-                raise type(err)(f"point {q}: {err}", np.array([q])) from None
-            W[q], P[q], w[q] = eq.W, eq.P, eq.w
-            if tangent:
-                A[q], dw[q] = eq.A, eq.sensitivity
-            u = eq.w @ F[q].T
-            moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / mean_radius
-            c = self.cell
-            network[q] = _fingerprint(c.pi, c.pj, c.shift, eq.network, c.n_disks)
-            rearranged[q] = network[q] != state.network[q]
-        new = RelaxedState(w, F.copy(), moved, rearranged, network, dw)
+        W[:], P[:] = res.W, res.P
+        if tangent:
+            A[:] = res.A
+        rearranged = res.network != state.network
+        new = RelaxedState(res.w, F.copy(), res.moved, rearranged, res.network, res.dw)
         if single:
             return W[0], P[0], (A[0] if tangent else None), new
         return W, P, A, new
+
+    def _one_point(self, F, state, q, tangent, res):
+        """Point q on the Python path (:meth:`equilibrium`) into the outputs ``res``."""
+        try:
+            eq = self.equilibrium(F[q], state, q, tangent)
+        except RelaxationError as err:
+            raise type(err)(f"point {q}: {err}", np.array([q])) from None
+        res.W[q], res.P[q], res.w[q] = eq.W, eq.P, eq.w
+        if tangent:
+            res.A[q], res.dw[q] = eq.A, eq.sensitivity
+        u = eq.w @ F[q].T
+        res.moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / float(self.packing.radii.mean())
+        c = self.cell
+        res.network[q] = fingerprint(c.pi, c.pj, c.shift, eq.network, c.n_disks)
 
     def equilibrium(
         self, F: np.ndarray, state: RelaxedState, q: int, tangent: bool = True

@@ -49,7 +49,6 @@ import numpy as np
 from numba import njit
 
 from .assembly import assemble as assemble_blocks
-from .assembly import mixed
 from .block_ldlt import numeric_factorisation, substitute
 from .contact_state import MIN_CONTACTS, contact_state, energy, forces, non_rattlers
 
@@ -153,7 +152,7 @@ def _residual(F, m, lx, ly, d, e, on, geo):
 
 
 @njit(cache=True)
-def _factorise_shifted(pat, fac, total, mu, n_disks, counts):
+def factorise_shifted(pat, fac, total, mu, n_disks, counts):
     """L D L^T of the values plus ``total`` + mu on every disk's diagonal: positive definite?"""
     counts[3] += 1
     shift = np.empty((n_disks, 2))
@@ -186,7 +185,7 @@ def factorise_newton(
             force = np.sqrt(g[i, 0] * g[i, 0] + g[i, 1] * g[i, 1])
             total[i] = max(rattler_shift * K, force / reach)
     total[pat[0]] = K  # the pinned disk is out of the pattern (no entry is read)
-    if _factorise_shifted(pat, fac, total, 0.0, N, counts):
+    if factorise_shifted(pat, fac, total, 0.0, N, counts):
         solver[0] = 0.0
         return True, False
     n, perm, values = pat[2], pat[3], fac[0]
@@ -205,7 +204,7 @@ def factorise_newton(
     tried, bound = 0.0, shift_bound(pat, fac)
     while mu <= 1e6 * scale:
         if mu > tried + bound:
-            if _factorise_shifted(pat, fac, total, mu, N, counts):
+            if factorise_shifted(pat, fac, total, mu, N, counts):
                 solver[0] = mu
                 return True, True
             tried, bound = mu, shift_bound(pat, fac)
@@ -429,33 +428,3 @@ def _refactorise(F, m, lx, ly, d, e, on, keep, g, geo, pat, fac, rattler_shift, 
     key[:] = keep
     solver[2] = 1.0
     return CONVERGED, shifted
-
-
-@njit(cache=True)
-def network_tangent(F, m, qx, qy, lx, ly, d, e, keep, network, pi, pj, X, Y, R, ratio,
-                    n_sorted, n_all, inv_min_stretch, R_min, n_disks, K, pinned, cover, n, perm,
-                    Lp, Li, Rp, Rc, Rq, Ap, Ai, diag_slot, pair_slot, values, Lx, D, Dinv, y,
-                    counts):  # fmt: skip
-    """The condensation's factorisation and right-hand sides at an equilibrium: the network's
-    exact stiffness (the rattlers' unknowns fixed, K on their diagonal; the pinned disk out),
-    factorised on the pattern ``pat``, and W_wF (N, 2, 4); ``(positive definite, B, X =
-    W_ww^-1 W_wF)``; its tuples flattened as :func:`newton`'s."""
-    pat = (pinned, cover, n, perm, Lp, Li, Rp, Rc, Rq, Ap, Ai, diag_slot, pair_slot)
-    fac = (values, Lx, D, Dinv, y)
-    N = n_disks
-    assemble_blocks(
-        F, pi[:m], pj[:m], lx, ly, d, e, R[:m], K, network, network, pat[11], pat[12], fac[0]
-    )
-    total = np.zeros(N)
-    for i in range(N):
-        if not keep[i]:
-            total[i] = K
-    total[pinned] = K
-    pd = _factorise_shifted(pat, fac, total, 0.0, N, counts)
-    B = mixed(
-        F, pi[:m], pj[:m], qx, qy, lx, ly, d, e, R[:m], K, network, np.arange(N), 2 * N
-    ).reshape(N, 2, 4)
-    X = np.zeros((N, 2, 4))
-    if pd:
-        substitute(_DIMS, pat[2], pat[3], pat[4], pat[5], fac[1], fac[3], B, X)
-    return pd, B, X

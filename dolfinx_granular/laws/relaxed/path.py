@@ -13,6 +13,7 @@ O(dF^2) of the equilibrium it follows.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from . import equilibrium
 
@@ -20,15 +21,17 @@ from . import equilibrium
 MAX_SUBSTEP = 1e-3
 
 
+@njit(cache=True)
 def predicted(w: np.ndarray, dw: np.ndarray, Fc: np.ndarray, F: np.ndarray) -> np.ndarray:
     """The fluctuations w (N, 2) relaxed at Fc (2, 2), carried to F (2, 2) to first order: w +
     dw : dF_C, dw (N, 2, 4) the sensitivities dw/dF at Fc (F flattened row-major) and dF_C =
     Fc^-T (C - C_c) / 2 the increment that changes C as F does (dF itself would be first-order
     only: a finite rotation, which changes nothing, would move the disks)."""
-    dF = 0.5 * np.linalg.solve(Fc.T, F.T @ F - Fc.T @ Fc)
-    return w + (dw.reshape(-1, 4) @ dF.ravel()).reshape(w.shape)
+    dF = 0.5 * np.linalg.solve(np.ascontiguousarray(Fc.T), F.T @ F - Fc.T @ Fc)
+    return w + (np.ascontiguousarray(dw).reshape(-1, 4) @ dF.ravel()).reshape(w.shape)
 
 
+@njit(cache=True)
 def stretch(F: np.ndarray) -> np.ndarray:
     """The right stretch U = (F^T F)^(1/2) (2, 2) of F (2, 2): for a 2 x 2 C = F^T F,
     U = (C + s I) / t with s = (det C)^(1/2) = |det F| and t = (tr C + 2 s)^(1/2)."""
@@ -40,9 +43,18 @@ def stretch(F: np.ndarray) -> np.ndarray:
 def substeps(Fc: np.ndarray, F: np.ndarray, longest: float = MAX_SUBSTEP) -> list:
     """The stretches (2, 2) between Fc and F (both excluded), evenly spaced in U and at most
     ``longest`` apart."""
+    return list(stretches_between(Fc, F, longest))
+
+
+@njit(cache=True)
+def stretches_between(Fc, F, longest):
+    """:func:`substeps` as an array (k, 2, 2)."""
     Uc, U = stretch(Fc), stretch(F)
     m = int(np.ceil(np.linalg.norm(U - Uc) / longest))
-    return [Uc + (k / m) * (U - Uc) for k in range(1, m)]
+    out = np.empty((max(m - 1, 0), 2, 2))
+    for k in range(1, m):
+        out[k - 1] = Uc + (k / m) * (U - Uc)
+    return out
 
 
 def follow(cell, F, w, dw, Fc, tangent, settings) -> equilibrium.Equilibrium:
