@@ -49,6 +49,8 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one core (the serial OpenBLAS has one)
 
+from dolfinx_granular.timing import best_time  # noqa: E402
+
 import numpy as np  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -88,22 +90,12 @@ def blas_name(libraries: list[str]) -> str:
     return "unknown"
 
 
-def best(fn, repeats):
-    """Best wall time of ``fn()`` over ``repeats`` calls (s), and the last result."""
-    t_best, out = np.inf, None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        t_best = min(t_best, time.perf_counter() - t)
-    return t_best, out
-
-
 def matmul(repeats, n=1000):
     """GFLOP/s of a float64 n x n matrix product (2 n³ flops), best of ``repeats``."""
     rng = np.random.default_rng(0)
     a, b = rng.random((n, n)), rng.random((n, n))
     a @ b
-    t, _ = best(lambda: a @ b, repeats)
+    t, _ = best_time(lambda: a @ b, repeats)
     return {"n": n, "s": t, "gflops": 2.0 * n**3 / t / 1e9}
 
 

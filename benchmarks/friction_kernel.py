@@ -27,9 +27,8 @@ counts account for the ratio of their times.
 import argparse
 import platform
 import re
-import time
 
-from dolfinx_granular import TaylorRVE, generate_packing
+from dolfinx_granular import TaylorRVE, generate_packing, timing
 from dolfinx_granular.laws import friction_kernel as fk
 from dolfinx_granular.laws import taylor_kernel as kernel
 from dolfinx_granular.laws.friction import FrictionalRVE
@@ -45,12 +44,8 @@ MU = 0.3
 
 
 def best_time(fn, repeats):
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+    """Best wall time of ``fn()`` over ``repeats`` calls (s)."""
+    return timing.best_time(fn, repeats)[0]
 
 
 def shear(F, gamma):

@@ -35,6 +35,7 @@ from dolfinx_granular import TaylorRVE, generate_packing
 from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState, at_rest, block_ldlt, newton
 from dolfinx_granular.laws.relaxed.assembly import assemble
 from dolfinx_granular.laws.relaxed.contact_state import ContactState
+from dolfinx_granular.timing import best_time
 
 import numpy as np
 from scipy.sparse.linalg import splu
@@ -49,16 +50,6 @@ COUNTS = {
     "trial_states": "trial states",
     "fire_steps": "FIRE steps",
 }
-
-
-def best_time(fn, repeats=3):
-    """Best wall time of ``fn()`` over ``repeats`` calls (s) and its last result."""
-    best, out = np.inf, None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
 
 
 def committed(rve, compression, n):

@@ -42,12 +42,18 @@ class Stopwatch:
             self.calls[key] += 1
 
 
+def best_time(fn: Callable[[], object], repeats: int = 3) -> tuple[float, object]:
+    """``(seconds, result)``: the best wall time of ``fn()`` over ``repeats`` calls and the last
+    call's result."""
+    best, out = np.inf, None
+    for _ in range(max(int(repeats), 1)):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
 def time_per_point(fn: Callable[[np.ndarray], object], F: np.ndarray, repeats: int = 5) -> float:
     """Best wall time per point (s) of ``fn(F)`` over ``repeats`` runs, F of shape (n, 2, 2)
     (the first run also compiles or loads a Numba kernel, so at least 2 runs are made)."""
-    best = np.inf
-    for _ in range(max(int(repeats), 2)):
-        t = time.perf_counter()
-        fn(F)
-        best = min(best, time.perf_counter() - t)
-    return best / len(F)
+    return best_time(lambda: fn(F), max(int(repeats), 2))[0] / len(F)
