@@ -12,9 +12,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 from .outfolder import default_out
 
+#: seconds the ranks other than 0 wait before they exit on an argument error
+ERROR_GRACE = 1.0
 #: environment variables in which MPI launchers give a process its rank (Open MPI, MPICH/PMI)
 RANK_VARIABLES = ("OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK")
 
@@ -48,6 +51,14 @@ class Parser(argparse.ArgumentParser):
     def _print_message(self, message, file=None):
         if world_rank() == 0:
             super()._print_message(message, file)
+
+    def exit(self, status=0, message=None):
+        """Exit with ``status`` on every rank; on an error the other ranks wait a moment, so
+        that rank 0's message is out before a launcher (Open MPI 5's prterun) kills the job
+        at the first rank to exit with an error (it lost the message now and then)."""
+        if status and world_rank() != 0:
+            time.sleep(ERROR_GRACE)
+        super().exit(status, message)
 
     def add_output(self, command: str, small: str = "reduced run (tests; also DEMO_SMALL=1)"):
         """``--out`` (default ``results/<command>``, ``results/<command>-small`` with
