@@ -86,15 +86,15 @@ def _point(F, w, dw, Fc, tangent, geo, verlet, pat, fac, tol, budget, longest, q
     """One point along its path into row q of ``out`` (W, P, A, w, dw, network, the candidates'
     shifts): False where it needs Python."""
     if (F == Fc).all():  # the committed positions are at rest
-        return _finish(F, w.copy(), tangent, geo, verlet, pat, fac, q, out)
+        m = visited(_smallest_stretch(F), w, geo, verlet)
+        return m >= 0 and _finish(F, w.copy(), m, tangent, geo, pat, fac, q, out)
     Us = stretches_between(Fc, F, longest)
     for k in range(Us.shape[0] + 1):
         target = Us[k] if k < Us.shape[0] else F
         last = k == Us.shape[0]
         start = predicted(w, dw, Fc, target) if dw.any() else w.copy()
-        if not _newton(target, start, geo, verlet, pat, fac, tol, budget):
-            return False
-        if not _finish(target, start, tangent or not last, geo, verlet, pat, fac, q, out):
+        m = _newton(target, start, geo, verlet, pat, fac, tol, budget)
+        if m < 0 or not _finish(target, start, m, tangent or not last, geo, pat, fac, q, out):
             return False
         w, dw, Fc = out[3][q], out[4][q], target
     return True
@@ -102,27 +102,26 @@ def _point(F, w, dw, Fc, tangent, geo, verlet, pat, fac, tol, budget, longest, q
 
 @njit(cache=True)
 def _newton(F, w, geo, verlet, pat, fac, tol, budget):
-    """Newton from w (updated in place) at F, stalls counted: converged?"""
+    """Newton from w (updated in place) at F, stalls counted: the equilibrium's prefix m of
+    the candidates, -1 where it did not converge."""
     N = geo[10]
+    request = np.zeros(2, np.int64)
     status = run_newton(
         F, _smallest_stretch(F), w, geo, verlet, pat, fac, tol, budget, True,
         np.array([0.0, np.inf, 0.0, np.inf]), np.zeros(N, np.bool_), np.zeros(6, np.int64),
-        np.zeros(2, np.int64), np.empty_like(w),
+        request, np.empty_like(w),
     )  # fmt: skip
-    return status == CONVERGED
+    return request[1] if status == CONVERGED else -1
 
 
 @njit(cache=True)
-def _finish(F, w, tangent, geo, verlet, pat, fac, q, out):
-    """The equilibrium w at F into row q of ``out``: stress, the network's fingerprint, and
-    with ``tangent`` the condensed tangent and sensitivities (zero without); False where it
-    needs Python (no contact or no non-rattler, another pattern, a tangent that is not
-    positive definite)."""
+def _finish(F, w, m, tangent, geo, pat, fac, q, out):
+    """The equilibrium w at F (its first m candidates) into row q of ``out``: stress, the
+    network's fingerprint, and with ``tangent`` the condensed tangent and sensitivities (zero
+    without); False where it needs Python (no contact or no non-rattler, another pattern, a
+    tangent that is not positive definite)."""
     W, P, A, w_out, dw_out, network, shift = out
     pi, pj, K, N = geo[0], geo[1], geo[11], geo[10]
-    m = visited(_smallest_stretch(F), w, geo, verlet)
-    if m < 0:
-        return False
     qx, qy, lx, ly, d, e = contact_state(F, w, pi, pj, geo[2], geo[3], geo[4], m)
     keep = non_rattlers(pi, pj, e, N, MIN_CONTACTS)
     if not keep.any() or not (e > 0.0).any():

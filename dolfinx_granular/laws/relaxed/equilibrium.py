@@ -87,8 +87,8 @@ _REENTRIES = 100
 def _newton(cell, F, w, settings, budget, counts, stall=True):
     """Newton from w until equilibrium (:func:`~dolfinx_granular.laws.relaxed.newton.newton`):
     ``(w, state, residual)``, adding to ``counts`` (6,) (:data:`_COUNTS`); RelaxationError
-    after ``budget``
-    steps, a failed line search or a shift that never makes the stiffness positive definite."""
+    after ``budget`` steps, a failed line search or a shift that never makes the stiffness
+    positive definite."""
     F = np.ascontiguousarray(F, dtype=np.float64)
     w = np.array(w, dtype=np.float64)
     s_min = float(singular_values_2x2(F[None])[1][0])

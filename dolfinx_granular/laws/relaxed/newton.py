@@ -144,14 +144,6 @@ def _mean_overlap(e, on):
 
 
 @njit(cache=True)
-def _residual(F, m, lx, ly, d, e, on, geo):
-    """Largest net force over the mean contact force (inf without contacts)."""
-    _, f = forces(F, geo[0], geo[1], lx, ly, d, e, geo[11], geo[10], on)
-    scale = geo[11] * _mean_overlap(e, on)
-    return _largest_force(f) / scale if scale > 0.0 else np.inf
-
-
-@njit(cache=True)
 def factorise_shifted(pat, fac, total, mu, n_disks, counts):
     """L D L^T of the values plus ``total`` + mu on every disk's diagonal: positive definite?"""
     counts[3] += 1
@@ -299,7 +291,7 @@ def line_search(F, F_smin, w, delta, g, E0, r0, expand, geo, verlet, trial, coun
         # cannot tell: take the step if it lowers the largest force
         if -alpha * slope <= ROUND_OFF * abs(E0):
             lx, ly, d, e, on = _overlaps(F, trial, m, geo)
-            if _residual(F, m, lx, ly, d, e, on, geo) < r0:
+            if _balance(F, m, lx, ly, d, e, on, geo)[1] < r0:
                 return CONVERGED, trial.copy(), m
         alpha *= 0.5
     return LINE_SEARCH, w, 0
@@ -395,11 +387,14 @@ def run_newton(F, F_smin, w, geo, verlet, pat, fac, tol, budget, stall, solver, 
 @njit(cache=True)
 def _balance(F, m, lx, ly, d, e, on, geo):
     """``(g, residual, floor)`` at a contact state: the energy's gradient (N, 2), the largest
-    net force over the mean contact force, and :data:`RESOLVED` times the resolution of the
-    contact forces (:meth:`ContactState.resolution`), below which the residual means nothing."""
+    net force over the mean contact force (inf without contacts), and :data:`RESOLVED` times
+    the resolution of the contact forces (:meth:`ContactState.resolution`), below which the
+    residual means nothing."""
     K = geo[11]
     g, f = forces(F, geo[0], geo[1], lx, ly, d, e, K, geo[10], on)
     mean_overlap = _mean_overlap(e, on)
+    if mean_overlap == 0.0:
+        return g, np.inf, np.inf
     R_on = 0.0
     for c in range(m):
         if on[c]:
