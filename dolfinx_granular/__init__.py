@@ -21,6 +21,7 @@ from .laws.friction import FrictionalRVE, FrictionState
 from .laws.levels import AdaptiveRVE, SmallStrainRVE
 from .laws.protocol import HistoryLaw, HistoryState, LawEvaluationError, MaterialLaw, law_dimension
 from .laws.relaxed import RelaxationError, RelaxedRVE, RelaxedState, RigidityLostError
+from .laws.relaxed_friction import FrictionalRelaxedRVE, FrictionalRelaxedState
 from .laws.taylor import ContactSet, TaylorRVE, UnsupportedDeformationError
 from .laws.validity import OVERLAP_THRESHOLD, OverlapMonitor, OverlapSummary, ValidityWarning
 from .packings.fabric import (
@@ -44,6 +45,8 @@ __all__ = [
     "reference_packing",
     "TaylorRVE",
     "FrictionalRVE",
+    "FrictionalRelaxedRVE",
+    "FrictionalRelaxedState",
     "FrictionState",
     "RelaxedRVE",
     "RelaxedState",

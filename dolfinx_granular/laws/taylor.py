@@ -68,6 +68,10 @@ class ContactSet:
         branch: (m, d) current branch vectors l = F L (length).
         overlap: (m,) eps >= 0 (length).
         force: (m,) normal force magnitude k_n * eps (N per unit thickness in 2-D, N in 3-D).
+        tangential: (m,) for a frictional relaxed RVE, the tangential force on j along
+            t = (-n_y, n_x), n the unit branch vector from i to j (N per unit thickness);
+            None for the other laws.
+        sliding: (m,) bool, True where the contact slips; None for the other laws.
     """
 
     pairs: np.ndarray
@@ -75,6 +79,8 @@ class ContactSet:
     branch: np.ndarray
     overlap: np.ndarray
     force: np.ndarray
+    tangential: np.ndarray | None = None
+    sliding: np.ndarray | None = None
 
 
 def _user_stacklevel() -> int:

@@ -119,7 +119,12 @@ class Cell:
         fresh = np.flatnonzero(known[pos] != keys)
         if fresh.size == 0:
             return
-        a, b, sh = i[fresh], j[fresh], shift[fresh]
+        self.append(i[fresh], j[fresh], shift[fresh], keys[fresh])
+
+    def append(self, a, b, sh, keys=None):
+        """Append the pairs (a, b, shift sh (k, 2)), b >= a, that are no candidates yet, at the
+        end of the list (their :meth:`keys_of` ``keys`` if known)."""
+        keys = self.keys_of(a, b, sh) if keys is None else keys
         L = self.centers[b] + sh * self.box - self.centers[a]
         R = self.radii[a] + self.radii[b]
         self.pi, self.pj = np.concatenate([self.pi, a]), np.concatenate([self.pj, b])
@@ -127,9 +132,30 @@ class Cell:
         self.R = np.concatenate([self.R, R])
         self.ratio = np.concatenate([self.ratio, np.hypot(L[:, 0], L[:, 1]) / R])
         self.shift = np.concatenate([self.shift, sh])
-        self._known = np.sort(np.concatenate([known, keys[fresh]]))
+        self._known = np.sort(np.concatenate([self.known_keys(), keys]))
+        self.__dict__.pop("_order", None)
         for a in (self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.shift):
             a.flags.writeable = False  # as the list of Cell.of: one compiled kernel, not two
+
+    def index_of(self, keys: np.ndarray) -> np.ndarray:
+        """(k,) candidate indices of the pairs ``keys`` (k,) (:meth:`keys_of`); a pair that is
+        no candidate (a contact of a list that grew in another run) is appended first."""
+        keys = np.asarray(keys, dtype=np.int64)
+        if "_order" not in self.__dict__:
+            own = self.keys_of(self.pi, self.pj, np.asarray(self.shift))
+            order = np.argsort(own)
+            self._order = (own[order], order)
+        sorted_keys, order = self._order
+        pos = np.minimum(np.searchsorted(sorted_keys, keys), max(sorted_keys.size - 1, 0))
+        missing = sorted_keys[pos] != keys
+        if missing.any():
+            new = np.unique(keys[missing])
+            n = np.int64(self.n_disks)
+            sh = np.stack([(new // 128) % 128 - 64, new % 128 - 64], axis=1)
+            ij = new // (128 * 128)
+            self.append(ij // n, ij % n, sh, new)
+            return self.index_of(keys)
+        return order[pos]
 
     def geometry(self) -> tuple:
         """The cell as the compiled Newton loop takes it

@@ -1,0 +1,171 @@
+"""The frictional relaxed cell at (F, w, theta) after an increment: its contacts, rattlers,
+balance and the equations' arrays (:mod:`~dolfinx_granular.laws.relaxed_friction.system`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ..relaxed.cell import Cell
+from ..relaxed.contact_state import non_rattlers
+from .contact_law import FREE, OPEN, SLIP, STICK, return_map
+from .system import EXACT, POSITIVE, balance, equations
+
+#: a disk needs this many contacts with the other non-rattlers to be no rattler (with friction
+#: two contacts can hold a disk: their forces along the chord between them)
+MIN_CONTACTS = 2
+#: equilibrium also within this many times the round-off of the contact forces (as the
+#: frictionless relaxed RVE's :data:`~dolfinx_granular.laws.relaxed.newton.RESOLVED`)
+RESOLVED = 30.0
+#: a rattler's Newton move is at most about this many mean overlaps (its unknowns are
+#: shifted by its net force over that length, as in the frictionless solver)
+RATTLER_REACH = 300.0
+
+
+@dataclass(frozen=True)
+class Springs:
+    """The contact law: k_n, k_t (N/m²), mu, and 1 / V (1 / the cell's reference area)."""
+
+    kn: float
+    kt: float
+    mu: float
+    inv_area: float
+
+
+@dataclass
+class Increment:
+    """The committed side of an increment: F0 (2, 2), w0 (N, 2), theta0 (N,) and the
+    tangential forces ft0 (M,) of the cell's candidates (N; zero where no contact was)."""
+
+    F0: np.ndarray
+    w0: np.ndarray
+    th0: np.ndarray
+    ft0: np.ndarray
+
+    def forces(self, n: int) -> np.ndarray:
+        """ft0 for a list of n >= len(ft0) candidates (a grown list's new pairs: zero)."""
+        if self.ft0.shape[0] < n:
+            self.ft0 = np.concatenate([self.ft0, np.zeros(n - self.ft0.shape[0])])
+        return self.ft0
+
+
+class CellState:
+    """The cell at (F, w, theta) after the increment ``inc``, statuses ``frozen`` (M,) int8
+    (:func:`~dolfinx_granular.laws.relaxed_friction.contact_law.return_map`).
+
+    Attributes:
+        m: candidates visited; qx ... status: the return map's arrays (m,).
+        keep: (N,) the non-rattlers; network: (m,) contacts between two of them.
+        f, M: (N, 2), (N,) net force and moment on each disk (N, N m per unit thickness).
+        mean_force: mean normal force over the contacts; count: their number.
+        r: (N, 3) the equations' residual (gradient of the incremental potential, per area);
+        P: (2, 2) the stress (Pa).
+    """
+
+    def __init__(self, cell: Cell, springs: Springs, F, w, th, inc: Increment, frozen) -> None:
+        self.m = m = cell.visited(F, w)
+        ft0 = inc.forces(cell.pi.shape[0])
+        sp = springs
+        self.qx, self.qy, self.lx, self.ly, self.d, self.e, self.ft, self.fstar, self.status = (
+            return_map(F, w, th, inc.F0, inc.w0, inc.th0, ft0, cell.pi, cell.pj, cell.X, cell.Y,
+                       cell.R, cell.radii, m, sp.kn, sp.kt, sp.mu, _frozen(frozen, m))
+        )  # fmt: skip
+        self.on = self.status != OPEN
+        self.keep = non_rattlers(cell.pi, cell.pj, self.e, cell.n_disks, MIN_CONTACTS)
+        self.network = self.on & self.keep[cell.pi[:m]] & self.keep[cell.pj[:m]]
+        self.f, self.M, self.mean_force, self.count = balance(
+            cell.pi, cell.pj, self.lx, self.ly, self.d, self.e, self.ft, cell.R, cell.radii,
+            sp.kn, cell.n_disks,
+        )  # fmt: skip
+        self.r, self.P, _ = self.equations(cell, springs, F, None, False)
+
+    def equations(self, cell, springs, F, mode, jacobian):
+        """``(r (N, 3), P (2, 2), (rows, cols, values))`` (:func:`system.equations`; the
+        Jacobian's coordinates with ``jacobian``, by ``mode`` (m,) int8)."""
+        m, sp = self.m, springs
+        size = 36 * m if jacobian else 0
+        rows, cols, vals = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
+        mode = np.zeros(m, np.int8) if mode is None else mode
+        r, P, nnz = equations(
+            F, self.qx, self.qy, self.lx, self.ly, self.d, self.e, self.ft, self.fstar,
+            self.status, cell.pi, cell.pj, cell.R, cell.radii, sp.kn, sp.kt, sp.mu,
+            sp.inv_area, cell.n_disks, mode, jacobian, rows, cols, vals,
+        )  # fmt: skip
+        return r, P, (rows[:nnz], cols[:nnz], vals[:nnz])
+
+    def newton_mode(self) -> np.ndarray:
+        """(m,) int8: exact between non-rattlers, the positive part at a rattler."""
+        return np.where(self.network, EXACT, POSITIVE).astype(np.int8)
+
+    def residual(self, cell: Cell) -> tuple[float, float]:
+        """``(residual, floor)``: the larger of the largest net force over the mean contact
+        force and the largest net moment over the mean contact force times the mean radius
+        (inf without contacts), and the round-off below which it means nothing."""
+        if self.count == 0 or self.mean_force == 0.0:
+            return np.inf, np.inf
+        f = np.sqrt((self.f**2).sum(axis=1).max()) / self.mean_force
+        M = np.abs(self.M).max() / (self.mean_force * cell.radii.mean())
+        mean_e = self.e[self.on].mean()
+        floor = RESOLVED * np.finfo(float).eps * cell.R[: self.m][self.on].mean() / mean_e
+        return max(f, M), floor
+
+    def statuses(self) -> np.ndarray:
+        """(m,) int8 the statuses to freeze: STICK, SLIP, or FREE where open."""
+        return np.where(self.on, self.status, FREE).astype(np.int8)
+
+    def inadmissible(self, springs: Springs) -> np.ndarray:
+        """(m,) contacts whose forced status breaks the Coulomb law: a stick beyond the cone,
+        or a slip whose trial force lies inside it (it would dissipate a negative energy)."""
+        cap = springs.mu * springs.kn * np.maximum(self.e, 0.0)
+        beyond = (self.status == STICK) & (np.abs(self.fstar) > cap)
+        inside = (self.status == SLIP) & (np.abs(self.fstar) < cap)
+        return beyond | inside
+
+
+def _frozen(frozen, m):
+    """``frozen`` (>= m,) or free statuses, as the first m int8."""
+    if frozen is None:
+        return np.zeros(m, np.int8)
+    if frozen.shape[0] < m:
+        frozen = np.concatenate([frozen, np.zeros(m - frozen.shape[0], np.int8)])
+    return np.ascontiguousarray(frozen[:m])
+
+
+@njit(cache=True)
+def diagonal(status, network, keep, pi, pj, radii, r, kn, kt, inv_area, pinned, reach,
+             rattler_shift, tangent, free_rotation):  # fmt: skip
+    """The extra diagonal (3N,) of the Jacobian.
+
+    * The pinned disk's translation: k_n / V (its rows and columns are dropped).
+    * A rattler's translation: its net force over ``reach`` (at least ``rattler_shift`` k_n /
+      V) in Newton, k_n / V (held fixed) for the ``tangent``.
+    * A rotation that no sticking contact of the network resists (and a rattler's): k_t r^2
+      per slipping contact / V (at least one). Its column of the Jacobian is zero elsewhere, so
+      this value changes only that rotation's own step, neither the other unknowns' nor the
+      condensed tangent."""
+    n = radii.shape[0]
+    K = kn * inv_area
+    out = np.zeros(3 * n)
+    held = np.zeros(n, np.bool_)
+    slips = np.zeros(n)
+    for c in range(status.shape[0]):
+        if not network[c]:
+            continue
+        for k in (pi[c], pj[c]):
+            if status[c] == STICK:
+                held[k] = True
+            elif status[c] == SLIP:
+                slips[k] += 1.0
+    spring = kt if kt > 0.0 else kn
+    for k in range(n):
+        if not keep[k]:
+            force = np.sqrt(r[k, 0] ** 2 + r[k, 1] ** 2)
+            shift = K if tangent else max(rattler_shift * K, force / reach)
+            out[3 * k] = out[3 * k + 1] = shift
+        if not held[k] or not keep[k]:
+            out[3 * k + 2] = free_rotation * spring * radii[k] ** 2 * max(slips[k], 1.0) * inv_area
+    out[3 * pinned] = out[3 * pinned + 1] = K
+    return out

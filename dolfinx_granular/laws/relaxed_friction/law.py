@@ -1,0 +1,286 @@
+"""The frictional relaxed RVE: disks with contact friction and rotations in static equilibrium
+in the periodic cell deformed by F, a history law.
+
+Each point's state holds the disks' fluctuations and rotations and the tangential force of
+every contact (:class:`~dolfinx_granular.laws.relaxed_friction.state.FrictionalRelaxedState`).
+A new F is reached along the quasi-static path from the committed state
+(:mod:`~dolfinx_granular.laws.relaxed_friction.point`), every substep a backward-Euler
+increment of the contact law of :class:`~dolfinx_granular.FrictionalRVE`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ...packings.packing import Packing
+from ..relaxed.errors import RelaxationError
+from ..relaxed.law import RelaxedRVE, RelaxedState
+from ..taylor import ContactSet
+from ..tools import as_batch, output_buffers, push_forward, to_float
+from .cell_state import Increment, Springs
+from .contact_law import SLIP
+from .point import Equilibrium, at_rest, follow
+from .settings import Settings
+from .state import FrictionalRelaxedState
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+
+def _parameter(name, value, unit):
+    v = to_float(value, name)
+    if not (np.isfinite(v) and v >= 0.0):
+        raise ValueError(f"{name} must be a finite number >= 0{unit}, got {value!r}")
+    return v
+
+
+class FrictionalRelaxedRVE:
+    """Periodic disk packing with normal springs, Coulomb friction and rotations, relaxed to
+    static equilibrium at every F (a :class:`~dolfinx_granular.HistoryLaw`).
+
+    Args:
+        packing: the reference microstructure (e.g. a confined packing).
+        normal_stiffness: k_n > 0 (N/m²).
+        tangential_stiffness: k_t > 0 (N/m²) where friction > 0.
+        friction: Coulomb coefficient mu >= 0. With mu = 0 no contact carries a tangential
+            force and nothing resists a rotation: the point is the frictionless
+            :class:`~dolfinx_granular.RelaxedRVE`'s, computed by it (the rotations stay).
+        min_stretch: smallest singular value of F supported (the candidates' reach).
+        force_tol: equilibrium when every net force is at most this times the mean contact
+            force, and every net moment this times the mean contact force times the mean
+            radius.
+        substep: the quasi-static path's longest substep in the right stretch (part of the
+            model: each substep is one increment of the contact law).
+
+    The contact law is :class:`~dolfinx_granular.FrictionalRVE`'s: k_n, k_t, the cap mu f_n,
+    sliding measured with lever arms r_i, r_j (:mod:`.contact_law`); W is the stored energy
+    sum [k_n e^2 / 2 + f_t^2 / (2 k_t)] / V, P and A per reference area (Pa), A = dP/dF at
+    fixed committed history (not symmetric where contacts slip).
+    """
+
+    dim = 2
+
+    def __init__(
+        self,
+        packing: Packing,
+        normal_stiffness: float,
+        tangential_stiffness: float,
+        friction: float,
+        min_stretch: float = 0.5,
+        force_tol: float = 1e-10,
+        substep: float = 1e-3,
+    ) -> None:
+        self._frictionless = RelaxedRVE(packing, normal_stiffness, min_stretch, force_tol)
+        kt = _parameter("tangential_stiffness", tangential_stiffness, " (N/m²)")
+        mu = _parameter("friction", friction, "")
+        if mu > 0.0 and kt == 0.0:
+            raise ValueError(
+                "tangential_stiffness must be > 0 where friction > 0 (a contact without a "
+                "tangential spring has no stick state); pass e.g. tangential_stiffness = "
+                "normal_stiffness"
+            )
+        step = to_float(substep, "substep")
+        if not (np.isfinite(step) and step > 0.0):
+            raise ValueError(f"substep must be a finite number > 0, got {substep!r}")
+        self.packing = packing
+        self.normal_stiffness = self._frictionless.normal_stiffness
+        self.tangential_stiffness = kt
+        self.friction = mu
+        self.min_stretch = self._frictionless.min_stretch
+        self.candidates = self._frictionless.candidates
+        self.cell = self._frictionless.cell
+        self.settings = Settings(force_tol=self._frictionless.settings.force_tol, substep=step)
+        self.springs = Springs(self.normal_stiffness, kt, mu, 1.0 / packing.area)
+
+    # -- states ----------------------------------------------------------------------------------
+
+    def initial_state(self, n: int) -> FrictionalRelaxedState:
+        """n points at F = I in the stress-free packing: no fluctuation, rotation or force."""
+        N = self.cell.n_disks
+        z = np.zeros
+        return FrictionalRelaxedState(
+            z((n, N, 2)), z((n, N)), np.tile(np.eye(2), (n, 1, 1)), z((n, N, 3, 4)), z(n),
+            z(n), z(n + 1, np.int64), z(0, np.int64), z(0), z(0, bool),
+        )  # fmt: skip
+
+    def _increment(self, state: FrictionalRelaxedState, q: int) -> Increment:
+        keys, forces, _ = state.contacts(q)
+        idx = self.cell.index_of(keys)
+        ft0 = np.zeros(self.cell.pi.shape[0])
+        ft0[idx] = forces
+        return Increment(state.F[q].copy(), state.w[q], state.theta[q], ft0)
+
+    # -- one point -------------------------------------------------------------------------------
+
+    def equilibrium(
+        self, F: np.ndarray, state: FrictionalRelaxedState, q: int, tangent: bool = True
+    ) -> tuple[Equilibrium, float]:
+        """Point q of ``state`` at F (2, 2) along its quasi-static path: its
+        :class:`~dolfinx_granular.laws.relaxed_friction.point.Equilibrium` and the energy
+        dissipated on the way (Pa). A committed F is not relaxed again."""
+        inc = self._increment(state, q)
+        if np.array_equal(F, state.F[q]):
+            return at_rest(self.cell, self.springs, F, inc, tangent), 0.0
+        dq = state.sensitivity[q]
+        return follow(self.cell, self.springs, F, inc, dq, self.settings, tangent)
+
+    def _frictionless_point(self, F, state, q, tangent):
+        """Point q by the frictionless relaxed RVE (mu = 0): ``(W, P, A, w, dq)``."""
+        one = RelaxedState(
+            state.w[q : q + 1], state.F[q : q + 1], state.fluctuation[q : q + 1],
+            np.zeros(1, bool), np.zeros(1, np.uint64), state.sensitivity[q : q + 1, :, :2],
+        )  # fmt: skip
+        W, P, A, new = self._frictionless._run(F[None], one, tangent)
+        dq = np.zeros((self.cell.n_disks, 3, 4))
+        dq[:, :2] = new.sensitivity[0]
+        return W[0], P[0], (A[0] if tangent else None), new.w[0], dq
+
+    # -- the law ---------------------------------------------------------------------------------
+
+    def _run(self, F, state, tangent, out=None):
+        F, single = as_batch(F)
+        n = F.shape[0]
+        if not isinstance(state, FrictionalRelaxedState):
+            raise TypeError(f"state must be a FrictionalRelaxedState, got {type(state).__name__}")
+        if state.n_points != n:
+            raise ValueError(f"state has {state.n_points} points, F has {n}")
+        W, P, A = output_buffers(n, tangent, out)
+        w, th = np.empty_like(state.w), state.theta.copy()
+        dq, D = np.empty_like(state.sensitivity), state.dissipation.copy()
+        keys, forces, sliding = [], [], []
+        for q in range(n):
+            try:
+                if self.friction == 0.0:
+                    W[q], P[q], a, w[q], dq[q] = self._frictionless_point(F[q], state, q, tangent)
+                    keys.append(np.zeros(0, np.int64))
+                    forces.append(np.zeros(0))
+                    sliding.append(np.zeros(0, bool))
+                else:
+                    eq, dissipated = self.equilibrium(F[q], state, q, tangent)
+                    W[q], P[q], a, w[q], th[q], dq[q] = (
+                        eq.W,
+                        eq.P,
+                        eq.A,
+                        eq.w,
+                        eq.theta,
+                        eq.sensitivity,
+                    )
+                    D[q] += dissipated
+                    k, f, slips = self._history(eq, state, q, F[q])
+                    keys.append(k)
+                    forces.append(f)
+                    sliding.append(slips)
+            except RelaxationError as err:
+                raise type(err)(f"point {q}: {err}", np.array([q])) from None
+            if tangent:
+                A[q] = a
+        moved = np.sqrt((np.einsum("qab,qnb->qna", F, w) ** 2).sum(axis=2).mean(axis=1))
+        off = np.zeros(n + 1, np.int64)
+        np.cumsum([k.size for k in keys], out=off[1:])
+        new = FrictionalRelaxedState(
+            w, th, F.copy(), dq, D, moved / float(self.packing.radii.mean()), off,
+            np.concatenate(keys) if keys else np.zeros(0, np.int64),
+            np.concatenate(forces) if forces else np.zeros(0),
+            np.concatenate(sliding) if sliding else np.zeros(0, bool),
+        )  # fmt: skip
+        if single:
+            return W[0], P[0], (A[0] if tangent else None), new
+        return W, P, A, new
+
+    def _history(self, eq: Equilibrium, state, q, F) -> tuple:
+        """``(keys, tangential forces, sliding)`` of the contacts of an equilibrium of point q
+        (at its committed F: the committed contacts, which slid in the increment to it)."""
+        s, c = eq.state, self.cell
+        on = np.flatnonzero(s.on)
+        keys = c.keys_of(c.pi[on], c.pj[on], np.asarray(c.shift)[on])
+        if np.array_equal(F, state.F[q]):
+            committed, _, slid = state.contacts(q)
+            pos = np.minimum(
+                np.searchsorted(committed, keys, sorter=np.argsort(committed)),
+                max(committed.size - 1, 0),
+            )
+            order = np.argsort(committed)
+            hit = committed.size > 0
+            sliding = np.zeros(on.size, bool)
+            if hit:
+                k = order[pos]
+                sliding = (committed[k] == keys) & slid[k]
+            return keys, s.ft[on].copy(), sliding
+        return keys, s.ft[on].copy(), s.status[on] == SLIP
+
+    def evaluate(self, F: ArrayLike, state: FrictionalRelaxedState, out: tuple | None = None):
+        """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F from the committed
+        ``state`` (left untouched)."""
+        return self._run(F, state, True, out)
+
+    def stress(self, F: ArrayLike, state: FrictionalRelaxedState, out: tuple | None = None):
+        """``(W, P, trial_state)`` without the tangent."""
+        if out is not None:
+            out = (out[0], out[1], None)
+        W, P, _, new = self._run(F, state, False, out)
+        return W, P, new
+
+    def cauchy(self, F: ArrayLike, state: FrictionalRelaxedState) -> np.ndarray:
+        """Cauchy stress (n, 2, 2): symmetric where every disk's moments balance."""
+        Fb, single = as_batch(F)
+        sigma, _ = push_forward(Fb, self._run(Fb, state, False)[1], None)
+        return sigma[0] if single else sigma
+
+    def spatial_tangent(self, F: ArrayLike, state: FrictionalRelaxedState) -> np.ndarray:
+        """Spatial tangent (n, 2, 2, 2, 2)."""
+        Fb, single = as_batch(F)
+        _, P, A, _ = self._run(Fb, state, True)
+        _, a = push_forward(Fb, P, A)
+        return a[0] if single else a
+
+    def small_strain_modulus(self) -> np.ndarray:
+        """The tangent (2, 2, 2, 2) at F = I from the initial state: every reference contact
+        sticks (its trial force 0 lies in its cone), condensed over the network."""
+        return self._run(np.eye(2), self.initial_state(1), True)[2]
+
+    # -- what a user reads -----------------------------------------------------------------------
+
+    def contacts(self, F: ArrayLike, state: FrictionalRelaxedState) -> ContactSet:
+        """The contacts (overlap > 0) of one point of ``state`` at F (2, 2) after its
+        increment, with ``tangential`` (the force on j along t = (-n_y, n_x), = -f_t; the
+        balance of forces takes it times R / d) and ``sliding``."""
+        F = np.asarray(F, dtype=np.float64)
+        if F.shape != (2, 2) or state.n_points != 1:
+            raise ValueError(
+                f"contacts() takes one F of shape (2, 2) and a one-point state, got F of shape "
+                f"{F.shape} and {state.n_points} points (state.take([i]) selects one)"
+            )
+        if self.friction == 0.0:
+            c = self._frictionless.contacts(F, self._frictionless_state(state))
+            zero = np.zeros(c.force.shape[0])
+            return ContactSet(c.pairs, c.shift, c.branch, c.overlap, c.force, zero, zero > 0)
+        eq = self.equilibrium(F, state, 0, False)[0]
+        s = eq.state
+        on = np.flatnonzero(s.on)
+        sliding = self._history(eq, state, 0, F)[2]
+        c = self.cell
+        return ContactSet(
+            pairs=np.stack([c.pi[on], c.pj[on]], axis=1).astype(np.int64),
+            shift=np.asarray(c.shift)[on],
+            branch=np.stack([s.lx[on], s.ly[on]], axis=1),
+            overlap=s.e[on],
+            force=self.normal_stiffness * s.e[on],
+            tangential=-s.ft[on],
+            sliding=sliding,
+        )
+
+    def _frictionless_state(self, state):
+        return RelaxedState(
+            state.w, state.F, state.fluctuation, np.zeros(state.n_points, bool),
+            np.zeros(state.n_points, np.uint64), state.sensitivity[:, :, :2],
+        )  # fmt: skip
+
+    def rotations(self, state: FrictionalRelaxedState) -> np.ndarray:
+        """(n, N) the disks' rotations (rad, counter-clockwise positive)."""
+        return np.array(state.theta)
+
+    def positions(self, F: ArrayLike, state: FrictionalRelaxedState) -> np.ndarray:
+        """(n, N, 2) relaxed centres in the current cell F [0, box) of ``state``'s points."""
+        return self._frictionless.positions(F, self._frictionless_state(state))

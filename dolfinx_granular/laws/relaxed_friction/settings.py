@@ -1,0 +1,34 @@
+"""The frictional relaxed RVE's micro solver and path: its tolerances and the substep."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class Settings:
+    """Tolerances of the micro solver and the length of the path's substeps.
+
+    Attributes:
+        force_tol: equilibrium when every disk's net force is at most this times the mean
+            contact force and its net moment at most this times the mean contact force times
+            the mean radius (or a few times the round-off of the contact forces, where that is
+            larger: overlaps below ~1e-5 of the radii).
+        max_iterations: Newton steps of one solve before the fallback takes over.
+        freeze_after: Newton steps after which the contacts' stick/slip statuses stop
+            changing (an active-set loop then releases those that break the Coulomb law).
+        fire_tol, fire_steps: the fallback (damped dynamics of the same increment) stops at this
+            net force, or fails after that many steps.
+        rattler_shift: least extra diagonal of a rattler's unknowns, relative to k_n / V.
+        substep: longest substep |U_k+1 - U_k| of the quasi-static path (the right stretch, in
+            Frobenius norm). With friction the path changes the answer: this is part of the
+            model (each substep is one backward-Euler increment of the contact law).
+    """
+
+    force_tol: float = 1e-10
+    max_iterations: int = 60
+    freeze_after: int = 12
+    fire_tol: float = 1e-5
+    fire_steps: int = 100_000
+    rattler_shift: float = 1e-8
+    substep: float = 1e-3

@@ -1,0 +1,148 @@
+"""The frictional relaxed cell's equations: the generalised forces of every disk, their
+Jacobian, the stress and the mixed derivatives, summed over the contacts
+(:mod:`~dolfinx_granular.laws.relaxed_friction.contact_law`).
+
+The unknowns of disk k are (w_k (2,), theta_k), numbered 3k, 3k + 1, 3k + 2; forces are
+divided by the cell's reference area V here (Pa per length, Pa), as the frictionless relaxed
+RVE's are. The Jacobian is written as coordinates (rows, cols, values), duplicates summed by
+the caller's sparse matrix.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .contact_law import OPEN, STICK, local, scratch
+
+#: how a contact enters the Jacobian (:func:`equations`)
+SKIPPED, POSITIVE, EXACT = 0, 1, 2
+
+
+@njit(cache=True)
+def balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, n_disks):
+    """The net force (N, 2) and moment (N,) on every disk in the current frame (N, N m per
+    unit thickness), the mean normal force over the contacts (N; 0 without one) and their
+    number."""
+    f = np.zeros((n_disks, 2))
+    M = np.zeros(n_disks)
+    total, count = 0.0, 0
+    for c in range(e.shape[0]):
+        if e[c] <= 0.0:
+            continue
+        i, j = pi[c], pj[c]
+        nx, ny = lx[c] / d[c], ly[c] / d[c]
+        fn = kn * e[c]
+        lever = R[c] / d[c]
+        fx = fn * nx + ft[c] * lever * ny  # on j: f_n n - f_t (R/d) t, t = (-n_y, n_x)
+        fy = fn * ny - ft[c] * lever * nx
+        f[j, 0] += fx
+        f[j, 1] += fy
+        f[i, 0] -= fx
+        f[i, 1] -= fy
+        M[i] += radii[i] * ft[c]
+        M[j] += radii[j] * ft[c]
+        total += fn
+        count += 1
+    return f, M, (total / count if count else 0.0), count
+
+
+@njit(cache=True)
+def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu,
+              inv_area, n_disks, mode, jacobian, rows, cols, vals):  # fmt: skip
+    """The gradient r (N, 3) of the incremental potential in (w, theta) (Pa per length; the
+    moments' rows in Pa), and the stress P (2, 2), over the contacts (e > 0).
+
+    With ``jacobian``, writes dr/dq as 36 coordinates per contact into ``rows``, ``cols``,
+    ``vals`` (>= 36 m,) and returns their number, by ``mode`` (m,) int8: EXACT contacts with
+    their exact derivatives, POSITIVE ones (touching a rattler) with their positive normal
+    part k_n (R/d) n n^T alone, SKIPPED ones not at all (r and P always hold every contact)."""
+    r = np.zeros((n_disks, 3))
+    P = np.zeros((2, 2))
+    out = scratch()
+    nnz = 0
+    for c in range(e.shape[0]):
+        if status[c] == OPEN:
+            continue
+        i, j = pi[c], pj[c]
+        local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
+              radii[i], radii[j], kn, kt, mu, jacobian and mode[c] == EXACT, out)  # fmt: skip
+        idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
+        for u in range(6):
+            r[idx[u] // 3, idx[u] % 3] += inv_area * out[0][u]
+        for a in range(4):
+            P[a // 2, a % 2] += inv_area * out[1][a]
+        if not jacobian or mode[c] == SKIPPED:
+            continue
+        K = out[2]
+        if mode[c] == POSITIVE:
+            _positive_part(F, lx[c], ly[c], d[c], R[c], kn, K)
+        for u in range(6):
+            for v in range(6):
+                rows[nnz], cols[nnz], vals[nnz] = idx[u], idx[v], inv_area * K[u, v]
+                nnz += 1
+    return r, P, nnz
+
+
+@njit(cache=True)
+def _positive_part(F, lx, ly, d, R, kn, K):
+    """K (6, 6) = B^T k_n (R/d) n n^T B (translations only): a contact at a rattler."""
+    nx, ny = lx / d, ly / d
+    a0 = F[0, 0] * nx + F[1, 0] * ny  # F^T n
+    a1 = F[0, 1] * nx + F[1, 1] * ny
+    v = np.array([-a0, -a1, 0.0, a0, a1, 0.0])
+    k = kn * R / d
+    for u in range(6):
+        for w in range(6):
+            K[u, w] = k * v[u] * v[w]
+
+
+@njit(cache=True)
+def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu, inv_area,
+          n_disks, use):  # fmt: skip
+    """``(K_FF (4, 4), K_Fq (4, 3N), K_qF (3N, 4))`` over the contacts ``use`` (m,) bool: dP/dF
+    at fixed (w, theta), dP/dq and dr/dF (F flattened row-major), per area."""
+    KFF = np.zeros((4, 4))
+    KFq = np.zeros((4, 3 * n_disks))
+    KqF = np.zeros((3 * n_disks, 4))
+    out = scratch()
+    for c in range(e.shape[0]):
+        if status[c] == OPEN or not use[c]:
+            continue
+        i, j = pi[c], pj[c]
+        local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
+              radii[i], radii[j], kn, kt, mu, True, out)  # fmt: skip
+        idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
+        for a in range(4):
+            for b in range(4):
+                KFF[a, b] += inv_area * out[3][a, b]
+            for u in range(6):
+                KFq[a, idx[u]] += inv_area * out[4][a, u]
+                KqF[idx[u], a] += inv_area * out[5][u, a]
+    return KFF, KFq, KqF
+
+
+@njit(cache=True)
+def energy(e, ft, status, kn, kt, inv_area):
+    """The stored energy sum [k_n e^2 / 2 + f_t^2 / (2 k_t)] / V (Pa) over the contacts."""
+    s = 0.0
+    for c in range(e.shape[0]):
+        if status[c] != OPEN:
+            s += 0.5 * kn * e[c] * e[c]
+            if kt > 0.0:
+                s += 0.5 * ft[c] * ft[c] / kt
+    return s * inv_area
+
+
+@njit(cache=True)
+def dissipation(ft, fstar, status, kt, inv_area):
+    """The energy dissipated by sliding over the increment, sum f_t (f* - f_t) / k_t / V (Pa):
+    the force times the slip (f* - f_t) / k_t; >= 0 where every slipping contact's trial force
+    lies outside the cone (the return map's)."""
+    s = 0.0
+    if kt == 0.0:
+        return s
+    for c in range(ft.shape[0]):
+        if status[c] != OPEN and status[c] != STICK:
+            s += ft[c] * (fstar[c] - ft[c]) / kt
+    return s * inv_area

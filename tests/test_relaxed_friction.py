@@ -1,0 +1,311 @@
+"""FrictionalRelaxedRVE: frictional disks with rotations in static equilibrium, the consistent
+condensed tangent.
+
+Each test checks one property against something computed another way: the contact law's
+derivatives and the tangent by central differences, the equilibrium by a brute-force loop over
+pairs and images, mu = 0 against the frictionless RelaxedRVE, a superposed rotation, a lattice."""
+
+from dolfinx_granular import (
+    FrictionalRelaxedRVE,
+    FrictionalRelaxedState,
+    HistoryLaw,
+    HistoryState,
+    RelaxedRVE,
+    generate_packing,
+)
+from dolfinx_granular.laws.relaxed_friction import contact_law, system
+from dolfinx_granular.laws.relaxed_friction.cell_state import Increment
+from dolfinx_granular.laws.relaxed_friction.tangent import condensation
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from helpers import hex_lattice
+
+K_N = 1e8
+#: a compression, then a shear under it (p / k_n ~ 1e-3 on the 70-disk packing)
+F_ONE = np.array([[0.99, 0.0], [0.0, 0.99]])
+F_TWO = np.array([[0.99, 0.004], [0.001, 0.992]])
+
+
+@pytest.fixture(scope="module")
+def packing():
+    return generate_packing(70, seed=1)
+
+
+@pytest.fixture(scope="module")
+def rve(packing):
+    return FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.3, force_tol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def sheared(rve):
+    """(W, P, A, state) at F_TWO from the committed state at F_ONE, and that state."""
+    committed = rve.evaluate(F_ONE, rve.initial_state(1))[3]
+    return rve.evaluate(F_TWO, committed), committed
+
+
+def test_it_is_a_history_law_with_a_history_state(rve):
+    assert isinstance(rve, HistoryLaw)
+    state = rve.initial_state(3)
+    assert isinstance(state, HistoryState) and state.n_points == 3
+
+
+# -- the contact law's derivatives ---------------------------------------------------------------
+
+
+def _equations(cell, F, w, th, inc, mu, kt, frozen, jacobian=False):
+    m = cell.pi.shape[0]
+    c = contact_law.return_map(
+        F, w, th, inc.F0, inc.w0, inc.th0, inc.ft0, cell.pi, cell.pj, cell.X, cell.Y, cell.R,
+        cell.radii, m, K_N, kt, mu, frozen,
+    )  # fmt: skip
+    size = 36 * m
+    rows, cols, vals = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
+    mode = np.full(m, 2, np.int8)
+    r, P, nnz = system.equations(
+        F, *c, cell.pi, cell.pj, cell.R, cell.radii, K_N, kt, mu, 1.0, cell.n_disks, mode,
+        jacobian, rows, cols, vals,
+    )  # fmt: skip
+    W = system.energy(c[5], c[6], c[8], K_N, kt, 1.0)
+    J = sp.coo_matrix((vals[:nnz], (rows[:nnz], cols[:nnz])), (r.size, r.size)).toarray()
+    return W, r.ravel(), P.ravel(), J, c
+
+
+@pytest.fixture(scope="module")
+def increment(rve):
+    """A cell and an increment to a random (w, theta) at F, with random committed forces."""
+    rng = np.random.default_rng(0)
+    cell, N = rve.cell, rve.cell.n_disks
+    F0 = np.array([[0.99, 0.003], [-0.002, 0.995]])
+    w0, th0 = 1e-3 * rng.standard_normal((N, 2)), 1e-2 * rng.standard_normal(N)
+    inc = Increment(F0, w0, th0, 1e3 * rng.standard_normal(cell.pi.shape[0]))
+    F = F0 + np.array([[-0.006, 0.004], [0.001, -0.005]])
+    w, th = w0 + 1e-4 * rng.standard_normal((N, 2)), th0 + 1e-3 * rng.standard_normal(N)
+    return cell, F, w, th, inc
+
+
+def _unknowns(N, k):
+    """(dw, dth) of unit size in unknown k (numbered 3 i + a)."""
+    dw, dth = np.zeros((N, 2)), np.zeros(N)
+    if k % 3 < 2:
+        dw[k // 3, k % 3] = 1.0
+    else:
+        dth[k // 3] = 1.0
+    return dw, dth
+
+
+@pytest.mark.parametrize("mu", [1e3, 0.3])
+def test_the_jacobian_and_mixed_terms_are_derivatives(increment, mu):
+    """dr/dq, dP/dF, dP/dq and dr/dF against central differences at frozen statuses (mu = 1e3:
+    all stick, then r = dW/dq and P = dW/dF too; mu = 0.3: some slip, non-symmetric)."""
+    cell, F, w, th, inc = increment
+    N, h = cell.n_disks, 1e-7
+    _, r, P, J, c = _equations(
+        cell, F, w, th, inc, mu, 0.7 * K_N, np.zeros(len(cell.pi), np.int8), True
+    )
+    status = c[8]
+    assert (status == contact_law.STICK).any()
+    assert (status == contact_law.SLIP).any() == (mu < 1)
+    frozen = status.copy()
+    dr, dW, dP = np.zeros((3 * N, 3 * N)), np.zeros(3 * N), np.zeros((4, 3 * N))
+    for k in range(3 * N):
+        dw, dth = _unknowns(N, k)
+        p = _equations(cell, F, w + h * dw, th + h * dth, inc, mu, 0.7 * K_N, frozen)
+        m = _equations(cell, F, w - h * dw, th - h * dth, inc, mu, 0.7 * K_N, frozen)
+        dW[k], dr[:, k], dP[:, k] = (
+            (p[0] - m[0]) / (2 * h),
+            (p[1] - m[1]) / (2 * h),
+            (p[2] - m[2]) / (2 * h),
+        )
+    assert np.abs(dr - J).max() <= 1e-7 * np.abs(J).max()
+    KFF, KFq, KqF = system.mixed(
+        F,
+        *c,
+        cell.pi,
+        cell.pj,
+        cell.R,
+        cell.radii,
+        K_N,
+        0.7 * K_N,
+        mu,
+        1.0,
+        N,
+        np.ones(len(c[0]), bool),
+    )
+    assert np.abs(dP - KFq).max() <= 1e-7 * np.abs(KFq).max()
+    dPdF, drdF, dWdF = np.zeros((4, 4)), np.zeros((3 * N, 4)), np.zeros(4)
+    for k in range(4):
+        dF = np.zeros(4)
+        dF[k] = h
+        p = _equations(cell, F + dF.reshape(2, 2), w, th, inc, mu, 0.7 * K_N, frozen)
+        m = _equations(cell, F - dF.reshape(2, 2), w, th, inc, mu, 0.7 * K_N, frozen)
+        dWdF[k], drdF[:, k], dPdF[:, k] = (
+            (p[0] - m[0]) / (2 * h),
+            (p[1] - m[1]) / (2 * h),
+            (p[2] - m[2]) / (2 * h),
+        )
+    assert np.abs(dPdF - KFF).max() <= 1e-7 * np.abs(KFF).max()
+    assert np.abs(drdF - KqF).max() <= 1e-7 * np.abs(KqF).max()
+    asym = np.abs(J - J.T).max() / np.abs(J).max()
+    if mu > 1:  # all stick: hyperelastic
+        assert np.abs(dW - r).max() <= 1e-7 * np.abs(r).max()
+        assert np.abs(dWdF - P).max() <= 1e-7 * np.abs(P).max()
+        assert asym <= 1e-14
+    else:
+        assert asym > 1e-3
+
+
+# -- the law --------------------------------------------------------------------------------------
+
+
+def test_without_friction_it_is_the_frictionless_relaxed_rve(packing):
+    frictional = FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.0)
+    frictionless = RelaxedRVE(packing, K_N)
+    F = np.stack([F_ONE, F_TWO])
+    W, P, A, state = frictional.evaluate(F, frictional.initial_state(2))
+    W0, P0, A0, state0 = frictionless.evaluate(F, frictionless.initial_state(2))
+    for a, b in ((W, W0), (P, P0), (A, A0), (state.w, state0.w)):
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+    assert not state.theta.any() and state.keys.size == 0 and not state.dissipation.any()
+    c = frictional.contacts(F_TWO, state.take([1]))
+    assert not c.tangential.any() and not c.sliding.any()
+
+
+def _brute_force_balance(packing, rve, F, state):
+    """Net force (N, 2) and moment (N,) of every disk from the contact set, every pair and
+    image found by brute force (and checked to be in the set), and the mean normal force."""
+    c = rve.contacts(F, state)
+    x = rve.positions(F, state)[0]
+    a = F @ np.diag(packing.box)
+    r = packing.radii
+    known = {
+        (int(i), int(j), int(s0), int(s1)): k
+        for k, ((i, j), (s0, s1)) in enumerate(zip(c.pairs, c.shift))
+    }
+    f, M, found = np.zeros_like(x), np.zeros(len(r)), 0
+    wraps = np.floor((packing.centers + state.w[0]) / packing.box).astype(int)
+    for i in range(len(r)):
+        for j in range(i, len(r)):
+            for s0 in (-1, 0, 1):
+                for s1 in (-1, 0, 1):
+                    l = x[j] + a @ [s0, s1] - x[i]
+                    d = np.linalg.norm(l)
+                    if (i == j and s0 == s1 == 0) or d >= r[i] + r[j]:
+                        continue
+                    # the image in the candidates' convention: shift of the unwrapped centres
+                    sh = (s0 + wraps[j, 0] - wraps[i, 0], s1 + wraps[j, 1] - wraps[i, 1])
+                    k = known[(i, j) + sh]
+                    found += 1
+                    n = l / d
+                    t = np.array([-n[1], n[0]])
+                    force = c.force[k] * n + c.tangential[k] * (r[i] + r[j]) / d * t
+                    f[j] += force
+                    f[i] -= force
+                    M[i] -= r[i] * c.tangential[k]
+                    M[j] -= r[j] * c.tangential[k]
+    assert found == len(c.force)
+    return f, M, c.force.mean()
+
+
+def test_every_disk_is_in_equilibrium_of_forces_and_moments(packing, rve, sheared):
+    (_, P, _, state), _ = sheared
+    f, M, mean = _brute_force_balance(packing, rve, F_TWO, state)
+    assert np.abs(f).max() <= 1e-9 * mean
+    assert np.abs(M).max() <= 1e-9 * mean * packing.radii.mean()
+    sigma = P @ F_TWO.T / np.linalg.det(F_TWO)
+    assert abs(sigma[0, 1] - sigma[1, 0]) <= 1e-9 * np.abs(sigma).max()  # moments balance
+
+
+def test_every_contact_obeys_coulomb(rve, sheared):
+    (_, _, _, state), _ = sheared
+    c = rve.contacts(F_TWO, state)
+    cap = rve.friction * c.force
+    assert np.all(np.abs(c.tangential) <= cap * (1 + 1e-12))
+    assert c.sliding.any() and (~c.sliding).any()
+    assert np.allclose(np.abs(c.tangential[c.sliding]), cap[c.sliding], rtol=1e-12)
+
+
+def test_the_dissipation_of_every_increment_is_not_negative(rve):
+    state = rve.initial_state(1)
+    for k in range(1, 6):
+        F = np.array([[0.99, 0.002 * k], [0.0, 0.99 - 0.001 * k]])
+        new = rve.stress(F, state)[2]
+        assert new.dissipation[0] >= state.dissipation[0]
+        state = new
+    assert state.dissipation[0] > 0.0
+
+
+def test_the_tangent_is_the_derivative_of_the_stress_within_a_substep(rve, sheared):
+    """A at F against central differences of P from the same committed state: F within one
+    substep of it, no contact changes status."""
+    _, committed = sheared
+    F = F_ONE + np.array([[2e-4, 3e-4], [-1e-4, -2e-4]])
+    _, P, A, new = rve.evaluate(F, committed)
+    status = rve.contacts(F, committed).sliding
+    h = 1e-7
+    dP = np.zeros((2, 2, 2, 2))
+    for a in range(2):
+        for b in range(2):
+            dF = np.zeros((2, 2))
+            dF[a, b] = h
+            Pp = rve.stress(F + dF, committed)[1]
+            Pm = rve.stress(F - dF, committed)[1]
+            assert np.array_equal(rve.contacts(F + dF, committed).sliding, status)
+            dP[:, :, a, b] = (Pp - Pm) / (2 * h)
+    assert status.any()
+    assert np.abs(dP - A).max() <= 1e-5 * np.abs(A).max()
+    A4 = A.reshape(4, 4)
+    assert np.abs(A4 - A4.T).max() > 1e-4 * np.abs(A4).max()  # slip: not symmetric
+
+
+def test_a_superposed_rotation_rotates_everything(rve, sheared):
+    (W, P, A, state), committed = sheared
+    for alpha in (0.3, -np.pi + 0.01):
+        Q = np.array([[np.cos(alpha), -np.sin(alpha)], [np.sin(alpha), np.cos(alpha)]])
+        Wr, Pr, Ar, rotated = rve.evaluate(Q @ F_TWO, committed)
+        assert abs(Wr - W) <= 1e-9 * W
+        assert np.abs(Pr - Q @ P).max() <= 1e-9 * np.abs(P).max()
+        assert np.abs(Ar - np.einsum("ai,ck,ibkd->abcd", Q, Q, A)).max() <= 1e-8 * np.abs(A).max()
+        turn = rotated.theta - state.theta
+        assert np.abs(np.angle(np.exp(1j * (turn - alpha)))).max() <= 1e-9
+        assert np.allclose(
+            np.sort(rotated.force),
+            np.sort(state.force),
+            rtol=1e-8,
+            atol=1e-9 * np.abs(state.force).max(),
+        )
+
+
+def test_a_triangular_lattice_does_not_move():
+    """No fluctuation; every disk turns alike, with the lattice's mean branch rotation (F's
+    polar rotation to first order)."""
+    lattice = hex_lattice(6, 6, overlap=1e-3)
+    rve = FrictionalRelaxedRVE(lattice, K_N, K_N, friction=0.5)
+    F = np.array([[0.999, 0.0005], [0.0002, 0.998]])
+    _, P, _, state = rve.evaluate(F, rve.initial_state(1))
+    assert np.abs(state.w).max() <= 1e-12
+    polar = np.arctan2(F[1, 0] - F[0, 1], F[0, 0] + F[1, 1])
+    assert np.ptp(state.theta) <= 1e-14
+    assert abs(state.theta[0, 0] - polar) <= 1e-3 * abs(polar)
+
+
+def test_the_state_round_trips_and_selects_points(rve, sheared):
+    (_, _, _, state), committed = sheared
+    both = FrictionalRelaxedState.concatenate([committed, state])
+    assert both.take([1]).equals(state) and both.take([0]).equals(committed)
+    assert FrictionalRelaxedState.from_arrays(both.to_arrays()).equals(both)
+    bad = both.to_arrays()
+    bad["offsets"] = bad["offsets"][:-1]
+    with pytest.raises(ValueError, match="offsets"):
+        FrictionalRelaxedState.from_arrays(bad)
+
+
+def test_a_rotation_nothing_resists_does_not_change_the_tangent(rve, sheared):
+    """The diagonal of a rotation no sticking contact holds (a rattler's, a disk whose contacts
+    all slip) is arbitrary: scaled by 1e3, P and A stay to round-off."""
+    (_, P, A, state), committed = sheared
+    eq, _ = rve.equilibrium(F_TWO, committed, 0)
+    A2, dq2 = condensation(rve.cell, rve.springs, F_TWO, eq.state, free_rotation=1e3)
+    assert np.abs(A2 - A).max() <= 1e-10 * np.abs(A).max()
