@@ -10,12 +10,13 @@ import numpy as np
 from numba import njit
 
 from ..relaxed.cell import Cell
-from ..relaxed.contact_state import non_rattlers
-from .contact_law import FREE, OPEN, SLIP, STICK, return_map
-from .system import EXACT, POSITIVE, balance, equations
+from ..relaxed.contact_state import contact_state, non_rattlers
+from .contact_law import OPEN, SLIP, STICK, return_map
+from .system import balance, equations
 
-#: a disk needs this many contacts with the other non-rattlers to be no rattler (with friction
-#: two contacts can hold a disk: their forces along the chord between them)
+#: a disk needs this many contacts with the other non-rattlers to be no rattler: with friction
+#: two contacts can hold a disk, with forces along the chord between them (while that chord
+#: lies in both cones)
 MIN_CONTACTS = 2
 #: equilibrium also within this many times the round-off of the contact forces (as the
 #: frictionless relaxed RVE's :data:`~dolfinx_granular.laws.relaxed.newton.RESOLVED`)
@@ -53,7 +54,7 @@ class Increment:
 
 
 class CellState:
-    """The cell at (F, w, theta) after the increment ``inc``, statuses ``frozen`` (M,) int8
+    """The cell at (F, w, theta) after the increment ``inc``
     (:func:`~dolfinx_granular.laws.relaxed_friction.contact_law.return_map`).
 
     Attributes:
@@ -65,16 +66,17 @@ class CellState:
         P: (2, 2) the stress (Pa).
     """
 
-    def __init__(self, cell: Cell, springs: Springs, F, w, th, inc: Increment, frozen) -> None:
+    def __init__(self, cell: Cell, springs: Springs, F, w, th, inc: Increment) -> None:
         self.m = m = cell.visited(F, w)
         ft0 = inc.forces(cell.pi.shape[0])
         sp = springs
+        e = contact_state(F, w, cell.pi, cell.pj, cell.X, cell.Y, cell.R, m)[5]
+        self.keep = non_rattlers(cell.pi, cell.pj, e, cell.n_disks, MIN_CONTACTS)
         self.qx, self.qy, self.lx, self.ly, self.d, self.e, self.ft, self.fstar, self.status = (
             return_map(F, w, th, inc.F0, inc.w0, inc.th0, ft0, cell.pi, cell.pj, cell.X, cell.Y,
-                       cell.R, cell.radii, m, sp.kn, sp.kt, sp.mu, _frozen(frozen, m))
+                       cell.R, cell.radii, m, sp.kn, sp.kt, sp.mu, self.keep)
         )  # fmt: skip
         self.on = self.status != OPEN
-        self.keep = non_rattlers(cell.pi, cell.pj, self.e, cell.n_disks, MIN_CONTACTS)
         self.network = self.on & self.keep[cell.pi[:m]] & self.keep[cell.pj[:m]]
         self.f, self.M, self.mean_force, self.count = balance(
             cell.pi, cell.pj, self.lx, self.ly, self.d, self.e, self.ft, cell.R, cell.radii,
@@ -96,9 +98,20 @@ class CellState:
         )  # fmt: skip
         return r, P, (rows[:nnz], cols[:nnz], vals[:nnz])
 
-    def newton_mode(self) -> np.ndarray:
-        """(m,) int8: exact between non-rattlers, the positive part at a rattler."""
-        return np.where(self.network, EXACT, POSITIVE).astype(np.int8)
+    def held_rotations(self, cell: Cell) -> np.ndarray:
+        """(N,) disks with a sticking contact in the network: their rotation has stiffness."""
+        held = np.zeros(cell.n_disks, bool)
+        stick = self.network & (self.status == STICK)
+        held[cell.pi[: self.m][stick]] = True
+        held[cell.pj[: self.m][stick]] = True
+        return held
+
+    def near_edge(self, springs: Springs, band: float) -> np.ndarray:
+        """(m,) sticking or slipping contacts whose trial force lies within ``band`` of their
+        cap from the cone's edge."""
+        cap = springs.mu * springs.kn * self.e
+        on = (self.status == STICK) | (self.status == SLIP)
+        return on & (np.abs(np.abs(self.fstar) - cap) <= band * cap)
 
     def residual(self, cell: Cell) -> tuple[float, float]:
         """``(residual, floor)``: the larger of the largest net force over the mean contact
@@ -111,27 +124,6 @@ class CellState:
         mean_e = self.e[self.on].mean()
         floor = RESOLVED * np.finfo(float).eps * cell.R[: self.m][self.on].mean() / mean_e
         return max(f, M), floor
-
-    def statuses(self) -> np.ndarray:
-        """(m,) int8 the statuses to freeze: STICK, SLIP, or FREE where open."""
-        return np.where(self.on, self.status, FREE).astype(np.int8)
-
-    def inadmissible(self, springs: Springs) -> np.ndarray:
-        """(m,) contacts whose forced status breaks the Coulomb law: a stick beyond the cone,
-        or a slip whose trial force lies inside it (it would dissipate a negative energy)."""
-        cap = springs.mu * springs.kn * np.maximum(self.e, 0.0)
-        beyond = (self.status == STICK) & (np.abs(self.fstar) > cap)
-        inside = (self.status == SLIP) & (np.abs(self.fstar) < cap)
-        return beyond | inside
-
-
-def _frozen(frozen, m):
-    """``frozen`` (>= m,) or free statuses, as the first m int8."""
-    if frozen is None:
-        return np.zeros(m, np.int8)
-    if frozen.shape[0] < m:
-        frozen = np.concatenate([frozen, np.zeros(m - frozen.shape[0], np.int8)])
-    return np.ascontiguousarray(frozen[:m])
 
 
 @njit(cache=True)

@@ -41,10 +41,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-#: a contact's status in :func:`return_map`
-OPEN, STICK, SLIP = 0, 1, 2
-#: a contact's status forced by the solver (:func:`return_map`'s ``frozen``)
-FREE = 0
+#: a contact's status in :func:`return_map` (RATTLING: it touches a rattler, and carries no
+#: tangential force: a rattler's contacts carry no force at all in equilibrium)
+OPEN, STICK, SLIP, RATTLING = 0, 1, 2, 3
 
 
 @njit(cache=True)
@@ -70,16 +69,15 @@ def sliding(F, w, th, F0, w0, th0, i, j, X, Y, ri, rj, lx, ly):
 
 
 @njit(cache=True)
-def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu, frozen):
+def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu, keep):
     """The contacts of the first m candidates at (F, w, theta) after the increment from the
     committed (F0, w0, theta0) with tangential forces ft0 (>= m,) (N; zero for a new contact).
 
-    ``frozen`` (m,) int8: FREE (the return map decides), STICK or SLIP (forced; an open
-    candidate stays open).
+    A contact with a disk not in ``keep`` (N,) bool (a rattler) is RATTLING.
 
     Returns:
         ``(qx, qy, lx, ly, d, e, ft, fstar, status)``, each (m,): the branches, the overlap, the
-        new tangential force f_t and the trial f* (N), and OPEN / STICK / SLIP.
+        new tangential force f_t and the trial f* (N), and OPEN / STICK / SLIP / RATTLING.
     """
     qx, qy, lx, ly = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     d, e = np.empty(m), np.empty(m)
@@ -96,14 +94,14 @@ def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
         e[c] = R[c] - d[c]
         if e[c] <= 0.0:
             continue
+        if not (keep[i] and keep[j]):
+            status[c] = RATTLING
+            continue
         ds = sliding(F, w, th, F0, w0, th0, i, j, X[c], Y[c], radii[i], radii[j], a, b)
         fs = ft0[c] + kt * ds
         cap = mu * kn * e[c]
         fstar[c] = fs
-        stick = abs(fs) <= cap and cap > 0.0  # mu = 0: never sticks
-        if frozen[c] != FREE:
-            stick = frozen[c] == STICK
-        if stick:
+        if abs(fs) <= cap and cap > 0.0:  # (mu = 0: never sticks)
             ft[c], status[c] = fs, STICK
         else:
             ft[c], status[c] = (cap if fs >= 0.0 else -cap), SLIP
@@ -162,8 +160,11 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
             df[u] = kt * s[u]
         for u in range(4):
             dfF[u] = kt * sF[u]
+    elif status == RATTLING:
+        df[:] = 0.0
+        dfF[:] = 0.0
     else:
-        k = mu * kn if fstar >= 0.0 else -mu * kn
+        k = mu * kn if ft >= 0.0 else -mu * kn  # (f_t = +-mu f_n: its sign is the slip's)
         for u in range(6):
             df[u] = k * de[u]
         for u in range(4):

@@ -51,8 +51,10 @@ class FrictionalRelaxedRVE:
         force_tol: equilibrium when every net force is at most this times the mean contact
             force, and every net moment this times the mean contact force times the mean
             radius.
-        substep: the quasi-static path's longest substep in the right stretch (part of the
-            model: each substep is one increment of the contact law).
+        substep: the quasi-static path's longest substep in the right stretch; substeps are
+            also at most a quarter of the mean overlap over the mean radius sum (part of the
+            model: each substep is one increment of the contact law,
+            :class:`~dolfinx_granular.laws.relaxed_friction.settings.Settings`).
 
     The contact law is :class:`~dolfinx_granular.FrictionalRVE`'s: k_n, k_t, the cap mu f_n,
     sliding measured with lever arms r_i, r_j (:mod:`.contact_law`); W is the stored energy

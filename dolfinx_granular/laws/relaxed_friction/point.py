@@ -11,13 +11,13 @@ rotations also turn with F's polar rotation).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..relaxed.cell import Cell
-from ..relaxed.errors import RelaxationError
-from ..relaxed.path import stretches_between
+from ..relaxed.errors import RelaxationError, RigidityLostError
+from ..relaxed.path import stretch, stretches_between
 from .cell_state import CellState, Increment, Springs
 from .contact_law import STICK
 from .fire import fire
@@ -25,6 +25,9 @@ from .newton import Counts, solve
 from .settings import Settings
 from .system import dissipation, energy
 from .tangent import condensation
+
+#: halvings of an increment where Newton fails, before FIRE (a substep / 2^HALVINGS)
+HALVINGS = 4
 
 
 @dataclass
@@ -66,24 +69,48 @@ def predicted(w, th, dq, Fc, F):
 
 
 def relax(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settings,
-          tangent: bool) -> Equilibrium:  # fmt: skip
-    """The equilibrium of the increment from ``inc`` to F (2, 2): Newton from the predicted
-    start, then from the committed positions turned with F, then FIRE from there and Newton."""
+          tangent: bool, depth: int = 0) -> tuple[Equilibrium, float]:  # fmt: skip
+    """The equilibrium of the increment from ``inc`` to F (2, 2) and the energy dissipated
+    (Pa): Newton from the predicted start. Where it fails, the increment is halved (in the
+    right stretch: the path through the midpoint, its history committed there), up to
+    :data:`HALVINGS` times; at the last halving, FIRE relaxes the cell from the predicted start
+    to ``settings.fire_tol`` and Newton goes on from there (then FIRE to a thousandth of that,
+    then to the equilibrium itself)."""
     counts = Counts()
-    starts = [predicted(inc.w0, inc.th0, dq, inc.F0, F)]
-    if dq.any():
-        starts.append(predicted(inc.w0, inc.th0, np.zeros_like(dq), inc.F0, F))
-    for w, th in starts:
+    w, th = predicted(inc.w0, inc.th0, dq, inc.F0, F)
+    try:
+        eq = finish(cell, springs, F, *solve(cell, springs, F, w, th, inc, settings, counts),
+                    counts, tangent)  # fmt: skip
+        return eq, eq.dissipated
+    except RigidityLostError:
+        raise
+    except RelaxationError:
+        pass
+    if depth < HALVINGS:
+        mid = 0.5 * (stretch(inc.F0) + stretch(F))
+        first, dissipated = relax(cell, springs, mid, inc, dq, settings, True, depth + 1)
+        inc, dq = committed(cell, first, mid), first.sensitivity
+        eq, more = relax(cell, springs, F, inc, dq, settings, tangent, depth + 1)
+        return eq, dissipated + more
+    for tol in (settings.fire_tol, 1e-3 * settings.fire_tol):
+        w, th, steps = fire(cell, springs, F, w, th, inc, replace(settings, fire_tol=tol))
+        counts.fire_steps += steps
         try:
-            w, th, s, residual = solve(cell, springs, F, w, th, inc, settings, counts)
-            break
+            found = solve(cell, springs, F, w, th, inc, settings, counts)
+        except RigidityLostError:
+            raise
         except RelaxationError:
             continue
-    else:
-        w, th, steps = fire(cell, springs, F, *starts[-1], inc, settings)
-        counts.fire_steps = steps
-        w, th, s, residual = solve(cell, springs, F, w, th, inc, settings, counts)
-    return finish(cell, springs, F, w, th, s, residual, counts, tangent)
+        eq = finish(cell, springs, F, *found, counts, tangent)
+        return eq, eq.dissipated
+    # FIRE to the equilibrium itself: Newton only checks it
+    w, th, steps = fire(
+        cell, springs, F, w, th, inc, replace(settings, fire_tol=settings.force_tol)
+    )
+    counts.fire_steps += steps
+    s = CellState(cell, springs, F, w, th, inc)
+    eq = finish(cell, springs, F, w, th, s, s.residual(cell)[0], counts, tangent)
+    return eq, eq.dissipated
 
 
 def finish(cell, springs, F, w, th, s, residual, counts, tangent) -> Equilibrium:
@@ -100,7 +127,7 @@ def finish(cell, springs, F, w, th, s, residual, counts, tangent) -> Equilibrium
 def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> Equilibrium:
     """The committed state itself (F = F0): nothing moves, every contact's trial force is its
     committed one (a contact at the cone sticks there)."""
-    s = CellState(cell, springs, F, inc.w0, inc.th0, inc, None)
+    s = CellState(cell, springs, F, inc.w0, inc.th0, inc)
     residual, _ = s.residual(cell)
     return finish(cell, springs, F, inc.w0, inc.th0, s, residual, Counts(), tangent)
 
@@ -119,12 +146,27 @@ def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settin
     """The equilibrium at F reached from ``inc`` along the quasi-static path, and the energy
     dissipated on the way (Pa)."""
     dissipated = 0.0
-    for Uk in stretches_between(inc.F0, F, settings.substep):
-        eq = relax(cell, springs, Uk, inc, dq, settings, True)
-        dissipated += eq.dissipated
+    for Uk in stretches_between(inc.F0, F, substep(cell, springs, inc, F, settings)):
+        eq, more = relax(cell, springs, Uk, inc, dq, settings, True)
+        dissipated += more
         inc, dq = committed(cell, eq, Uk), eq.sensitivity
-    eq = relax(cell, springs, F, inc, dq, settings, tangent)
-    return eq, dissipated + eq.dissipated
+    eq, more = relax(cell, springs, F, inc, dq, settings, tangent)
+    return eq, dissipated + more
+
+
+def substep(cell: Cell, springs: Springs, inc: Increment, F, settings: Settings) -> float:
+    """The path's longest substep from the committed state ``inc`` to F: ``settings.substep``,
+    and ``settings.substep_overlap`` times the mean overlap over the mean radius sum (the
+    larger of the committed state's and of its positions carried to F: a stress-free start
+    takes the target's)."""
+    ratio = 0.0
+    for G in (inc.F0, F):
+        s = CellState(cell, springs, G, inc.w0, inc.th0, inc)
+        if s.on.any():
+            ratio = max(ratio, float(s.e[s.on].mean() / cell.R[: s.m][s.on].mean()))
+    if ratio == 0.0:
+        return settings.substep
+    return min(settings.substep, settings.substep_overlap * ratio)
 
 
 def sticking(eq: Equilibrium) -> np.ndarray:

@@ -20,15 +20,20 @@ class Settings:
         fire_tol, fire_steps: the fallback (damped dynamics of the same increment) stops at this
             net force, or fails after that many steps.
         rattler_shift: least extra diagonal of a rattler's unknowns, relative to k_n / V.
-        substep: longest substep |U_k+1 - U_k| of the quasi-static path (the right stretch, in
-            Frobenius norm). With friction the path changes the answer: this is part of the
-            model (each substep is one backward-Euler increment of the contact law).
+        substep, substep_overlap: the quasi-static path's substeps |U_k+1 - U_k| (the right
+            stretch, Frobenius norm) are at most ``substep``, and at most ``substep_overlap``
+            times the mean overlap over the mean radius sum (of the committed state or, if
+            larger, of its positions carried affinely to the new F): a strain of the overlaps'
+            order changes every contact's force by its own size. With
+            friction the path changes the answer: this is part of the model (each substep is
+            one backward-Euler increment of the contact law).
     """
 
     force_tol: float = 1e-10
     max_iterations: int = 60
     freeze_after: int = 12
     fire_tol: float = 1e-5
-    fire_steps: int = 100_000
+    fire_steps: int = 20_000
     rattler_shift: float = 1e-8
     substep: float = 1e-3
+    substep_overlap: float = 0.25

@@ -16,7 +16,7 @@ from numba import njit
 from .contact_law import OPEN, STICK, local, scratch
 
 #: how a contact enters the Jacobian (:func:`equations`)
-SKIPPED, POSITIVE, EXACT = 0, 1, 2
+SKIPPED, EXACT = 0, 2
 
 
 @njit(cache=True)
@@ -55,8 +55,7 @@ def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, 
 
     With ``jacobian``, writes dr/dq as 36 coordinates per contact into ``rows``, ``cols``,
     ``vals`` (>= 36 m,) and returns their number, by ``mode`` (m,) int8: EXACT contacts with
-    their exact derivatives, POSITIVE ones (touching a rattler) with their positive normal
-    part k_n (R/d) n n^T alone, SKIPPED ones not at all (r and P always hold every contact)."""
+    their exact derivatives, SKIPPED ones not at all (r and P always hold every contact)."""
     r = np.zeros((n_disks, 3))
     P = np.zeros((2, 2))
     out = scratch()
@@ -75,26 +74,11 @@ def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, 
         if not jacobian or mode[c] == SKIPPED:
             continue
         K = out[2]
-        if mode[c] == POSITIVE:
-            _positive_part(F, lx[c], ly[c], d[c], R[c], kn, K)
         for u in range(6):
             for v in range(6):
                 rows[nnz], cols[nnz], vals[nnz] = idx[u], idx[v], inv_area * K[u, v]
                 nnz += 1
     return r, P, nnz
-
-
-@njit(cache=True)
-def _positive_part(F, lx, ly, d, R, kn, K):
-    """K (6, 6) = B^T k_n (R/d) n n^T B (translations only): a contact at a rattler."""
-    nx, ny = lx / d, ly / d
-    a0 = F[0, 0] * nx + F[1, 0] * ny  # F^T n
-    a1 = F[0, 1] * nx + F[1, 1] * ny
-    v = np.array([-a0, -a1, 0.0, a0, a1, 0.0])
-    k = kn * R / d
-    for u in range(6):
-        for w in range(6):
-            K[u, w] = k * v[u] * v[w]
 
 
 @njit(cache=True)

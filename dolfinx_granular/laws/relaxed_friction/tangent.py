@@ -37,7 +37,7 @@ def condensation(
         cell.R, cell.radii, sp.kn, sp.kt, sp.mu, sp.inv_area, cell.n_disks, s.network,
     )  # fmt: skip
     try:
-        lu, _, held = factorise(cell, springs, F, s, True, free_rotation=free_rotation)
+        lu, held = factorise(cell, springs, F, s, True, free_rotation=free_rotation)
     except RuntimeError:
         raise RigidityLostError("the network's stiffness (one disk pinned) is singular") from None
     KqF[held] = 0.0
@@ -45,4 +45,8 @@ def condensation(
     if not np.isfinite(X).all():
         raise RigidityLostError("the network's stiffness (one disk pinned) is singular")
     A = (KFF - KFq @ X).reshape(2, 2, 2, 2)
-    return A, -X.reshape(cell.n_disks, 3, 4)
+    dq = -X.reshape(cell.n_disks, 3, 4)
+    # a rotation no sticking contact holds is not set by F (its column of K_qq is zero, its
+    # entry of X scales with the arbitrary diagonal): no predictor for it
+    dq[~s.held_rotations(cell), 2] = 0.0
+    return A, dq
