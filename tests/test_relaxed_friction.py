@@ -59,7 +59,7 @@ def _equations(cell, F, w, th, inc, mu, kt, jacobian=False):
     m = cell.pi.shape[0]
     c = contact_law.return_map(
         F, w, th, inc.F0, inc.w0, inc.th0, inc.ft0, cell.pi, cell.pj, cell.X, cell.Y, cell.R,
-        cell.radii, m, K_N, kt, mu, np.ones(cell.n_disks, bool),
+        cell.radii, m, K_N, kt, mu,
     )  # fmt: skip
     size = 36 * m
     rows, cols, vals = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)

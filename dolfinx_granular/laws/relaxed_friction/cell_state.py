@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from ..relaxed.cell import Cell
-from ..relaxed.contact_state import contact_state, non_rattlers
+from ..relaxed.contact_state import non_rattlers
 from .contact_law import OPEN, SLIP, STICK, return_map
 from .system import balance, equations
 
@@ -70,13 +70,12 @@ class CellState:
         self.m = m = cell.visited(F, w)
         ft0 = inc.forces(cell.pi.shape[0])
         sp = springs
-        e = contact_state(F, w, cell.pi, cell.pj, cell.X, cell.Y, cell.R, m)[5]
-        self.keep = non_rattlers(cell.pi, cell.pj, e, cell.n_disks, MIN_CONTACTS)
         self.qx, self.qy, self.lx, self.ly, self.d, self.e, self.ft, self.fstar, self.status = (
             return_map(F, w, th, inc.F0, inc.w0, inc.th0, ft0, cell.pi, cell.pj, cell.X, cell.Y,
-                       cell.R, cell.radii, m, sp.kn, sp.kt, sp.mu, self.keep)
+                       cell.R, cell.radii, m, sp.kn, sp.kt, sp.mu)
         )  # fmt: skip
         self.on = self.status != OPEN
+        self.keep = non_rattlers(cell.pi, cell.pj, self.e, cell.n_disks, MIN_CONTACTS)
         self.network = self.on & self.keep[cell.pi[:m]] & self.keep[cell.pj[:m]]
         self.f, self.M, self.mean_force, self.count = balance(
             cell.pi, cell.pj, self.lx, self.ly, self.d, self.e, self.ft, cell.R, cell.radii,

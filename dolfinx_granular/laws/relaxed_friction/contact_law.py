@@ -41,9 +41,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-#: a contact's status in :func:`return_map` (RATTLING: it touches a rattler, and carries no
-#: tangential force: a rattler's contacts carry no force at all in equilibrium)
-OPEN, STICK, SLIP, RATTLING = 0, 1, 2, 3
+#: a contact's status in :func:`return_map`
+OPEN, STICK, SLIP = 0, 1, 2
 
 
 @njit(cache=True)
@@ -69,15 +68,13 @@ def sliding(F, w, th, F0, w0, th0, i, j, X, Y, ri, rj, lx, ly):
 
 
 @njit(cache=True)
-def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu, keep):
+def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu):
     """The contacts of the first m candidates at (F, w, theta) after the increment from the
     committed (F0, w0, theta0) with tangential forces ft0 (>= m,) (N; zero for a new contact).
 
-    A contact with a disk not in ``keep`` (N,) bool (a rattler) is RATTLING.
-
     Returns:
         ``(qx, qy, lx, ly, d, e, ft, fstar, status)``, each (m,): the branches, the overlap, the
-        new tangential force f_t and the trial f* (N), and OPEN / STICK / SLIP / RATTLING.
+        new tangential force f_t and the trial f* (N), and OPEN / STICK / SLIP.
     """
     qx, qy, lx, ly = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     d, e = np.empty(m), np.empty(m)
@@ -93,9 +90,6 @@ def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
         d[c] = np.sqrt(a * a + b * b)
         e[c] = R[c] - d[c]
         if e[c] <= 0.0:
-            continue
-        if not (keep[i] and keep[j]):
-            status[c] = RATTLING
             continue
         ds = sliding(F, w, th, F0, w0, th0, i, j, X[c], Y[c], radii[i], radii[j], a, b)
         fs = ft0[c] + kt * ds
@@ -160,9 +154,6 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
             df[u] = kt * s[u]
         for u in range(4):
             dfF[u] = kt * sF[u]
-    elif status == RATTLING:
-        df[:] = 0.0
-        dfF[:] = 0.0
     else:
         k = mu * kn if ft >= 0.0 else -mu * kn  # (f_t = +-mu f_n: its sign is the slip's)
         for u in range(6):

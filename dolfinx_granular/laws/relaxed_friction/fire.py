@@ -11,9 +11,8 @@ import numpy as np
 from numba import njit
 
 from ..relaxed.cell import Cell
-from ..relaxed.contact_state import contact_state, non_rattlers
 from ..relaxed.errors import RelaxationError, RigidityLostError
-from .cell_state import MIN_CONTACTS, Increment, Springs
+from .cell_state import Increment, Springs
 from .contact_law import return_map
 from .settings import Settings
 from .system import balance
@@ -46,10 +45,8 @@ def fire_chunk(F, Finv, u, th, v, inc_arrays, geo, law, m, params, n_steps, tol)
         for i in range(N):
             w[i, 0] = Finv[0, 0] * u[i, 0] + Finv[0, 1] * u[i, 1]
             w[i, 1] = Finv[1, 0] * u[i, 0] + Finv[1, 1] * u[i, 1]
-        e = contact_state(F, w, pi, pj, X, Y, R, m)[5]
-        keep = non_rattlers(pi, pj, e, N, MIN_CONTACTS)
         _, _, lx, ly, d, e, ft, _, _ = return_map(
-            F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu, keep
+            F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
         )
         f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, N)
         if count == 0:
