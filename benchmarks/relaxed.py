@@ -23,6 +23,10 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
 - the floor: the mean counts times those parts' times (the factorisations and solves alone, no
   line search, no contact states, no Python), in ms per point and MFLOP per point, beside the
   measured time;
+- ``frictional P+A``: :class:`FrictionalRelaxedRVE` (mu = ``--friction``, k_t = k_n), its
+  committed state the same compression reached along its own path, the same steps: ms per
+  point, its ratio to the frictionless relaxed RVE and to Taylor, and where its time goes (the
+  SuperLU factorisations, the return maps and equations, the rest);
 - ``--save`` writes the points' W, P and A to an ``.npz``; ``--against`` compares them with such
   a file (from another version of the solver: the largest relative difference per quantity and
   the points beyond 1e-10).
@@ -31,7 +35,7 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
 import argparse
 import time
 
-from dolfinx_granular import TaylorRVE, generate_packing
+from dolfinx_granular import FrictionalRelaxedRVE, TaylorRVE, generate_packing
 from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState, at_rest, block_ldlt, newton
 from dolfinx_granular.laws.relaxed.assembly import assemble
 from dolfinx_granular.laws.relaxed.contact_state import ContactState
@@ -169,6 +173,7 @@ def main(argv=None):
     ap.add_argument("--step", type=float, default=1e-4)
     ap.add_argument("--compression", type=float, default=0.005)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--friction", type=float, default=0.5)
     ap.add_argument("--save", help="write the points' W, P, A to this .npz")
     ap.add_argument("--against", help="compare the points' W, P, A with this .npz")
     a = ap.parse_args(argv)
@@ -196,10 +201,46 @@ def main(argv=None):
         f"{counts['solves']:.2f} solves per point take {f_ms:.2f} ms ({f_mflop:.2f} MFLOP) of "
         f"the {ms:.2f}"
     )
+    frictional(packing, a, F0, F, t_relaxed, t_taylor)
     if a.save:
         np.savez(a.save, W=W, P=P, A=A)
     if a.against:
         print_against(np.load(a.against), W, P, A)
+
+
+def frictional(packing, a, F0, F, t_relaxed, t_taylor):
+    """Time the frictional relaxed RVE on the same steps and print where its time goes."""
+    from dolfinx_granular.laws.relaxed_friction import cell_state, newton
+
+    rve = FrictionalRelaxedRVE(packing, K_N, K_N, a.friction)
+    _, _, _, one = rve.evaluate(F0, rve.initial_state(1))
+    state = type(one).concatenate([one] * a.points)
+    t, _ = best_time(lambda: rve.evaluate(F, state), a.repeats)
+    ms = 1e3 * t / a.points
+    print(
+        f"frictional P+A {ms:8.2f} ms/point   (mu = {a.friction:g}) {t / t_relaxed:.1f} x the "
+        f"frictionless relaxed RVE, {t / t_taylor:.0f} x Taylor"
+    )
+    counts = [rve.equilibrium(F[q], state, q)[0].counts for q in range(a.points)]
+    mean = {k: np.mean([getattr(c, k) for c in counts]) for k in ("steps", "factorisations",
+                                                                  "fire_steps")}  # fmt: skip
+    inc = rve._increment(state, 0)
+    s = cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc)
+    t_lu, _ = best_time(lambda: newton.factorise(rve.cell, rve.springs, F0, s, False), 20)
+    t_eval, _ = best_time(
+        lambda: cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc), 20
+    )
+    # a point: the path's substate, the Newton steps' states and their line searches' trial
+    # states (at least one each), the tangent's factorisation
+    lu_ms = 1e3 * t_lu * (mean["factorisations"] + 1)
+    eval_ms = 1e3 * t_eval * (2 * mean["steps"] + 3)
+    print(
+        f"  per point: {mean['steps']:.2f} Newton steps, {mean['factorisations'] + 1:.2f} "
+        f"SuperLU factorisations ({1e3 * t_lu:.2f} ms each: {lu_ms:.2f} ms), about "
+        f"{2 * mean['steps'] + 3:.0f} contact states ({1e3 * t_eval:.3f} ms each: "
+        f"{eval_ms:.2f} ms), the rest {ms - lu_ms - eval_ms:.2f} ms; FIRE steps "
+        f"{mean['fire_steps']:.1f}"
+    )
 
 
 def print_counts(rows, rearranged):
