@@ -39,12 +39,16 @@ class Springs:
 @dataclass
 class Increment:
     """The committed side of an increment: F0 (2, 2), w0 (N, 2), theta0 (N,) and the
-    tangential forces ft0 (M,) of the cell's candidates (N; zero where no contact was)."""
+    tangential forces ft0 (M,) of the cell's candidates (N; zero where no contact was), and
+    ``chain``, their derivatives with respect to the path's final F
+    (:class:`~dolfinx_granular.laws.relaxed_friction.path_tangent.Chain`; None: zero, the
+    macro-committed state)."""
 
     F0: np.ndarray
     w0: np.ndarray
     th0: np.ndarray
     ft0: np.ndarray
+    chain: object = None
 
     def forces(self, n: int) -> np.ndarray:
         """ft0 for a list of n >= len(ft0) candidates (a grown list's new pairs: zero)."""

@@ -22,9 +22,10 @@ from .cell_state import CellState, Increment, Springs
 from .contact_law import STICK
 from .fire import fire
 from .newton import Counts, solve
+from .path_tangent import Chain, stretch_derivative
 from .settings import Settings
 from .system import dissipation, energy
-from .tangent import condensation
+from .tangent import path_condensation
 
 #: halvings of an increment where Newton fails, before FIRE (a substep / 2^HALVINGS)
 HALVINGS = 4
@@ -39,7 +40,8 @@ class Equilibrium:
         A: (2, 2, 2, 2) or None; sensitivity: (N, 3, 4) d(w, theta)/dF or zeros;
         state: the :class:`CellState` (contacts, forces, statuses); dissipated: the energy the
         increment dissipated (Pa); residual: the largest net force or moment over the mean
-        contact force (and radius); counts: the solver's :class:`Counts`.
+        contact force (and radius); counts: the solver's :class:`Counts`; chain: the
+        solution's derivatives with respect to the path's end (with A; :mod:`.path_tangent`).
     """
 
     w: np.ndarray
@@ -52,6 +54,7 @@ class Equilibrium:
     dissipated: float
     residual: float
     counts: Counts
+    chain: Chain | None = None
 
 
 def polar_angle(F) -> float:
@@ -68,60 +71,64 @@ def predicted(w, th, dq, Fc, F):
     return w + move[:, :2], th + move[:, 2] + polar_angle(F) - polar_angle(Fc)
 
 
-def relax(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settings,
+def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Settings,
           tangent: bool, depth: int = 0) -> tuple[Equilibrium, float]:  # fmt: skip
-    """The equilibrium of the increment from ``inc`` to F (2, 2) and the energy dissipated
-    (Pa): Newton from the predicted start. Where it fails, the increment is halved (in the
-    right stretch: the path through the midpoint, its history committed there), up to
-    :data:`HALVINGS` times; at the last halving, FIRE relaxes the cell from the predicted start
-    to ``settings.fire_tol`` and Newton goes on from there (then FIRE to a thousandth of that,
-    then to the equilibrium itself)."""
+    """The equilibrium of the increment from ``inc`` to G (2, 2) (dG/dF = DG (4, 4), F the
+    path's end) and the energy dissipated (Pa): Newton from the predicted start. Where it
+    fails, the increment is halved (in the right stretch: the path through the midpoint, its
+    history committed there), up to :data:`HALVINGS` times; at the last halving, FIRE relaxes
+    the cell from the predicted start to ``settings.fire_tol`` and Newton goes on from there
+    (then FIRE to a thousandth of that, then to the equilibrium itself)."""
     counts = Counts()
-    w, th = predicted(inc.w0, inc.th0, dq, inc.F0, F)
-    try:
-        eq = finish(cell, springs, F, *solve(cell, springs, F, w, th, inc, settings, counts),
-                    counts, tangent)  # fmt: skip
-        return eq, eq.dissipated
-    except RigidityLostError:
-        raise
-    except RelaxationError:
-        pass
+    w, th = predicted(inc.w0, inc.th0, dq, inc.F0, G)
+    done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
+    if done is not None:
+        return done, done.dissipated
     if depth < HALVINGS:
-        mid = 0.5 * (stretch(inc.F0) + stretch(F))
-        first, dissipated = relax(cell, springs, mid, inc, dq, settings, True, depth + 1)
+        mid = 0.5 * (stretch(inc.F0) + stretch(G))
+        D0 = np.zeros((4, 4)) if inc.chain is None else inc.chain.DF0
+        Dmid = 0.5 * (stretch_derivative(inc.F0) @ D0 + stretch_derivative(G) @ DG)
+        first, dissipated = relax(cell, springs, mid, Dmid, inc, dq, settings, True, depth + 1)
         inc, dq = committed(cell, first, mid), first.sensitivity
-        eq, more = relax(cell, springs, F, inc, dq, settings, tangent, depth + 1)
+        eq, more = relax(cell, springs, G, DG, inc, dq, settings, tangent, depth + 1)
         return eq, dissipated + more
     for tol in (settings.fire_tol, 1e-3 * settings.fire_tol):
-        w, th, steps = fire(cell, springs, F, w, th, inc, replace(settings, fire_tol=tol))
+        w, th, steps = fire(cell, springs, G, w, th, inc, replace(settings, fire_tol=tol))
         counts.fire_steps += steps
-        try:
-            found = solve(cell, springs, F, w, th, inc, settings, counts)
-        except RigidityLostError:
-            raise
-        except RelaxationError:
-            continue
-        eq = finish(cell, springs, F, *found, counts, tangent)
-        return eq, eq.dissipated
+        done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
+        if done is not None:
+            return done, done.dissipated
     # FIRE to the equilibrium itself: Newton only checks it
     w, th, steps = fire(
-        cell, springs, F, w, th, inc, replace(settings, fire_tol=settings.force_tol)
+        cell, springs, G, w, th, inc, replace(settings, fire_tol=settings.force_tol)
     )
     counts.fire_steps += steps
-    s = CellState(cell, springs, F, w, th, inc)
-    eq = finish(cell, springs, F, w, th, s, s.residual(cell)[0], counts, tangent)
+    s = CellState(cell, springs, G, w, th, inc)
+    eq = finish(cell, springs, G, DG, inc, w, th, s, s.residual(cell)[0], counts, tangent)
     return eq, eq.dissipated
 
 
-def finish(cell, springs, F, w, th, s, residual, counts, tangent) -> Equilibrium:
-    """The :class:`Equilibrium` at the solved state s."""
-    A, dq = condensation(cell, springs, F, s) if tangent else (None, None)
-    if dq is None:
-        dq = np.zeros((cell.n_disks, 3, 4))
+def _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent):
+    """The :class:`Equilibrium` Newton reaches from (w, th), or None where it fails."""
+    try:
+        found = solve(cell, springs, G, w, th, inc, settings, counts)
+    except RigidityLostError:
+        raise
+    except RelaxationError:
+        return None
+    return finish(cell, springs, G, DG, inc, *found, counts, tangent)
+
+
+def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Equilibrium:
+    """The :class:`Equilibrium` at the solved state s of the increment to G."""
+    A, dq, chain = None, np.zeros((cell.n_disks, 3, 4)), None
+    if tangent:
+        chain0 = Chain.zero(cell.n_disks, cell.pi.shape[0]) if inc.chain is None else inc.chain
+        A, dq, chain = path_condensation(cell, springs, G, s, inc, chain0, DG)
     sp = springs
     W = energy(s.e, s.ft, s.status, sp.kn, sp.kt, sp.inv_area)
     D = dissipation(s.ft, s.fstar, s.status, sp.kt, sp.inv_area)
-    return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts)
+    return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, chain)
 
 
 def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> Equilibrium:
@@ -129,28 +136,31 @@ def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> E
     committed one (a contact at the cone sticks there)."""
     s = CellState(cell, springs, F, inc.w0, inc.th0, inc)
     residual, _ = s.residual(cell)
-    return finish(cell, springs, F, inc.w0, inc.th0, s, residual, Counts(), tangent)
+    return finish(cell, springs, F, np.eye(4), inc, inc.w0, inc.th0, s, residual, Counts(),
+                  tangent)  # fmt: skip
 
 
 def committed(cell: Cell, eq: Equilibrium, F) -> Increment:
     """The next substep's committed side: this equilibrium's positions and tangential forces
-    (those of open contacts dropped)."""
+    (those of open contacts dropped), with their derivatives."""
     ft = np.zeros(cell.pi.shape[0])
     on = eq.state.on
     ft[: on.shape[0]][on] = eq.state.ft[on]
-    return Increment(np.array(F, dtype=np.float64), eq.w, eq.theta, ft)
+    return Increment(np.array(F, dtype=np.float64), eq.w, eq.theta, ft, eq.chain)
 
 
 def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settings,
            tangent: bool) -> tuple[Equilibrium, float]:  # fmt: skip
     """The equilibrium at F reached from ``inc`` along the quasi-static path, and the energy
-    dissipated on the way (Pa)."""
+    dissipated on the way (Pa); its A is the derivative of P at F through the path."""
     dissipated = 0.0
-    for Uk in stretches_between(inc.F0, F, substep(cell, springs, inc, F, settings)):
-        eq, more = relax(cell, springs, Uk, inc, dq, settings, True)
+    stretches = stretches_between(inc.F0, F, substep(cell, springs, inc, F, settings))
+    dU = stretch_derivative(F)
+    for k, Uk in enumerate(stretches, start=1):
+        eq, more = relax(cell, springs, Uk, k / (len(stretches) + 1) * dU, inc, dq, settings, True)
         dissipated += more
         inc, dq = committed(cell, eq, Uk), eq.sensitivity
-    eq, more = relax(cell, springs, F, inc, dq, settings, tangent)
+    eq, more = relax(cell, springs, F, np.eye(4), inc, dq, settings, tangent)
     return eq, dissipated + more
 
 

@@ -7,7 +7,8 @@ K_FF = dP/dF at fixed (w, theta), K_Fq = dP/dq, K_qF = dr/dF and K_qq = dr/dq ov
 (the contacts between non-rattlers; a rattler's unknowns held, one disk's translation pinned),
 the contacts' return map fixed (stick or slip). Where contacts slip, K_Fq differs from K_qF^T and
 A is not symmetric. It is the exact derivative of the algorithmic P(F) wherever no contact
-changes status.
+changes status; through a path of several substeps, :func:`path_condensation` adds the
+history's dependence on F (:mod:`.path_tangent`).
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ import numpy as np
 
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RigidityLostError
-from .cell_state import CellState, Springs
+from .cell_state import CellState, Increment, Springs
 from .newton import factorise
+from .path_tangent import Chain, force_derivatives, history_terms
 from .system import mixed
 
 
@@ -29,6 +31,38 @@ def condensation(
     ``free_rotation`` scales the diagonal of the rotations that no sticking contact holds
     (:func:`~dolfinx_granular.laws.relaxed_friction.cell_state.diagonal`; A does not depend
     on it)."""
+    KFF, KFq, KqF, lu, held = _parts(cell, springs, F, s, free_rotation)
+    X = _solve(lu, held, KqF)
+    A = (KFF - KFq @ X).reshape(2, 2, 2, 2)
+    return A, _predictor(cell, s, -X)
+
+
+def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increment,
+                      chain: Chain, DG) -> tuple:  # fmt: skip
+    """The tangent through the path (:mod:`.path_tangent`) at the solution s of a substep to
+    G (2, 2), dG/dF = DG (4, 4), from the committed side ``inc`` whose derivatives are
+    ``chain``: ``(dP/dF (2, 2, 2, 2), dq (N, 3, 4) at fixed history (the predictor's), the
+    solution's :class:`Chain`)``."""
+    KFF, KFq, KqF, lu, held = _parts(cell, springs, G, s, 1.0)
+    sp, m, N = springs, s.m, cell.n_disks
+    arrays = (s.qx, s.qy, s.lx, s.ly, s.d, s.e, s.ft, s.fstar, s.status, cell.pi, cell.pj)
+    Rh, Ph, dfh = history_terms(
+        G, *arrays, cell.X, cell.Y, cell.R, cell.radii, inc.F0, inc.w0, sp.kn, sp.kt, sp.mu,
+        sp.inv_area, s.network, chain.Dw, chain.Dth, chain.forces(cell.pi.shape[0]), chain.DF0,
+    )  # fmt: skip
+    X = _solve(lu, held, np.hstack([KqF, KqF @ DG + Rh]))
+    total = -X[:, 4:].reshape(N, 3, 4)
+    total[~s.held_rotations(cell), 2] = 0.0  # (as the predictor's: not set by F)
+    A = (KFF @ DG + KFq @ total.reshape(3 * N, 4) + Ph).reshape(2, 2, 2, 2)
+    Dft = np.zeros((cell.pi.shape[0], 4))
+    Dft[:m] = force_derivatives(
+        G, *arrays, cell.R, cell.radii, sp.kn, sp.kt, sp.mu, s.network, total, DG, dfh
+    )
+    return A, _predictor(cell, s, -X[:, :4]), Chain(total[:, :2], total[:, 2], Dft, DG)
+
+
+def _parts(cell, springs, F, s, free_rotation):
+    """``(K_FF, K_Fq, K_qF, lu, held)`` over the network at s."""
     if s.keep.sum() < 2:
         raise RigidityLostError("no disk has 2 contacts or more (all are rattlers)")
     sp = springs
@@ -40,13 +74,22 @@ def condensation(
         lu, held = factorise(cell, springs, F, s, True, free_rotation=free_rotation)
     except RuntimeError:
         raise RigidityLostError("the network's stiffness (one disk pinned) is singular") from None
-    KqF[held] = 0.0
-    X = lu.solve(KqF)
+    return KFF, KFq, KqF, lu, held
+
+
+def _solve(lu, held, B):
+    """K_qq^-1 B (3N, k), the held rows of B zeroed."""
+    B = np.array(B)
+    B[held] = 0.0
+    X = lu.solve(B)
     if not np.isfinite(X).all():
         raise RigidityLostError("the network's stiffness (one disk pinned) is singular")
-    A = (KFF - KFq @ X).reshape(2, 2, 2, 2)
-    dq = -X.reshape(cell.n_disks, 3, 4)
-    # a rotation no sticking contact holds is not set by F (its column of K_qq is zero, its
-    # entry of X scales with the arbitrary diagonal): no predictor for it
+    return X
+
+
+def _predictor(cell, s, dq):
+    """dq (3N, 4) as (N, 3, 4), a rotation no sticking contact holds zeroed: it is not set by
+    F (its column of K_qq is zero, its entry scales with the arbitrary diagonal)."""
+    dq = dq.reshape(cell.n_disks, 3, 4)
     dq[~s.held_rotations(cell), 2] = 0.0
-    return A, dq
+    return dq
