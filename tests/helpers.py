@@ -161,12 +161,13 @@ Column = namedtuple("Column", "solver material u p")
 
 
 def granular_column(
-    rve, prefix, n=4, pressure=0.0, material_class=None, stabilise=0.0, **solver_kwargs
+    rve, prefix, n=4, pressure=0.0, material_class=None, stabilise=0.0, hold=False, **solver_kwargs
 ):
     """A 10 m x 10 m column of n x n Q1 cells: fixed base, rollers on the sides, a top pressure
     ``p * (1 + 0.05 x)`` (p a Constant in Pa, positive = downward; the variation makes the
-    solution non-homogeneous). ``material_class`` defaults to GranularMaterial. Returns
-    ``Column(solver, material, u, p)``."""
+    solution non-homogeneous). ``material_class`` defaults to GranularMaterial. ``hold``: the
+    boundary carries the holding traction P(I) N of a confined packing's reference stress, so
+    that u = 0 is at rest under p = 0. Returns ``Column(solver, material, u, p)``."""
     # DOLFINx only here: the packings and scripts above serve tests that run without it
     from dolfinx_granular.drivers.newton import NewtonSolver
     from dolfinx_granular.fem.compat import vector_space
@@ -192,6 +193,10 @@ def granular_column(
     x = ufl.SpatialCoordinate(msh)
     p = fem.Constant(msh, float(pressure))
     residual = material.residual_form(v) + p * (1 + 0.05 * x[0]) * v[1] * ds(1)
+    if hold:
+        from dolfinx_granular.drivers.confinement import holding_traction
+
+        residual -= ufl.dot(holding_traction(material), v) * ds  # (ds: all of the boundary)
     bcs = [
         fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, bottom), V),
         fem.dirichletbc(0.0, fem.locate_dofs_topological(V.sub(0), 1, walls), V.sub(0)),

@@ -53,6 +53,18 @@ def test_taylor_rve_matches_dense_eigenvalues():
     assert got[0] > 0
 
 
+def test_a_non_symmetric_tangent_gives_its_symmetric_parts_eigenvalue():
+    """A frictional law's A lacks major symmetry where contacts slide: the least m . Q(N) m over
+    unit m is the least eigenvalue of Q's symmetric part."""
+    A = isotropic(2.0, 1.0) + 0.4 * np.random.default_rng(7).standard_normal((1, 2, 2, 2, 2))
+    t = np.pi * np.arange(90) / 90
+    N = np.stack([np.cos(t), np.sin(t)], axis=1)
+    Q = np.einsum("iJkL,nJ,nL->nik", A[0], N, N)
+    assert np.abs(Q - Q.transpose(0, 2, 1)).max() > 0.1  # (not symmetric)
+    lowest = np.linalg.eigvalsh(0.5 * (Q + Q.transpose(0, 2, 1)))[:, 0].min()
+    assert min_acoustic_eigenvalue(A, n_directions=90)[0] == pytest.approx(lowest, rel=1e-12)
+
+
 def test_bad_shapes():
     with pytest.raises(ValueError, match="shape"):
         min_acoustic_eigenvalue(np.zeros((3, 4, 4)))

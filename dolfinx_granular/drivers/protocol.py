@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..laws.relaxed import RelaxedRVE
+from ..laws.relaxed_friction import FrictionalRelaxedRVE
 from ..laws.taylor import PRESTRESS_WARNING, _user_stacklevel
 
 if TYPE_CHECKING:
@@ -51,17 +52,22 @@ class LoadPathWarning(UserWarning):
 #: the remedy of a relaxed RVE on a stress-free packing: it has no shear stiffness once relaxed
 UNCONFINED_RELAXED = (
     "a RelaxedRVE on a stress-free packing has no shear stiffness once relaxed (the first "
-    "iterate unjams it): build it on confined_packing(packing, k_n, p / k_n) and hold its "
-    "reference stress with holding_traction(material) on the free faces"
+    "iterate unjams it; a FrictionalRelaxedRVE's too: friction holds no more than mu times "
+    "its vanishing normal forces): build it on confined_packing(packing, k_n, p / k_n) and "
+    "hold its reference stress with holding_traction(material) on the free faces"
 )
+
+#: the laws whose disks relax to equilibrium, so that a stress-free packing unjams
+RELAXED_LAWS = (RelaxedRVE, FrictionalRelaxedRVE)
 
 
 def unconfined_relaxed(materials: Any) -> bool:
-    """True if a material of ``materials`` carries a RelaxedRVE whose reference stress P(I) is
-    at most the prestress tolerance of a stress-free packing (1e-6 of its modulus)."""
+    """True if a material of ``materials`` carries a relaxed RVE (frictionless or frictional,
+    :data:`RELAXED_LAWS`) whose reference stress P(I) is at most the prestress tolerance of a
+    stress-free packing (1e-6 of its modulus)."""
     for material in materials or ():
         law = getattr(material, "rve", None)
-        if isinstance(law, RelaxedRVE):
+        if isinstance(law, RELAXED_LAWS):
             P0 = law.stress(np.eye(2)[None], law.initial_state(1))[1][0]
             if np.linalg.norm(P0) <= PRESTRESS_WARNING * np.linalg.norm(law.small_strain_modulus()):
                 return True

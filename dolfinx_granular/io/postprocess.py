@@ -46,9 +46,11 @@ def min_acoustic_eigenvalue(A: ArrayLike, n_directions: int = 180) -> np.ndarray
     """Smallest eigenvalue (n,) in Pa of the acoustic tensor ``Q_ik(N) = A_iJkL N_J N_L`` over
     ``n_directions`` unit vectors N equally spaced in [0, pi), at each point.
 
-    A is dP/dF (n, 2, 2, 2, 2) with major symmetry (hyperelastic), so Q is symmetric. A negative
-    value means the point has lost strong ellipticity: a band of localised deformation normal to
-    that N can form, and the boundary value problem's solution depends on the mesh size there.
+    A is dP/dF (n, 2, 2, 2, 2). With major symmetry (hyperelastic) Q is symmetric; a frictional
+    law's A is not where contacts slide, and the eigenvalue is then that of Q's symmetric part
+    (the least ``m . Q m`` over unit m). A negative value means the point has lost strong
+    ellipticity: a band of localised deformation normal to that N can form, and the boundary
+    value problem's solution depends on the mesh size there.
     """
     A = np.asarray(A, dtype=float)
     if A.ndim != 5 or A.shape[1:] != (2, 2, 2, 2):
@@ -121,8 +123,9 @@ def contact_network(
     bool)``; ``state`` is the committed state of a law with history (frictional contacts: their
     sliding ones are flagged), None for an elastic law."""
     c = rve.contacts(F) if state is None else rve.contacts(F, state)
-    if isinstance(c, ContactSet):  # frictionless: an elastic law, or the relaxed RVE
-        return c, c.force, np.zeros(len(c.force), dtype=bool)
+    if isinstance(c, ContactSet):  # an elastic law, or a relaxed RVE (sliding: frictional)
+        sliding = np.zeros(len(c.force), dtype=bool) if c.sliding is None else c.sliding
+        return c, c.force, np.asarray(sliding, dtype=bool)
     return c, c.normal_force, np.asarray(c.sliding, dtype=bool)
 
 

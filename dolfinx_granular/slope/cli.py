@@ -185,7 +185,8 @@ def _add_model(p: argparse.ArgumentParser) -> None:
         choices=RVES,
         default="taylor",
         help="the RVE: taylor (every disk follows F, the paper's model; default) or relaxed "
-        "(the disks in static equilibrium, frictionless; needs --confinement)",
+        "(the disks in static equilibrium, and with --friction > 0 turning too; needs "
+        "--confinement)",
     )
     p.add_argument(
         "--confinement",

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 
     from ..laws.friction import FrictionalRVE
     from ..laws.relaxed import RelaxedRVE
+    from ..laws.relaxed_friction import FrictionalRelaxedRVE
     from ..packings.packing import Packing
 
 K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
@@ -50,9 +51,10 @@ class SlopeOptions:
             first increment.
         allow_overlaps: accept a packing whose disks overlap far (``allow_overlaps`` of
             :class:`~dolfinx_granular.TaylorRVE`), prestressed as it is.
-        rve: ``"taylor"`` (every disk follows F, the paper's model) or ``"relaxed"``
-            (:class:`~dolfinx_granular.RelaxedRVE`: the disks in static equilibrium;
-            frictionless, and only with a ``confinement``).
+        rve: ``"taylor"`` (every disk follows F, the paper's model) or ``"relaxed"`` (the
+            disks in static equilibrium, only with a ``confinement``):
+            :class:`~dolfinx_granular.RelaxedRVE`, or with ``friction`` > 0
+            :class:`~dolfinx_granular.FrictionalRelaxedRVE` (the disks also turn).
         linear_solver: ``"direct"`` (MUMPS) or ``"iterative"`` (GMRES + GAMG;
             :mod:`~dolfinx_granular.drivers.linear_solver`); path following needs the direct
             one.
@@ -116,15 +118,11 @@ class SlopeOptions:
                 f"confinement is a pressure in [0, {MAX_CONFINEMENT:g} k_n] = [0, "
                 f"{MAX_CONFINEMENT * self.normal_stiffness:g}] Pa, got {self.confinement!r}"
             )
-        if self.rve == "relaxed" and self.friction > 0.0:
-            raise ValueError(
-                "the relaxed RVE is frictionless: drop --friction, or use --rve taylor"
-            )
         if self.rve == "relaxed" and self.confinement == 0.0:
             raise ValueError(
-                "the relaxed RVE needs a confining pressure: a stress-free frictionless packing "
-                "has no shear stiffness once its disks relax (its RVEs unjam in the first "
-                "iterate of the gravity step): give --confinement P in Pa, e.g. 1e5"
+                "the relaxed RVE needs a confining pressure: a stress-free packing has no shear "
+                "stiffness once its disks relax, with friction or without (its RVEs unjam in the "
+                "first iterate of the gravity step): give --confinement P in Pa, e.g. 1e5"
             )
 
     def as_dict(self) -> dict:
@@ -144,9 +142,11 @@ class SlopeOptions:
             return PHASES[:1]
         return PHASES + (("unloading",) if self.unload else ())
 
-    def law(self, packing: Packing) -> TaylorRVE | FrictionalRVE | RelaxedRVE:
-        """The material-point law: the Taylor RVE, with Coulomb friction if ``friction`` > 0,
-        or the relaxed RVE; of the packing confined to ``confinement`` if > 0."""
+    def law(
+        self, packing: Packing
+    ) -> TaylorRVE | FrictionalRVE | RelaxedRVE | FrictionalRelaxedRVE:
+        """The material-point law: the Taylor or the relaxed RVE, with Coulomb friction if
+        ``friction`` > 0; of the packing confined to ``confinement`` if > 0."""
         if self.confinement > 0.0:
             from ..drivers.confinement import confined_packing
 
@@ -154,28 +154,37 @@ class SlopeOptions:
                 packing, self.normal_stiffness, self.confinement / self.normal_stiffness
             )
         if self.rve == "relaxed":
-            from ..laws.relaxed import RelaxedRVE
-
-            return RelaxedRVE(packing, self.normal_stiffness)
+            return self._relaxed_law(packing)
         with warnings.catch_warnings():
             if self.confinement > 0.0:  # (the prestress is the confinement asked for)
                 warnings.simplefilter("ignore", PrestressWarning)
             return self._taylor_law(packing)
+
+    @property
+    def _kt(self) -> float:
+        """The tangential stiffness k_t in N/m² of a frictional law (k_n unless given)."""
+        if self.tangential_stiffness is None:
+            return self.normal_stiffness
+        return self.tangential_stiffness
+
+    def _relaxed_law(self, packing: Packing) -> RelaxedRVE | FrictionalRelaxedRVE:
+        if self.friction > 0.0:
+            from ..laws.relaxed_friction import FrictionalRelaxedRVE
+
+            return FrictionalRelaxedRVE(packing, self.normal_stiffness, self._kt, self.friction)
+        from ..laws.relaxed import RelaxedRVE
+
+        return RelaxedRVE(packing, self.normal_stiffness)
 
     def _taylor_law(self, packing: Packing) -> TaylorRVE | FrictionalRVE:
         overlaps = self.allow_overlaps or self.confinement > 0.0
         if self.friction > 0.0:
             from ..laws.friction import FrictionalRVE
 
-            kt = (
-                self.normal_stiffness
-                if self.tangential_stiffness is None
-                else self.tangential_stiffness
-            )
             return FrictionalRVE(
                 packing,
                 normal_stiffness=self.normal_stiffness,
-                tangential_stiffness=kt,
+                tangential_stiffness=self._kt,
                 friction=self.friction,
                 allow_overlaps=overlaps,
             )
