@@ -11,8 +11,8 @@ import numpy as np
 from numba import njit
 
 from ..relaxed.cell import Cell
-from ..relaxed.errors import RelaxationError, RigidityLostError
-from .cell_state import Increment, Springs
+from ..relaxed.errors import RigidityLostError
+from .cell_state import CellState, Increment, Springs
 from .contact_law import return_map
 from .settings import Settings
 from .system import balance
@@ -88,7 +88,9 @@ def fire_chunk(F, Finv, u, th, v, inc_arrays, geo, law, m, params, n_steps, tol)
 
 def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Settings) -> tuple:
     """FIRE from (w (N, 2), th (N,)) until the residual is ``settings.fire_tol``: ``(w, th,
-    steps)``; RelaxationError after ``settings.fire_steps``."""
+    steps, converged)``. After ``settings.fire_steps`` (where a disk keeps sliding in its cage
+    or bouncing about it) the positions of the smallest residual seen at the end of a chunk,
+    converged False, for Newton to try from."""
     Finv = np.linalg.inv(F)
     u = np.ascontiguousarray(w @ F.T)
     th = np.array(th, dtype=np.float64)
@@ -98,7 +100,7 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
     dt_max = 0.5 / np.sqrt(springs.kn + springs.kt)
     params = np.array([0.1 * dt_max, 0.1, 0.0, dt_max])
     law = (springs.kn, springs.kt, springs.mu)
-    steps = 0
+    steps, best = 0, (np.inf, w, th)
     while steps < settings.fire_steps:
         m = cell.visited(F, u @ Finv.T)
         inc_arrays = (inc.F0, inc.w0, inc.th0, inc.forces(cell.pi.shape[0]))
@@ -110,6 +112,10 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
         steps += taken
         if status == UNJAMMED:
             raise RigidityLostError("the cell unjammed: relaxation opens its contacts")
-        if status == CONVERGED and cell.visited(F, u @ Finv.T) == m:  # (no contact unseen)
-            return u @ Finv.T, th, steps
-    raise RelaxationError(f"FIRE did not relax the cell in {settings.fire_steps} steps")
+        w = u @ Finv.T
+        if status == CONVERGED and cell.visited(F, w) == m:  # (no contact unseen)
+            return w, th, steps, True
+        residual = CellState(cell, springs, F, w, th, inc).residual(cell)[0]
+        if residual < best[0]:
+            best = (residual, w, th.copy())
+    return best[1], best[2], steps, False

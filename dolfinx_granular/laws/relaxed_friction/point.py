@@ -27,6 +27,8 @@ from .settings import Settings
 from .system import dissipation, energy
 from .tangent import path_condensation
 
+#: the shortest substep, relative to ``Settings.substep``
+MIN_SUBSTEP = 1e-2
 #: halvings of an increment where Newton fails, before FIRE (a substep / 2^HALVINGS)
 HALVINGS = 4
 
@@ -78,7 +80,8 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     fails, the increment is halved (in the right stretch: the path through the midpoint, its
     history committed there), up to :data:`HALVINGS` times; at the last halving, FIRE relaxes
     the cell from the predicted start to ``settings.fire_tol`` and Newton goes on from there
-    (then FIRE to a thousandth of that, then to the equilibrium itself)."""
+    (then FIRE to a thousandth of that, then to the equilibrium itself, each as far as FIRE
+    gets)."""
     counts = Counts()
     w, th = predicted(inc.w0, inc.th0, dq, inc.F0, G)
     done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
@@ -92,20 +95,20 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
         inc, dq = committed(cell, first, mid), first.sensitivity
         eq, more = relax(cell, springs, G, DG, inc, dq, settings, tangent, depth + 1)
         return eq, dissipated + more
-    for tol in (settings.fire_tol, 1e-3 * settings.fire_tol):
-        w, th, steps = fire(cell, springs, G, w, th, inc, replace(settings, fire_tol=tol))
+    for tol in (settings.fire_tol, 1e-3 * settings.fire_tol, settings.force_tol):
+        w, th, steps, converged = fire(
+            cell, springs, G, w, th, inc, replace(settings, fire_tol=tol)
+        )
         counts.fire_steps += steps
         done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
         if done is not None:
             return done, done.dissipated
-    # FIRE to the equilibrium itself: Newton only checks it
-    w, th, steps = fire(
-        cell, springs, G, w, th, inc, replace(settings, fire_tol=settings.force_tol)
+        if not converged:
+            break
+    raise RelaxationError(
+        f"no equilibrium: Newton failed from FIRE's best positions after {counts.fire_steps} "
+        "FIRE steps (the cell keeps rearranging)"
     )
-    counts.fire_steps += steps
-    s = CellState(cell, springs, G, w, th, inc)
-    eq = finish(cell, springs, G, DG, inc, w, th, s, s.residual(cell)[0], counts, tangent)
-    return eq, eq.dissipated
 
 
 def _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent):
@@ -168,7 +171,7 @@ def substep(cell: Cell, springs: Springs, inc: Increment, F, settings: Settings)
     """The path's longest substep from the committed state ``inc`` to F: ``settings.substep``,
     and ``settings.substep_overlap`` times the mean overlap over the mean radius sum (the
     larger of the committed state's and of its positions carried to F: a stress-free start
-    takes the target's)."""
+    takes the target's), but at least :data:`MIN_SUBSTEP` of ``settings.substep``."""
     ratio = 0.0
     for G in (inc.F0, F):
         s = CellState(cell, springs, G, inc.w0, inc.th0, inc)
@@ -176,7 +179,10 @@ def substep(cell: Cell, springs: Springs, inc: Increment, F, settings: Settings)
             ratio = max(ratio, float(s.e[s.on].mean() / cell.R[: s.m][s.on].mean()))
     if ratio == 0.0:
         return settings.substep
-    return min(settings.substep, settings.substep_overlap * ratio)
+    # (a floor: near a stress-free packing the overlaps are ~1e-11 of the radii)
+    return min(
+        settings.substep, max(settings.substep_overlap * ratio, MIN_SUBSTEP * settings.substep)
+    )
 
 
 def sticking(eq: Equilibrium) -> np.ndarray:

@@ -24,9 +24,9 @@ class Settings:
             stretch, Frobenius norm) are at most ``substep``, and at most ``substep_overlap``
             times the mean overlap over the mean radius sum (of the committed state or, if
             larger, of its positions carried affinely to the new F): a strain of the overlaps'
-            order changes every contact's force by its own size. With
-            friction the path changes the answer: this is part of the model (each substep is
-            one backward-Euler increment of the contact law).
+            order changes every contact's force by its own size; at least a hundredth of
+            ``substep``. With friction the path changes the answer: this is part of the model
+            (each substep is one backward-Euler increment of the contact law).
     """
 
     force_tol: float = 1e-10
