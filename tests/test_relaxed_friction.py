@@ -296,12 +296,13 @@ def test_a_superposed_rotation_rotates_everything(rve, sheared):
         assert np.abs(Ar - np.einsum("ai,ck,ibkd->abcd", Q, Q, A)).max() <= 1e-8 * np.abs(A).max()
         turn = rotated.theta - state.theta
         assert np.abs(np.angle(np.exp(1j * (turn - alpha)))).max() <= 1e-9
-        assert np.allclose(
-            np.sort(rotated.force),
-            np.sort(state.force),
-            rtol=1e-8,
-            atol=1e-9 * np.abs(state.force).max(),
-        )
+        # the same forces by pair and image (a rattler's contact at zero overlap may be open
+        # in one and closed in the other: its force is nil)
+        a = dict(zip(rotated.keys.tolist(), rotated.force))
+        b = dict(zip(state.keys.tolist(), state.force))
+        small = 1e-9 * np.abs(state.force).max()
+        for key in a.keys() | b.keys():
+            assert abs(a.get(key, 0.0) - b.get(key, 0.0)) <= 1e-8 * abs(b.get(key, 0.0)) + small
 
 
 def test_a_triangular_lattice_does_not_move():
