@@ -69,7 +69,7 @@ def test_a_pressure_out_of_range_is_refused(packings, pressure):
     "options, words",
     [
         (dict(rve="relaxed"), ("confining pressure", "--confinement")),
-        (dict(rve="relaxed", confinement=1e5, friction=0.5), ("frictionless", "--friction")),
+        (dict(rve="relaxed", friction=0.5), ("confining pressure", "--confinement")),
         (dict(confinement=1e6), ("confinement", "280000")),
         (dict(rve="dem"), ("rve", "taylor")),
     ],
