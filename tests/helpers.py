@@ -264,6 +264,7 @@ DEMOS = (
     "granular_column",
     "friction_study",
     "relaxed_study",
+    "relaxed_friction_study",
     "rve_study",
     "slope",
     "slope_collapse",

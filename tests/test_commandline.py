@@ -16,6 +16,7 @@ DEMOS = [
     "fabric3d",
     "granular_column",
     "relaxed_study",
+    "relaxed_friction_study",
     "rve_study",
     "friction_study",
     "slope_collapse",
