@@ -53,8 +53,9 @@ cached in ``OUT/packings`` stay and are reused.
   1e-2, to 1 % in 5 steps). A step that fails (the micro solver's ``RelaxationError`` where the
   cell rearranges, or the driver) is halved, 3 times at most; then the test stops there and
   records how far it got and why, and the study goes on. ``--budget`` caps each test's wall
-  time, checked before every step (default: none with ``--small``, 150 s otherwise); a test
-  stopped by it says so.
+  time, checked before every step, so a slow step can overrun it (default: none with
+  ``--small``, 90 s otherwise: the full study then took 46 min on 2 busy cores); a test stopped
+  by it says so. How far such a test gets depends on the machine; the path up to there does not.
 
 Measures (2-D, compression positive): p = -(sigma_11 + sigma_22) / 2,
 q = sqrt(((sigma_11 - sigma_22) / 2)^2 + sigma_12^2), q / p = sin(phi mobilised), tau / p =
@@ -112,7 +113,7 @@ DPI = 110
 
 FULL = dict(particles=200, seeds=(0, 1, 2), mus=(0.0, 0.1, 0.3, 0.5, 1.0),
             pressures=(1e-2, 1e-3), max_shear=0.10, steps=50, convergence_shear=0.02,
-            budget=150.0)  # fmt: skip
+            budget=90.0)  # fmt: skip
 SMALL = dict(particles=70, seeds=(0,), mus=(0.0, 0.5), pressures=(1e-2,), max_shear=0.01,
              steps=5, convergence_shear=0.01, budget=None)  # fmt: skip
 #: the files it writes in --out (what --force replaces; the packing cache is kept)
@@ -485,30 +486,30 @@ def qp_gamma_figure(paths, cfg):
 def qp_mu_figure(summary, cfg):
     """Peak and final q / p over mu (mean ± std over the seeds) for each law and p, beside the
     literature's values for 2-D disks."""
-    fig = Figure(figsize=(6.8, 4.6))
+    fig = Figure(figsize=(9.6, 4.6))
     ax = fig.add_subplot()
-    markers = {"relaxed": "o", "taylor": "s"}
+    styles = {"relaxed": ("o", 1.0), "taylor": ("s", 0.45)}
     for law in ("relaxed", "taylor"):
+        marker, alpha = styles[law]
         for color, p in zip(("C0", "C1", "C2"), cfg["pressures"]):
             rows = [r for r in summary if r["law"] == law and r["p_over_kn"] == p]
             mu = np.array([r["mu"] for r in rows])
             for what, ls, fill in (("peak", "-", "none"), ("final", ":", None)):
                 ax.errorbar(
                     mu, [r[f"qp_{what}_mean"] for r in rows],
-                    yerr=[r[f"qp_{what}_std"] for r in rows], fmt=markers[law] + ls,
-                    color=color if law == "relaxed" else "0.45", mfc=fill, ms=6, capsize=3,
-                    label=f"{law}, p/kn = {p:g}, {what}",
+                    yerr=[r[f"qp_{what}_std"] for r in rows], fmt=marker + ls, color=color,
+                    alpha=alpha, mfc=fill, ms=6, capsize=3, label=f"{law}, p/kn = {p:g}, {what}",
                 )  # fmt: skip
     (m0, m1), (q0, q1) = LITERATURE_CRITICAL
     ax.fill_between([m0, m1], q0, q1, color="C3", alpha=0.25,
-                    label="2-D disks, literature: critical state")  # fmt: skip
+                    label="2-D disks, literature:\ncritical state, μ = 0.4-0.5")  # fmt: skip
     ax.plot([0.0], [LITERATURE_MU0], "*", color="C3", ms=12, label="2-D disks, literature: μ = 0")
     ax.set_xlabel("contact friction coefficient μ")
     ax.set_ylabel("q / p (peak: open, final: filled)")
-    ax.set_title("Macroscopic against contact friction (final: where each test got to)",
-                 fontsize=9)  # fmt: skip
+    ax.set_title("Macroscopic against contact friction (mean ± std over the seeds; final: where "
+                 "each test got to, shear_tests.csv)", fontsize=8)  # fmt: skip
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=6, ncol=2)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
     fig.tight_layout()
     return fig
 
@@ -615,7 +616,7 @@ def parse_args(argv=None):
     parser.add_argument(
         "--budget",
         type=float,
-        help="wall seconds per confined shear test (default: 150, none with --small; 0: none)",
+        help="wall seconds per confined shear test (default: 90, none with --small; 0: none)",
     )
     return parser.parse_args(argv)
 

@@ -101,18 +101,20 @@ def check_friction_study(out, stdout):
 
 
 def check_relaxed_friction_study(out, stdout):
-    # 1. the substep: each load step is 1, 2, 4, 8 substeps; the differences to the finest
-    # substep shrink with it (the dissipation at first order, every substep an increment of the
-    # contact law; the shear stress ratio with it)
+    # 1. the substep: each load step is 1, 2, 4, 8 substeps; the dissipation's difference to
+    # the finest substep shrinks with it at about first order (every substep is a backward-Euler
+    # increment of the contact law: 4.7, 2.4, 0.9 % here, first order gives 7 : 3 : 1); the
+    # stress ratios agree to 1e-3 at every substep (2e-4 here; not monotone: on 200 disks to
+    # gamma = 2 % they scatter around 5e-5)
     conv = read_csv(out / "convergence.csv")
     assert [float(r["substep"]) for r in conv] == [1e-3, 5e-4, 2.5e-4, 1.25e-4]
     assert [r["substeps_per_step"] for r in conv] == ["1-1", "2-2", "4-4", "8-8"]
     assert all(r["status"] == "ok" and float(r["gamma"]) == 0.01 for r in conv)
-    for key in ("rel_diff_dissipation", "diff_sigma12_over_p"):
-        d = [abs(float(r[key])) for r in conv]
-        assert d[0] > d[1] > d[2] > d[3] == 0.0, (key, d)
+    d = [abs(float(r["rel_diff_dissipation"])) for r in conv]
+    assert d[3] == 0.0 and d[0] > 1.5 * d[1] > 2.25 * d[2] > 0.0 and d[0] < 0.2, d
+    for key in ("diff_sigma12_over_p", "diff_q_over_p"):
+        assert max(abs(float(r[key])) for r in conv) < 1e-3, key
     assert all(float(r["dissipation_Pa"]) > 0.0 for r in conv)  # mu = 0.5: contacts slide
-    assert abs(float(conv[0]["rel_diff_dissipation"])) < 0.2  # (4.7 % at the coarsest)
     # 2. confined shear: every step holds sigma_22 = -p, both laws and both mu got to 1 %
     steps = read_csv(out / "shear_steps.csv")
     columns = ("gamma", "q_over_p", "tau_over_p", "volumetric_strain", "z", "sliding_share",
