@@ -224,7 +224,7 @@ def frictional(packing, a, F0, F, t_relaxed, t_taylor):
     counts = [rve.equilibrium(F[q], state, q)[0].counts for q in range(a.points)]
     mean = {k: np.mean([getattr(c, k) for c in counts]) for k in ("steps", "factorisations",
                                                                   "fire_steps")}  # fmt: skip
-    inc = rve._increment(state, 0)
+    inc = rve.increment(state, 0)
     s = cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc)
     t_lu, _ = best_time(lambda: newton.factorise(rve.cell, rve.springs, F0, s, False), 20)
     t_eval, _ = best_time(

@@ -280,7 +280,7 @@ def test_the_tangent_is_the_derivative_of_the_stress_through_the_path(rve, shear
             Pp = rve.stress(F_TWO + dF, committed)[1]
             Pm = rve.stress(F_TWO - dF, committed)[1]
             dP[:, :, a, b] = (Pp - Pm) / (2 * h)
-    inc = rve._increment(committed, 0)
+    inc = rve.increment(committed, 0)
     h_path = point.substep(rve.cell, rve.springs, inc, F_TWO, rve.settings)
     assert len(stretches_between(F_ONE, F_TWO, h_path)) >= 3
     assert np.abs(dP - A).max() <= 1e-6 * np.abs(A).max()

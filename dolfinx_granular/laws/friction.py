@@ -61,7 +61,13 @@ import numpy as np
 from ..packings.packing import Packing, require_disks
 from . import friction_kernel as fk
 from .taylor import TaylorRVE
-from .tools import as_batch, output_buffers, push_forward, to_float, unsupported_deformation
+from .tools import (
+    as_batch,
+    non_negative,
+    output_buffers,
+    push_forward,
+    unsupported_deformation,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping
@@ -251,14 +257,6 @@ class FrictionContactSet:
     sliding: np.ndarray
 
 
-def _parameter(name, value, unit):
-    """``value`` as a finite float >= 0, else a ValueError naming the parameter."""
-    v = to_float(value, name)
-    if not (np.isfinite(v) and v >= 0.0):
-        raise ValueError(f"{name} must be a finite number >= 0{unit}, got {value!r}")
-    return v
-
-
 def _check_outputs(n, tangent, W, P, A):
     """Refuse ``out`` arrays the kernel cannot write into (it assumes their layout)."""
     for name, a, shape in (
@@ -305,8 +303,8 @@ class FrictionalRVE:
         min_stretch: float = 0.5,
         allow_overlaps: bool = False,
     ) -> None:
-        kt = _parameter("tangential_stiffness", tangential_stiffness, " (N/m²)")
-        mu = _parameter("friction", friction, "")
+        kt = non_negative(tangential_stiffness, "tangential_stiffness", " (N/m²)")
+        mu = non_negative(friction, "friction")
         self._taylor = TaylorRVE(packing, normal_stiffness, min_stretch, allow_overlaps)
         require_disks(packing, "FrictionalRVE")
         self.packing = packing

@@ -76,6 +76,15 @@ def normal_stiffness(value: object) -> float:
     return k
 
 
+def non_negative(value: object, name: str, unit: str = "") -> float:
+    """``value`` as a finite float >= 0; a ValueError that names the parameter (and its
+    ``unit``, e.g. " (N/m²)") otherwise."""
+    v = to_float(value, name)
+    if not (np.isfinite(v) and v >= 0.0):
+        raise ValueError(f"{name} must be a finite number >= 0{unit}, got {value!r}")
+    return v
+
+
 def as_batch(F: ArrayLike, dim: int = 2) -> tuple[np.ndarray, bool]:
     """``(F (n, d, d) C-contiguous float64, single)``; one F (d, d) becomes a batch of 1 and
     ``single`` is True."""

@@ -21,6 +21,8 @@ MIN_CONTACTS = 2
 #: equilibrium also within this many times the round-off of the contact forces (as the
 #: frictionless relaxed RVE's :data:`~dolfinx_granular.laws.relaxed.newton.RESOLVED`)
 RESOLVED = 30.0
+#: least extra diagonal of a rattler's unknowns in Newton, relative to k_n / V
+RATTLER_SHIFT = 1e-8
 #: a rattler's Newton move is at most about this many mean overlaps (its unknowns are
 #: shifted by its net force over that length, as in the frictionless solver)
 RATTLER_REACH = 300.0

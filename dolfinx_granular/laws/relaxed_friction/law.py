@@ -18,7 +18,7 @@ from ...packings.packing import Packing
 from ..relaxed.errors import RelaxationError
 from ..relaxed.law import RelaxedRVE, RelaxedState
 from ..taylor import ContactSet
-from ..tools import as_batch, output_buffers, push_forward, to_float
+from ..tools import as_batch, non_negative, output_buffers, push_forward, to_float
 from .cell_state import Increment, Springs
 from .contact_law import SLIP
 from .point import Equilibrium, at_rest, follow
@@ -27,13 +27,6 @@ from .state import FrictionalRelaxedState
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
-
-
-def _parameter(name, value, unit):
-    v = to_float(value, name)
-    if not (np.isfinite(v) and v >= 0.0):
-        raise ValueError(f"{name} must be a finite number >= 0{unit}, got {value!r}")
-    return v
 
 
 class FrictionalRelaxedRVE:
@@ -75,8 +68,8 @@ class FrictionalRelaxedRVE:
         substep: float = 1e-3,
     ) -> None:
         self._frictionless = RelaxedRVE(packing, normal_stiffness, min_stretch, force_tol)
-        kt = _parameter("tangential_stiffness", tangential_stiffness, " (N/m²)")
-        mu = _parameter("friction", friction, "")
+        kt = non_negative(tangential_stiffness, "tangential_stiffness", " (N/m²)")
+        mu = non_negative(friction, "friction")
         if mu > 0.0 and kt == 0.0:
             raise ValueError(
                 "tangential_stiffness must be > 0 where friction > 0 (a contact without a "
@@ -107,7 +100,9 @@ class FrictionalRelaxedRVE:
             z(n), z(n + 1, np.int64), z(0, np.int64), z(0), z(0, bool),
         )  # fmt: skip
 
-    def _increment(self, state: FrictionalRelaxedState, q: int) -> Increment:
+    def increment(self, state: FrictionalRelaxedState, q: int) -> Increment:
+        """Point q of ``state`` as the committed side of an increment (its tangential forces
+        by this RVE's candidates)."""
         keys, forces, _ = state.contacts(q)
         idx = self.cell.index_of(keys)
         ft0 = np.zeros(self.cell.pi.shape[0])
@@ -122,7 +117,7 @@ class FrictionalRelaxedRVE:
         """Point q of ``state`` at F (2, 2) along its quasi-static path: its
         :class:`~dolfinx_granular.laws.relaxed_friction.point.Equilibrium` and the energy
         dissipated on the way (Pa). A committed F is not relaxed again."""
-        inc = self._increment(state, q)
+        inc = self.increment(state, q)
         if np.array_equal(F, state.F[q]):
             return at_rest(self.cell, self.springs, F, inc, tangent), 0.0
         dq = state.sensitivity[q]
@@ -199,15 +194,12 @@ class FrictionalRelaxedRVE:
         keys = c.keys_of(c.pi[on], c.pj[on], np.asarray(c.shift)[on])
         if np.array_equal(F, state.F[q]):
             committed, _, slid = state.contacts(q)
-            pos = np.minimum(
-                np.searchsorted(committed, keys, sorter=np.argsort(committed)),
-                max(committed.size - 1, 0),
-            )
-            order = np.argsort(committed)
-            hit = committed.size > 0
             sliding = np.zeros(on.size, bool)
-            if hit:
-                k = order[pos]
+            if committed.size:
+                order = np.argsort(committed)
+                k = order[
+                    np.minimum(np.searchsorted(committed, keys, sorter=order), order.size - 1)
+                ]
                 sliding = (committed[k] == keys) & slid[k]
             return keys, s.ft[on].copy(), sliding
         return keys, s.ft[on].copy(), s.status[on] == SLIP

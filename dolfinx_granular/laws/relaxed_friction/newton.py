@@ -22,7 +22,7 @@ from scipy.sparse.linalg import splu
 
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
-from .cell_state import RATTLER_REACH, CellState, Increment, Springs, diagonal
+from .cell_state import RATTLER_REACH, RATTLER_SHIFT, CellState, Increment, Springs, diagonal
 from .contact_law import SLIP, STICK
 from .settings import Settings
 from .system import EXACT, SKIPPED
@@ -64,7 +64,7 @@ def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
     reach = RATTLER_REACH * s.e[s.on].mean()
     diag = diagonal(
         s.status, s.network, s.keep, cell.pi[:m], cell.pj[:m], cell.radii, s.r, springs.kn,
-        springs.kt, springs.inv_area, pinned, reach, 1e-8, tangent, free_rotation,
+        springs.kt, springs.inv_area, pinned, reach, RATTLER_SHIFT, tangent, free_rotation,
     )  # fmt: skip
     held = np.zeros(3 * N, bool)
     held[[3 * pinned, 3 * pinned + 1]] = True

@@ -19,7 +19,6 @@ from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
 from ..relaxed.path import stretch, stretches_between
 from .cell_state import CellState, Increment, Springs
-from .contact_law import STICK
 from .fire import fire
 from .newton import Counts, solve
 from .path_tangent import Chain, stretch_derivative
@@ -183,8 +182,3 @@ def substep(cell: Cell, springs: Springs, inc: Increment, F, settings: Settings)
     return min(
         settings.substep, max(settings.substep_overlap * ratio, MIN_SUBSTEP * settings.substep)
     )
-
-
-def sticking(eq: Equilibrium) -> np.ndarray:
-    """(m,) contacts that stick."""
-    return eq.state.status == STICK

@@ -15,11 +15,8 @@ class Settings:
             the mean radius (or a few times the round-off of the contact forces, where that is
             larger: overlaps below ~1e-5 of the radii).
         max_iterations: Newton steps of one solve before the fallback takes over.
-        freeze_after: Newton steps after which the contacts' stick/slip statuses stop
-            changing (an active-set loop then releases those that break the Coulomb law).
         fire_tol, fire_steps: the fallback (damped dynamics of the same increment) stops at this
             net force, or fails after that many steps.
-        rattler_shift: least extra diagonal of a rattler's unknowns, relative to k_n / V.
         substep, substep_overlap: the quasi-static path's substeps |U_k+1 - U_k| (the right
             stretch, Frobenius norm) are at most ``substep``, and at most ``substep_overlap``
             times the mean overlap over the mean radius sum (of the committed state or, if
@@ -31,9 +28,7 @@ class Settings:
 
     force_tol: float = 1e-10
     max_iterations: int = 60
-    freeze_after: int = 12
     fire_tol: float = 1e-5
     fire_steps: int = 20_000
-    rattler_shift: float = 1e-8
     substep: float = 1e-3
     substep_overlap: float = 0.25
