@@ -39,6 +39,8 @@ from dolfinx_granular import FrictionalRelaxedRVE, TaylorRVE, generate_packing
 from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState, at_rest, block_ldlt, newton
 from dolfinx_granular.laws.relaxed.assembly import assemble
 from dolfinx_granular.laws.relaxed.contact_state import ContactState
+from dolfinx_granular.laws.relaxed_friction import block_lu, cell_state
+from dolfinx_granular.laws.relaxed_friction import newton as friction_newton
 from dolfinx_granular.timing import best_time
 
 import numpy as np
@@ -210,8 +212,6 @@ def main(argv=None):
 
 def frictional(packing, a, F0, F, t_relaxed, t_taylor):
     """Time the frictional relaxed RVE on the same steps and print where its time goes."""
-    from dolfinx_granular.laws.relaxed_friction import cell_state, newton
-
     rve = FrictionalRelaxedRVE(packing, K_N, K_N, a.friction)
     _, _, _, one = rve.evaluate(F0, rve.initial_state(1))
     state = type(one).concatenate([one] * a.points)
@@ -226,7 +226,9 @@ def frictional(packing, a, F0, F, t_relaxed, t_taylor):
                                                                   "fire_steps")}  # fmt: skip
     inc = rve.increment(state, 0)
     s = cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc)
-    t_lu, _ = best_time(lambda: newton.factorise(rve.cell, rve.springs, F0, s, False), 20)
+    t_lu, (lu, _) = best_time(
+        lambda: friction_newton.factorise(rve.cell, rve.springs, F0, s, False), 20
+    )
     t_eval, _ = best_time(
         lambda: cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc), 20
     )
@@ -236,10 +238,30 @@ def frictional(packing, a, F0, F, t_relaxed, t_taylor):
     eval_ms = 1e3 * t_eval * (2 * mean["steps"] + 3)
     print(
         f"  per point: {mean['steps']:.2f} Newton steps, {mean['factorisations'] + 1:.2f} "
-        f"SuperLU factorisations ({1e3 * t_lu:.2f} ms each: {lu_ms:.2f} ms), about "
+        f"factorisations ({1e3 * t_lu:.2f} ms each: {lu_ms:.2f} ms), about "
         f"{2 * mean['steps'] + 3:.0f} contact states ({1e3 * t_eval:.3f} ms each: "
         f"{eval_ms:.2f} ms), the rest {ms - lu_ms - eval_ms:.2f} ms; FIRE steps "
         f"{mean['fire_steps']:.1f}"
+    )
+    print_block_lu(lu, t_relaxed / a.points, mean["factorisations"] + 1)
+
+
+def print_block_lu(lu, t_relaxed, factorisations):
+    """The block LU's numeric factorisation alone (its assembly and solve aside), its flops and
+    rate, and the floor it sets: the factorisations of a point, and the least a point needs
+    (one Newton step and the tangent), beside the frictionless relaxed RVE's time."""
+    if not isinstance(lu, block_lu.BlockLU):
+        print("  (the block LU refused the committed state's Jacobian: SuperLU factorised it)")
+        return
+    t, _ = best_time(lu.factorise, 20)
+    mflop = block_lu.flops(lu.pattern) / 1e6
+    p = lu.pattern
+    print(
+        f"  block LU: {p.n} blocks of 3, {p.nnz_L} blocks in L, numeric factorisation "
+        f"{1e3 * t:.2f} ms ({mflop:.2f} MFLOP, {mflop / 1e3 / t:.1f} GFLOP/s); floor "
+        f"{factorisations:.2f} of them {1e3 * t * factorisations:.2f} ms = "
+        f"{t * factorisations / t_relaxed:.1f} x, 2 of them {2e3 * t:.2f} ms = "
+        f"{2 * t / t_relaxed:.1f} x the frictionless relaxed RVE"
     )
 
 

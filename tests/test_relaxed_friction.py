@@ -183,7 +183,7 @@ def _brute_force_balance(packing, rve, F, state):
         (int(i), int(j), int(s0), int(s1)): k
         for k, ((i, j), (s0, s1)) in enumerate(zip(c.pairs, c.shift))
     }
-    f, M, found = np.zeros_like(x), np.zeros(len(r)), 0
+    f, M, found = np.zeros_like(x), np.zeros(len(r)), np.zeros(len(c.force), bool)
     wraps = np.floor((packing.centers + state.w[0]) / packing.box).astype(int)
     for i in range(len(r)):
         for j in range(i, len(r)):
@@ -203,7 +203,7 @@ def _brute_force_balance(packing, rve, F, state):
                         assert r[i] + r[j] - d <= 1e-12 * (r[i] + r[j])
                         continue
                     k = known[(a_, b_) + sh]
-                    found += 1
+                    found[k] = True
                     n = l / d
                     t = np.array([-n[1], n[0]])
                     force = c.force[k] * n + c.tangential[k] * (r[i] + r[j]) / d * t
@@ -211,7 +211,9 @@ def _brute_force_balance(packing, rve, F, state):
                     f[a_] -= force
                     M[a_] -= r[a_] * c.tangential[k]
                     M[b_] -= r[b_] * c.tangential[k]
-    assert found == len(c.force)
+    # every contact of the set is found, but one whose overlap is round-off (~1e-16 of the
+    # radii: either side of touching, its force nothing against the balance's 1e-9)
+    assert found[c.force > 1e-12 * c.force.mean()].all()
     return f, M, c.force.mean()
 
 

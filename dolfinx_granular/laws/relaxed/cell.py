@@ -184,9 +184,10 @@ class Cell:
         self.extend(w, s_min, skin)
         self._verlet = (np.array(w, dtype=np.float64), s_min, skin)
 
-    def block_pattern(self, pinned: int, m: int | None = None) -> tuple:
+    def block_pattern(self, pinned: int, m: int | None = None, d: int = 2) -> tuple:
         """``(pattern, factor, cover)``: the symbolic block LDL^T of the stiffness on the first
         ``cover`` candidate pairs, at least m of them (all without m), disk ``pinned`` left out
+        (-1: none), in d x d blocks (3: a disk with its rotation)
         (:func:`~dolfinx_granular.laws.relaxed.block_ldlt.analyse`), and a numeric factor on it.
 
         The compiled loop asks for the prefix that holds the contacts it assembles (the list is
@@ -200,7 +201,9 @@ class Cell:
         m = total if m is None else int(m)
         margin = 16 + int(PATTERN_MARGIN * m)
         cache = self.__dict__.setdefault("_patterns", [])
-        fits = [k for k, (p, _, c) in enumerate(cache) if p.pinned == pinned and m <= c]
+        fits = [
+            k for k, (p, _, c) in enumerate(cache) if p.pinned == pinned and p.d == d and m <= c
+        ]
         if fits:
             k = min(fits, key=lambda k: cache[k][2])
             if cache[k][2] <= min(total, m + 2 * margin):
@@ -208,7 +211,7 @@ class Cell:
                 return cache[-1]
         cover = min(total, m + margin)
         pairs = np.c_[self.pi[:cover], self.pj[:cover]]
-        p = block_ldlt.analyse(self.n_disks, pairs, int(pinned))
+        p = block_ldlt.analyse(self.n_disks, pairs, int(pinned), d)
         cache.append((p, p.new_factor(), cover))
         del cache[:-PATTERNS_KEPT]
         return cache[-1]

@@ -22,8 +22,9 @@ from scipy.sparse.linalg import splu
 
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
+from .block_lu import BlockLU, assemble
 from .cell_state import RATTLER_REACH, RATTLER_SHIFT, CellState, Increment, Springs, diagonal
-from .contact_law import SLIP, STICK
+from .contact_law import OPEN, SLIP, STICK
 from .settings import Settings
 from .system import EXACT, SKIPPED
 
@@ -51,10 +52,11 @@ class Counts:
 
 def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
               free_rotation: float = 1.0):  # fmt: skip
-    """SuperLU of the Jacobian at s (sparse (3N, 3N) csc), the pinned disk's translation and
-    (for the ``tangent``) the rattlers' unknowns held (``diagonal``); ``free_rotation`` scales
-    the diagonal of the rotations no sticking contact holds. Returns ``(lu, held (3N,)
-    bool)``; RuntimeError where it is singular."""
+    """The Jacobian at s (3N, 3N) factorised, the pinned disk's translation and (for the
+    ``tangent``) the rattlers' unknowns held (``diagonal``); ``free_rotation`` scales the
+    diagonal of the rotations no sticking contact holds. Returns ``(lu, held (3N,) bool)``, lu
+    with ``solve(b)``: the block LU (:mod:`.block_lu`), or SuperLU where a block pivot of the
+    block LU is singular; RuntimeError where the Jacobian is."""
     N, m = cell.n_disks, s.m
     mode = np.full(m, EXACT, np.int8)
     if tangent:
@@ -71,6 +73,14 @@ def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
     if tangent:
         out = np.flatnonzero(~s.keep)
         held[3 * out], held[3 * out + 1], held[3 * out + 2] = True, True, True
+    contacts = np.flatnonzero((s.status != OPEN) & (mode == EXACT))
+    pattern = cell.block_pattern(-1, int(contacts[-1]) + 1 if contacts.size else 1, d=3)[0]
+    lu = BlockLU.on(pattern)
+    p = pattern
+    assemble(p.n, p.diag_slot, p.pair_slot, p.pair_flip, cell.pi, cell.pj, contacts,
+             vals.reshape(-1, 6, 6), held, diag, lu.values)  # fmt: skip
+    if lu.factorise():
+        return lu, held
     use = ~(held[rows] | held[cols])
     idx = np.arange(3 * N)
     J = sp.csc_matrix(
