@@ -260,16 +260,27 @@ def _differences(rve, F, committed, h=1e-7):
     return dP, moved
 
 
+def _sliding(rve, F, committed):
+    """{(i, j, image): sliding} of the contacts at F that carry a force (a rattler's last
+    contact relaxes to a round-off overlap, on either side of touching)."""
+    c = rve.contacts(F, committed)
+    carry = c.force > 1e-12 * c.force.mean()
+    return {
+        (int(i), int(j), int(s0), int(s1)): bool(slide)
+        for (i, j), (s0, s1), slide in zip(c.pairs[carry], c.shift[carry], c.sliding[carry])
+    }
+
+
 def test_the_tangent_is_the_derivative_of_the_stress_within_a_substep(rve, sheared):
     """A at F against central differences of P from the same committed state: F within one
     substep of it, no contact changes status."""
     _, committed = sheared
     F = F_ONE + np.array([[2e-4, 3e-4], [-1e-4, -2e-4]])
     _, P, A, new = rve.evaluate(F, committed)
-    status = rve.contacts(F, committed).sliding
+    status = _sliding(rve, F, committed)
     dP, moved = _differences(rve, F, committed)
-    assert all(np.array_equal(rve.contacts(G, committed).sliding, status) for G in moved)
-    assert status.any()
+    assert all(_sliding(rve, G, committed) == status for G in moved)
+    assert any(status.values())
     assert np.abs(dP - A).max() <= 1e-5 * np.abs(A).max()
     A4 = A.reshape(4, 4)
     assert np.abs(A4 - A4.T).max() > 1e-4 * np.abs(A4).max()  # slip: not symmetric

@@ -37,15 +37,19 @@ EDGE = 0.05
 #: Newton counts as stalled where its residual fell by less than STALL_RATE over the last
 #: STALL_STEPS steps
 STALL_STEPS, STALL_RATE = 4, 0.5
+#: a step that cut the residual to below this part takes the next on the same factorisation
+#: (a chord step) while no contact has changed its status since it
+CHORD_RATE = 0.1
 
 
 @dataclass
 class Counts:
-    """What a solve did: Newton steps, factorisations, steps of the fallback; ``history`` the
-    residual of every iterate."""
+    """What a solve did: Newton steps, factorisations, chord steps (on an earlier
+    factorisation), steps of the fallback; ``history`` the residual of every iterate."""
 
     steps: int = 0
     factorisations: int = 0
+    chord_steps: int = 0
     fire_steps: int = 0
     history: list = field(default_factory=list)
 
@@ -116,8 +120,9 @@ def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Sett
     w, th = np.array(w, dtype=np.float64), np.array(th, dtype=np.float64)
     history = counts.history
     start = len(history)
+    s = CellState(cell, springs, F, w, th, inc)
+    chord = None
     for step in range(settings.max_iterations + 1):
-        s = CellState(cell, springs, F, w, th, inc)
         if s.count == 0:
             raise RigidityLostError("no two disks touch (the cell has come apart)")
         residual, floor = s.residual(cell)
@@ -130,26 +135,45 @@ def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Sett
                 f"Newton stalled after {step} steps (largest net force or moment "
                 f"{residual:.3g} of the mean contact force)"
             )
-        found = _step(cell, springs, F, w, th, inc, s, counts)
+        found = None
+        if chord is not None and np.array_equal(chord[2], s.status):
+            found = _line_search(cell, springs, F, w, th, inc, s, _direction(chord, s), chord[1])
+            counts.chord_steps += found is not None
+        if found is None:
+            found, chord = _step(cell, springs, F, w, th, inc, s, counts)
         if found is None:
             raise RelaxationError("the line search found no smaller residual")
-        w, th = found
+        w, th, trial = found
+        if trial.residual(cell)[0] > CHORD_RATE * residual:
+            chord = None  # (a chord step would converge slowly: factorise at the next)
+        s = trial
         counts.steps += 1
     raise AssertionError("unreachable")
 
 
+def _direction(factorised, s):
+    """The Newton direction (N, 3) of the residual at s on a factorisation ``(lu, held,
+    statuses)``."""
+    lu, held, _ = factorised
+    rhs = s.r.ravel().copy()
+    rhs[held] = 0.0
+    return -lu.solve(rhs).reshape(-1, 3)
+
+
 def _step(cell, springs, F, w, th, inc, s, counts):
     """A step on the consistent Jacobian with a backtracking line search on the squared
-    residual: the new (w, th), or None where none lowers it. Where none does, the contacts near
-    the cone's edge (:data:`EDGE`) take the other side's Jacobian (the generalised Jacobian of
-    the return map has both there) and the step is tried again."""
+    residual: ``((w, th, state), (lu, held, statuses))`` the new unknowns and state and the
+    factorisation, or ``(None, None)`` where no step lowers the residual. Where none does, the
+    contacts near the cone's edge (:data:`EDGE`) take the other side's Jacobian (the
+    generalised Jacobian of the return map has both there) and the step is tried again."""
     for edge in (0.0, EDGE):
         status = s.status
         if edge:
             near = s.near_edge(springs, edge)
             if not near.any():
-                return None
+                return None, None
             s.status = np.where(near, np.where(status == STICK, SLIP, STICK), status)
+        jacobian_status = s.status
         try:
             lu, held = factorise(cell, springs, F, s, False)
         except RuntimeError:
@@ -157,18 +181,17 @@ def _step(cell, springs, F, w, th, inc, s, counts):
         finally:
             s.status = status
         counts.factorisations += 1
-        rhs = s.r.ravel().copy()
-        rhs[held] = 0.0
-        dq = -lu.solve(rhs).reshape(-1, 3)
-        if np.isfinite(dq).all():
-            found = _line_search(cell, springs, F, w, th, inc, s, dq, held)
-            if found is not None:
-                return found
-    return None
+        factorised = (lu, held, jacobian_status)
+        found = _line_search(cell, springs, F, w, th, inc, s, _direction(factorised, s), held)
+        if found is not None:
+            return found, factorised
+    return None, None
 
 
 def _line_search(cell, springs, F, w, th, inc, s, dq, held):
-    """Backtracking on the squared residual along dq: the new (w, th), or None."""
+    """Backtracking on the squared residual along dq: the new ``(w, th, state)``, or None."""
+    if not np.isfinite(dq).all():
+        return None
     mean_radius = float(cell.radii.mean())
     phi0 = _merit(s, held, mean_radius)
     alpha = _limit(cell, F, dq)
@@ -176,6 +199,6 @@ def _line_search(cell, springs, F, w, th, inc, s, dq, held):
         wt, tt = w + alpha * dq[:, :2], th + alpha * dq[:, 2]
         trial = CellState(cell, springs, F, wt, tt, inc)
         if _merit(trial, held, mean_radius) <= (1.0 - 2e-4 * alpha) * phi0:
-            return wt, tt
+            return wt, tt, trial
         alpha *= 0.5
     return None
