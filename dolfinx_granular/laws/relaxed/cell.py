@@ -184,11 +184,15 @@ class Cell:
         self.extend(w, s_min, skin)
         self._verlet = (np.array(w, dtype=np.float64), s_min, skin)
 
-    def block_pattern(self, pinned: int, m: int | None = None, d: int = 2) -> tuple:
+    def block_pattern(
+        self, pinned: int, m: int | None = None, d: int = 2, new_factor=None
+    ) -> tuple:
         """``(pattern, factor, cover)``: the symbolic block LDL^T of the stiffness on the first
         ``cover`` candidate pairs, at least m of them (all without m), disk ``pinned`` left out
         (-1: none), in d x d blocks (3: a disk with its rotation)
-        (:func:`~dolfinx_granular.laws.relaxed.block_ldlt.analyse`), and a numeric factor on it.
+        (:func:`~dolfinx_granular.laws.relaxed.block_ldlt.analyse`), and a numeric factor on it
+        (``new_factor(pattern)``, default :meth:`BlockPattern.new_factor`), made once per
+        pattern: its arrays are reused by every factorisation on the pattern.
 
         The compiled loop asks for the prefix that holds the contacts it assembles (the list is
         sorted by reference distance: fewer than the visited ones). The prefix reaches
@@ -212,7 +216,7 @@ class Cell:
         cover = min(total, m + margin)
         pairs = np.c_[self.pi[:cover], self.pj[:cover]]
         p = block_ldlt.analyse(self.n_disks, pairs, int(pinned), d)
-        cache.append((p, p.new_factor(), cover))
+        cache.append((p, p.new_factor() if new_factor is None else new_factor(p), cover))
         del cache[:-PATTERNS_KEPT]
         return cache[-1]
 

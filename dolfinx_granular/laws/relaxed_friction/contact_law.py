@@ -104,9 +104,10 @@ def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
 
 @njit(cache=True)
 def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tangent, out):
-    """One contact's generalised force (6,) and stress (4,) and, with ``tangent``, its
-    derivatives (N; the module's formulas): ``out`` is a scratch dict of arrays written in
-    place, keys r (6,), P (4,), Kuu (6, 6), KFF (4, 4), KFu (4, 6), KuF (6, 4)."""
+    """One contact's generalised force (6,) and stress (4,) and its derivatives (N; the
+    module's formulas) by ``tangent``: 0 none, 1 Kuu (the Jacobian), 2 all. ``out`` is a
+    tuple of scratch arrays (:func:`scratch`) written in place: r (6,), P (4,), Kuu (6, 6),
+    KFF (4, 4), KFu (4, 6), KuF (6, 4), then work arrays."""
     r, P = out[0], out[1]
     nx, ny = lx / d, ly / d
     tx, ty = -ny, nx
@@ -120,7 +121,7 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
     r[0], r[1], r[2] = -Fg0, -Fg1, -ri * ft
     r[3], r[4], r[5] = Fg0, Fg1, -rj * ft
     P[0], P[1], P[2], P[3] = gx * qx, gx * qy, gy * qx, gy * qy
-    if not tangent:
+    if tangent == 0:
         return
     Kuu, KFF, KFu, KuF = out[2], out[3], out[4], out[5]
     B = out[6]  # (2, 6)
@@ -161,6 +162,8 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
         for u in range(4):
             dfF[u] = k * deF[u]
     _quadratic(B, B, h00, h01, h11, s, df, Kuu)
+    if tangent == 1:
+        return
     _quadratic(BF, BF, h00, h01, h11, sF, dfF, KFF)
     _quadratic(BF, B, h00, h01, h11, sF, df, KFu)
     _quadratic(B, BF, h00, h01, h11, s, dfF, KuF)

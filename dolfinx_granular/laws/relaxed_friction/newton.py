@@ -59,8 +59,9 @@ def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
     """The Jacobian at s (3N, 3N) factorised, the pinned disk's translation and (for the
     ``tangent``) the rattlers' unknowns held (``diagonal``); ``free_rotation`` scales the
     diagonal of the rotations no sticking contact holds. Returns ``(lu, held (3N,) bool)``, lu
-    with ``solve(b)``: the block LU (:mod:`.block_lu`), or SuperLU where a block pivot of the
-    block LU is singular; RuntimeError where the Jacobian is."""
+    with ``solve(b)``: the block LU (:mod:`.block_lu`; the cell's one for its pattern, valid
+    until the next factorisation), or SuperLU where a block pivot of the block LU is singular;
+    RuntimeError where the Jacobian is."""
     N, m = cell.n_disks, s.m
     mode = np.full(m, EXACT, np.int8)
     if tangent:
@@ -78,9 +79,10 @@ def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
         out = np.flatnonzero(~s.keep)
         held[3 * out], held[3 * out + 1], held[3 * out + 2] = True, True, True
     contacts = np.flatnonzero((s.status != OPEN) & (mode == EXACT))
-    pattern = cell.block_pattern(-1, int(contacts[-1]) + 1 if contacts.size else 1, d=3)[0]
-    lu = BlockLU.on(pattern)
-    p = pattern
+    # (the pattern's one BlockLU: each factorisation overwrites the last one's)
+    p, lu, _ = cell.block_pattern(
+        -1, int(contacts[-1]) + 1 if contacts.size else 1, d=3, new_factor=BlockLU.on
+    )
     assemble(p.n, p.diag_slot, p.pair_slot, p.pair_flip, cell.pi, cell.pj, contacts,
              vals.reshape(-1, 6, 6), held, diag, lu.values)  # fmt: skip
     if lu.factorise():

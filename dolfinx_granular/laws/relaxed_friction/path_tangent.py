@@ -93,7 +93,7 @@ def history_terms(G, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, X, Y, R, r
         d0 = np.sqrt(a0 * a0 + b0 * b0)
         t0x, t0y = -b0 / d0, a0 / d0
         local(G, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
-              radii[i], radii[j], kn, kt, mu, True, out)  # fmt: skip
+              radii[i], radii[j], kn, kt, mu, 2, out)  # fmt: skip
         su, sF = out[8][0], out[8][1][:4]
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for p in range(4):
@@ -125,7 +125,7 @@ def force_derivatives(G, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, rad
             continue
         i, j = pi[c], pj[c]
         local(G, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
-              radii[i], radii[j], kn, kt, mu, True, out)  # fmt: skip
+              radii[i], radii[j], kn, kt, mu, 2, out)  # fmt: skip
         su, sF, de, deF = out[8][0], out[8][1][:4], out[8][2], out[8][3][:4]
         k = mu * kn if ft[c] >= 0.0 else -mu * kn
         for p in range(4):

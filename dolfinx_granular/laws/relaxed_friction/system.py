@@ -64,8 +64,9 @@ def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, 
         if status[c] == OPEN:
             continue
         i, j = pi[c], pj[c]
+        exact = 1 if jacobian and mode[c] == EXACT else 0  # (the Jacobian alone)
         local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
-              radii[i], radii[j], kn, kt, mu, jacobian and mode[c] == EXACT, out)  # fmt: skip
+              radii[i], radii[j], kn, kt, mu, exact, out)  # fmt: skip
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for u in range(6):
             r[idx[u] // 3, idx[u] % 3] += inv_area * out[0][u]
@@ -95,7 +96,7 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, 
             continue
         i, j = pi[c], pj[c]
         local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
-              radii[i], radii[j], kn, kt, mu, True, out)  # fmt: skip
+              radii[i], radii[j], kn, kt, mu, 2, out)  # fmt: skip
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for a in range(4):
             for b in range(4):
