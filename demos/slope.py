@@ -40,9 +40,10 @@ SMALL = ["--particles", "70", "--steps", "4", "--out", "results/slope-small"]
 #    `TaylorRVE(packing, 2.8e7)` evaluates the stress (eq. 10) and the consistent tangent
 #    (eqs. 12-13) of that packing under any F.
 # 2. **The model.** `SlopeModel` meshes the reconstructed slope with gmsh (`SlopeGeometry`: every
-#    dimension in one place), puts the RVE on the 2x2 Gauss points of its 380 Q1 cells
-#    (`GranularMaterial`), fixes the base, holds the sides on rollers and applies gravity and the
-#    footing as dead loads.
+#    dimension in one place; `--slope-ratio N` for a slope of run over rise N, `with_slope_ratio`),
+#    puts the RVE (`GranularMaterial`) on the 2x2 Gauss points of its 380 Q1 cells (at the
+#    paper's 45°), fixes the base, holds the sides on rollers and applies gravity and the footing
+#    as dead loads.
 # 3. **The load path.** `SlopeRun` applies gravity in one step, then the footing in `--steps`
 #    equal steps, each solved by Newton's method with the consistent tangent (quadratic
 #    convergence, table 2 of the paper). A step that fails is cut back and retried; a load the

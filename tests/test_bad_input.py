@@ -57,6 +57,9 @@ def packings(tmp_path):
         (["--stabilise", "-1"], ["--stabilise", ">= 0"]),
         (["--bogus"], ["unrecognized arguments: --bogus", "--help"]),
         (["--line-search", "magic"], ["--line-search", "invalid choice"]),
+        (["--slope-ratio", "0"], ["--slope-ratio", "> 0", "'0'"]),
+        (["--slope-ratio", "steep"], ["--slope-ratio", "expected a number"]),
+        (["--slope-ratio", "1.5"], ["--slope-ratio 1.5", "multiple of", "0.2", "1.4 or 1.6"]),
     ],
 )
 def test_invalid_options(args, words):

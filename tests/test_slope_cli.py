@@ -48,6 +48,7 @@ def test_out_that_holds_a_run_is_refused(old_run):
         (["--resume", "x", "--friction", "0.3"], ["--resume", "drop --friction"]),
         (["--resume", "x", "--force"], ["--resume", "drop --force"]),
         (["--resume", "x", "--out", "y"], ["--resume", "drop --out"]),
+        (["--resume", "x", "--slope-ratio", "2"], ["--resume", "drop --slope-ratio"]),
         (["--resume", "x", "--steps", "20"], ["drop --steps"]),  # even the default value
         (["--max-increments", "5"], ["--max-increments", "--path-following"]),
         (["--path-following", "gravity", "--steps", "3"], ["gravity", "drop --steps"]),

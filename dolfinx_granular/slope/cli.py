@@ -87,6 +87,18 @@ def _finite(low=None):
     return parse
 
 
+def _slope_ratio(text):
+    """The slope's run over its rise: a finite number > 0 (argparse type; whether its run fits
+    the columns, :meth:`SlopeGeometry.with_slope_ratio` says)."""
+    value = _finite()(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(
+            f"the slope's run over its rise must be a finite number > 0 (1: 45°, 2: 26.6°), "
+            f"got {text!r}"
+        )
+    return value
+
+
 def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
     p = _Parser(
         prog=prog,
@@ -229,11 +241,20 @@ def _add_path_and_run(p: argparse.ArgumentParser) -> None:
         help="most arc-length increments, with --path-following only (default 100)",
     )
     p.add_argument(
+        "--slope-ratio",
+        type=_slope_ratio,
+        default=1.0,
+        metavar="N",
+        help="the slope's run over its rise, a multiple of 0.2 (default 1: 45°; 2: 26.6°, "
+        "3: 18.4°, 4: 14.0°); the crest with the footing and the ground past the toe stay, "
+        "the domain widens",
+    )
+    p.add_argument(
         "--refine",
         type=_int_at_least(1),
         default=1,
         metavar="K",
-        help="mesh refinement: K times the columns and rows (K² x 380 cells)",
+        help="mesh refinement: K times the columns and rows (K² x 380 cells at --slope-ratio 1)",
     )
     p.add_argument(
         "--stop-after",
@@ -285,7 +306,7 @@ def check_combination(a: argparse.Namespace, given: set[str]) -> None:
 def options_of(a: argparse.Namespace) -> SlopeOptions:
     """The run's options from parsed command-line arguments (--tangential-stiffness with
     --friction 0 is the frictionless model: k_t has no effect there)."""
-    geometry = SlopeGeometry().refined(a.refine)
+    geometry = _geometry(a.slope_ratio).refined(a.refine)
     try:
         return SlopeOptions(
             steps=a.steps,
@@ -306,6 +327,14 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
         )
     except ValueError as err:
         raise UserError(str(err)) from None
+
+
+def _geometry(ratio: float) -> SlopeGeometry:
+    """The slope of ``--slope-ratio`` on the coarse columns (``--refine`` keeps its slope)."""
+    try:
+        return SlopeGeometry.with_slope_ratio(ratio)
+    except ValueError as err:
+        raise UserError(f"--slope-ratio {ratio:g}: {err}") from None
 
 
 def make_packing(

@@ -9,8 +9,9 @@ mapping is exactly bilinear and no node drifts off the evenly spaced rows.
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -34,7 +35,8 @@ class SlopeGeometry:
     """Dimensions (m) and loads of the slope benchmark.
 
     Ground at ``crest_height`` for x <= ``slope_start``, a straight slope down to ``toe_height``
-    at ``slope_end``, then flat. The footing load is a linearly varying pressure over
+    at ``slope_end``, then flat: by default a 45° slope (run over rise 1), and flatter or steeper
+    ones from :meth:`with_slope_ratio`. The footing load is a linearly varying pressure over
     [footing_start, footing_end] whose resultant ``footing_load`` (N per metre, negative = down)
     acts ``eccentricity`` toward the slope (+x) from the footing centre.
     """
@@ -77,6 +79,42 @@ class SlopeGeometry:
                 f"eccentricity {self.eccentricity} m exceeds B/6 = {self.footing_width / 6} m: the "
                 "linear footing pressure would change sign (the footing would lift off)"
             )
+
+    @classmethod
+    def with_slope_ratio(cls, ratio: float, **overrides: Any) -> SlopeGeometry:
+        """The slope with run : rise = ``ratio`` : 1 (1: 45°, the default geometry; 2: 26.6°).
+
+        The crest with the footing, the rise (``crest_height - toe_height``) and the flat
+        ground past the toe keep their lengths; the domain's width changes with the slope's
+        run, ``ratio`` x rise. ``overrides`` set the other fields (``slope_end`` and ``width``
+        follow from the ratio). The run must be a whole number of columns, so ``ratio`` is a
+        multiple of column_width / rise (0.2 by default); other ratios raise ValueError
+        naming the nearest ones, not rounded: a slope other than the one asked for would go
+        unnoticed. ``refined(k)`` keeps the slope.
+        """
+        taken = {"slope_end", "width"} & set(overrides)
+        if taken:
+            names = ", ".join(sorted(taken))
+            raise ValueError(f"slope_end and width follow from the slope ratio: drop {names}")
+        defaults = {f.name: f.default for f in fields(cls)}
+        values = {**defaults, **overrides}
+        rise = values["crest_height"] - values["toe_height"]
+        end = values["slope_start"] + slope_run(ratio, rise, values["column_width"])
+        flat = defaults["width"] - defaults["slope_end"]  # the ground past the toe
+        return cls(**{**values, "slope_end": end, "width": end + flat})
+
+    @property
+    def slope_ratio(self) -> float:
+        """The slope's run over its rise, (slope_end - slope_start) / (crest_height -
+        toe_height): 1 for 45°, 2 for 26.6° (inf for flat ground)."""
+        rise = self.crest_height - self.toe_height
+        return (self.slope_end - self.slope_start) / rise if rise else math.inf
+
+    @property
+    def slope_angle(self) -> float:
+        """The slope's inclination to the horizontal in degrees (45 for ratio 1)."""
+        run = self.slope_end - self.slope_start
+        return math.degrees(math.atan2(self.crest_height - self.toe_height, run))
 
     @property
     def columns(self) -> int:
@@ -124,6 +162,28 @@ class SlopeGeometry:
     def loaded_edge(self) -> float:
         """x (m) of the footing edge with the larger pressure (where settlement is reported)."""
         return self.footing_end if self.eccentricity >= 0 else self.footing_start
+
+
+def slope_run(ratio: float, rise: float, column_width: float) -> float:
+    """The horizontal length (m) of a slope of run : rise = ``ratio`` : 1 and ``rise`` m, a
+    whole number of ``column_width`` columns; ValueError naming the nearest ratios that are."""
+    if not (math.isfinite(ratio) and ratio > 0.0):
+        raise ValueError(
+            f"the slope ratio (run over rise) must be a finite number > 0, got {ratio!r}"
+        )
+    if not rise > 0.0:
+        raise ValueError(f"a slope ratio needs the crest above the toe, got a rise of {rise!r} m")
+    columns = ratio * rise / column_width
+    whole = round(columns)
+    if abs(columns - whole) > 1e-9 * max(1.0, columns) or whole < 1:
+        step = column_width / rise
+        near = sorted({max(1, math.floor(columns)), math.ceil(columns)})
+        raise ValueError(
+            f"slope ratio {ratio:g} makes the slope's run {ratio * rise:g} m, not a whole number "
+            f"of {column_width:g} m columns: give a multiple of column_width / rise = {step:g}, "
+            f"e.g. {' or '.join(f'{k * step:g}' for k in near)}"
+        )
+    return whole * column_width  # (exact on the columns, where ratio x rise may round)
 
 
 def build_gmsh_model(geometry: SlopeGeometry = SlopeGeometry(), name: str = "slope") -> None:

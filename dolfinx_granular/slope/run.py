@@ -359,6 +359,8 @@ class SlopeRun:
             "iterations": list(self.iterations),
             "footing_settlement": self.step_info[-1]["settlement"] if self.step_info else None,
             "load_factor": self.options.load_factor,
+            "slope_ratio": self.options.geometry.slope_ratio,
+            "slope_angle": self.options.geometry.slope_angle,
             "stabilise": self.options.stabilise,
             "step_info": list(self.step_info),
         }
@@ -613,7 +615,8 @@ def run_slope(
     run = SlopeRun(packing, options, out, comm, **kwargs)
     o, m = run.options, run.model
     run.say(
-        f"slope: {m.mesh.topology.index_map(2).size_global} cells, "
+        f"slope: 1:{o.geometry.slope_ratio:g} slope ({o.geometry.slope_angle:.1f}°), "
+        f"{m.mesh.topology.index_map(2).size_global} cells, "
         f"{comm.allreduce(m.material.n_points)} {'' if o.rve == 'taylor' else o.rve + ' '}RVEs "
         f"of {packing.n_particles} particles"
         + (f" confined at {o.confinement:g} Pa" if o.confinement else "")

@@ -127,6 +127,9 @@ def summarise(
         "resumed_from": run.resumed_from,
         "cutbacks": [c.as_dict() for c in stepper.cutbacks],
         "load_factor": run.options.load_factor,
+        # the slope's run over its rise and its angle (degrees); restart.npz holds the geometry
+        "slope_ratio": o.geometry.slope_ratio,
+        "slope_angle": o.geometry.slope_angle,
         "stabilise": run.options.stabilise,
         "allow_overlaps": run.options.allow_overlaps,
         "open_points": m.open_points(),
