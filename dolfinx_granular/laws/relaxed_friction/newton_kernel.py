@@ -1,0 +1,324 @@
+"""The frictional relaxed micro Newton loop, compiled: the steps of
+:func:`~dolfinx_granular.laws.relaxed_friction.newton.solve` (the return map, the residual, the
+Jacobian on the block LU, the line search on the squared residual, chord steps, the cone's edge,
+stall detection) without Python between them.
+
+Where the candidate list must grow (a disk moved past its Verlet skin) or a contact lies beyond
+the block pattern's prefix, it hands back to :func:`run`, which grows the list or takes a
+longer pattern and goes on from the last iterate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..relaxed.cell import SKIN
+from ..relaxed.contact_state import non_rattlers
+from ..relaxed.newton import visited
+from ..tools import singular_values_2x2
+from .block_lu import BlockLU, assemble, numeric, refined_solve
+from .cell_state import MIN_CONTACTS, RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal
+from .contact_law import OPEN, SLIP, STICK, return_map
+from .system import EXACT, balance, equations
+
+#: longest move of a disk in one step (its centre, or its surface by turning), relative to the
+#: smallest radius sum
+MAX_STEP = 0.1
+#: a contact whose trial force is within this part of its cap of the cone's edge can take
+#: either side's Jacobian: where no step on the Jacobian lowers the residual, the step is
+#: tried again with those contacts' other side
+EDGE = 0.05
+#: Newton counts as stalled where its residual fell by less than STALL_RATE over the last
+#: STALL_STEPS steps
+STALL_STEPS, STALL_RATE = 4, 0.5
+#: a step that cut the residual to below this part takes the next on the same factorisation
+#: (a chord step) while no contact has changed its status since it
+CHORD_RATE = 0.1
+
+#: what :func:`newton` ends with
+CONVERGED, FAILED, RIGIDITY_LOST, HAND_BACK = 0, 1, 2, 3
+#: why it failed (``FAILED``) or handed back (``HAND_BACK``)
+STALLED, NO_DESCENT, GROW_LIST, BEYOND_PATTERN, SINGULAR_PIVOT = 1, 2, 3, 4, 5
+
+
+@njit(cache=True)
+def cell_state(F, w, th, inc, cell, springs, m):
+    """The return map and balance at (F, w, theta) over the first m candidates, as
+    :class:`~dolfinx_granular.laws.relaxed_friction.cell_state.CellState`: ``(qx, qy, lx, ly,
+    d, e, ft, fstar, status, keep, f, M, mean_force, count, r)``."""
+    F0, w0, th0, ft0 = inc
+    pi, pj, X, Y, R, radii = cell
+    kn, kt, mu, inv_area = springs
+    N = radii.shape[0]
+    qx, qy, lx, ly, d, e, ft, fstar, status = return_map(
+        F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
+    )
+    keep = non_rattlers(pi, pj, e, N, MIN_CONTACTS)
+    f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, N)
+    none = np.empty(0, np.int64)
+    r, _, _ = equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt,
+                        mu, inv_area, N, np.zeros(m, np.int8), False, none, none,
+                        np.empty(0))  # fmt: skip
+    return qx, qy, lx, ly, d, e, ft, fstar, status, keep, f, M, mean_force, count, r
+
+
+@njit(cache=True)
+def residual(s, R, radii):
+    """``(residual, floor)`` of a :func:`cell_state`, as ``CellState.residual``."""
+    e, status, f, M, mean_force, count = s[5], s[8], s[10], s[11], s[12], s[13]
+    if count == 0 or mean_force == 0.0:
+        return np.inf, np.inf
+    fmax = 0.0
+    for k in range(f.shape[0]):
+        fmax = max(fmax, f[k, 0] ** 2 + f[k, 1] ** 2)
+    Mmax = np.abs(M).max()
+    sum_e, sum_R, n_on = 0.0, 0.0, 0
+    for c in range(e.shape[0]):
+        if status[c] != OPEN:
+            sum_e += e[c]
+            sum_R += R[c]
+            n_on += 1
+    floor = RESOLVED * np.finfo(np.float64).eps * sum_R / sum_e
+    return max(np.sqrt(fmax) / mean_force, Mmax / (mean_force * radii.mean())), floor
+
+
+@njit(cache=True)
+def merit(s, held, mean_radius):
+    """Half the squared residual, the rotations' rows over the mean radius, the held out."""
+    r = s[14]
+    total = 0.0
+    for k in range(r.shape[0]):
+        for a in range(3):
+            if not held[3 * k + a]:
+                v = r[k, a] / mean_radius if a == 2 else r[k, a]
+                total += v * v
+    return 0.5 * total
+
+
+@njit(cache=True)
+def step_limit(F, dq, radii, R_min, max_step):
+    """The largest step length <= 1 along dq (N, 3) that moves no disk's centre nor its
+    surface by turning by more than ``max_step`` of the smallest radius sum."""
+    big = 0.0
+    for k in range(dq.shape[0]):
+        ux = F[0, 0] * dq[k, 0] + F[0, 1] * dq[k, 1]
+        uy = F[1, 0] * dq[k, 0] + F[1, 1] * dq[k, 1]
+        big = max(big, np.sqrt(ux * ux + uy * uy), abs(dq[k, 2]) * radii[k])
+    return min(1.0, max_step * R_min / big) if big > 0.0 else 1.0
+
+
+@njit(cache=True)
+def factorise(F, s, cell, springs, pattern, lu, edge):
+    """The Jacobian at s (contacts near the cone's edge within ``edge`` of their cap take the
+    other side's) assembled and factorised on the block LU: ``(code, held (3N,), statuses)``,
+    code 0, BEYOND_PATTERN or SINGULAR_PIVOT."""
+    pi, pj, X, Y, R, radii = cell
+    kn, kt, mu, inv_area = springs
+    n, _, diag_slot, pair_slot, pair_flip, cover, Ap, Ai, Lp, Li, Rp, Rc, Rq = pattern
+    values, Lx, Ux, Dinv = lu
+    qx, qy, lx, ly, d, e, ft, fstar, status, keep, _, _, _, _, r = s
+    N, m = radii.shape[0], status.shape[0]
+    status = status.copy()
+    if edge > 0.0:
+        for c in range(m):
+            cap = mu * kn * e[c]
+            if (status[c] == STICK or status[c] == SLIP) and abs(abs(fstar[c]) - cap) <= edge * cap:
+                status[c] = SLIP if status[c] == STICK else STICK
+    size = 0
+    for c in range(m):
+        if status[c] != OPEN:
+            size += 1
+            if c >= cover:
+                return BEYOND_PATTERN, np.zeros(3 * N, np.bool_), status
+    rows, cols = np.empty(36 * size, np.int64), np.empty(36 * size, np.int64)
+    vals = np.empty(36 * size)
+    equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu,
+              inv_area, N, np.full(m, EXACT, np.int8), True, rows, cols, vals)  # fmt: skip
+    pinned = np.argmax(keep)
+    network = np.zeros(m, np.bool_)
+    sum_e, n_on = 0.0, 0
+    for c in range(m):
+        network[c] = status[c] != OPEN and keep[pi[c]] and keep[pj[c]]
+        if s[8][c] != OPEN:
+            sum_e += e[c]
+            n_on += 1
+    diag = diagonal(status, network, keep, pi[:m], pj[:m], radii, r, kn, kt, inv_area, pinned,
+                    RATTLER_REACH * sum_e / n_on, RATTLER_SHIFT, False, 1.0)  # fmt: skip
+    held = np.zeros(3 * N, np.bool_)
+    held[3 * pinned] = held[3 * pinned + 1] = True
+    contacts = np.flatnonzero(status != OPEN)
+    assemble(n, diag_slot, pair_slot, pair_flip, pi, pj, contacts, vals.reshape(-1, 6, 6), held,
+             diag, values)  # fmt: skip
+    if not numeric(n, Ap, Ai, values, Lp, Li, Rp, Rc, Rq, Lx, Ux, Dinv):
+        return SINGULAR_PIVOT, held, status
+    return 0, held, status
+
+
+@njit(cache=True)
+def direction(s, held, pattern, lu):
+    """The Newton direction (N, 3) of the residual at s on the factorisation."""
+    n, perm, _, _, _, _, Ap, Ai, Lp, Li, _, _, _ = pattern
+    values, Lx, Ux, Dinv = lu
+    r = s[14]
+    N = r.shape[0]
+    b = np.empty((N, 3, 1))
+    for k in range(N):
+        for a in range(3):
+            b[k, a, 0] = 0.0 if held[3 * k + a] else r[k, a]
+    x = np.zeros_like(b)
+    refined_solve(n, perm, Ap, Ai, Lp, Li, values, Lx, Ux, Dinv, b, x)
+    return -x[:, :, 0]
+
+
+@njit(cache=True)
+def line_search(F, F_smin, w, th, s, dq, held, inc, cell, springs, geo, verlet):
+    """Backtracking on the squared residual along dq: ``(code, w, th, state)``, code 0 (found),
+    NO_DESCENT or GROW_LIST (the trial (w, th) returned needs a longer candidate list)."""
+    pi, pj, X, Y, R, radii = cell
+    mean_radius = radii.mean()
+    phi0 = merit(s, held, mean_radius)
+    alpha = step_limit(F, dq, radii, geo[9], MAX_STEP)
+    finite = np.isfinite(dq).all()
+    for _ in range(30 if finite else 0):
+        wt = w + alpha * dq[:, :2]
+        tt = th + alpha * dq[:, 2]
+        m = visited(F_smin, wt, geo, verlet)
+        if m < 0:
+            return GROW_LIST, wt, tt, s
+        trial = cell_state(F, wt, tt, inc, cell, springs, m)
+        if merit(trial, held, mean_radius) <= (1.0 - 2e-4 * alpha) * phi0:
+            return 0, wt, tt, trial
+        alpha *= 0.5
+    return NO_DESCENT, w, th, s
+
+
+@njit(cache=True)
+def _same(a, b):
+    """a and b (int8 arrays) have the same length and entries."""
+    if a.shape[0] != b.shape[0]:
+        return False
+    for c in range(a.shape[0]):
+        if a[c] != b[c]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _near_edge(s, mu, kn, edge):
+    """Some sticking or slipping contact of s has its trial force within ``edge`` of its cap
+    from the cone's edge."""
+    e, fstar, status = s[5], s[7], s[8]
+    for c in range(status.shape[0]):
+        cap = mu * kn * e[c]
+        if (status[c] == STICK or status[c] == SLIP) and abs(abs(fstar[c]) - cap) <= edge * cap:
+            return True
+    return False
+
+
+@njit(cache=True)
+def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force_tol,
+           max_iterations, history, counts):  # fmt: skip
+    """Newton from (w, th) as :func:`~dolfinx_granular.laws.relaxed_friction.newton.solve`:
+    ``(code, why, w, th, w_reached)``: (w, th) the last iterate, w_reached the furthest
+    positions tried (where the list must grow: GROW_LIST), the residuals in ``history``
+    (``counts[3]`` of them) and ``counts`` (4,) += steps, factorisations, chord steps. A block
+    pivot that is singular counts as no factorisation there (the step at the cone's edge, else
+    NO_DESCENT, is tried)."""
+    pi, pj, X, Y, R, radii = cell
+    kn, kt, mu, inv_area = springs
+    m = visited(F_smin, w, geo, verlet)
+    if m < 0:
+        return HAND_BACK, GROW_LIST, w, th, w
+    s = cell_state(F, w, th, inc, cell, springs, m)
+    chord, chord_status, chord_held = False, s[8], np.zeros(3 * radii.shape[0], np.bool_)
+    for step in range(max_iterations + 1):
+        if s[13] == 0:
+            return RIGIDITY_LOST, 0, w, th, w
+        res, floor = residual(s, R, radii)
+        nh = counts[3]
+        history[nh] = res
+        counts[3] += 1
+        if res <= max(force_tol, floor):
+            return CONVERGED, 0, w, th, w
+        if step == max_iterations or (
+            nh >= STALL_STEPS and res > STALL_RATE * history[nh - STALL_STEPS]
+        ):
+            return FAILED, STALLED, w, th, w
+        code, wt, tt, trial = NO_DESCENT, w, th, s
+        if chord and _same(chord_status, s[8]):
+            dq = direction(s, chord_held, pattern, lu)
+            code, wt, tt, trial = line_search(F, F_smin, w, th, s, dq, chord_held, inc, cell,
+                                              springs, geo, verlet)  # fmt: skip
+            counts[2] += code == 0
+        for edge in (0.0, EDGE):
+            if code != NO_DESCENT or (edge > 0.0 and not _near_edge(s, mu, kn, edge)):
+                break
+            why, held, status = factorise(F, s, cell, springs, pattern, lu, edge)
+            if why == BEYOND_PATTERN:
+                return HAND_BACK, why, w, th, w
+            if why == SINGULAR_PIVOT:
+                continue
+            counts[1] += 1
+            dq = direction(s, held, pattern, lu)
+            code, wt, tt, trial = line_search(F, F_smin, w, th, s, dq, held, inc, cell, springs,
+                                              geo, verlet)  # fmt: skip
+            chord, chord_status, chord_held = True, status, held
+        if code == GROW_LIST:
+            return HAND_BACK, GROW_LIST, w, th, wt
+        if code != 0:
+            return FAILED, NO_DESCENT, w, th, w
+        if residual(trial, R, radii)[0] > CHORD_RATE * res:
+            chord = False  # (a chord step would converge slowly: factorise at the next)
+        w, th, s = wt, tt, trial
+        counts[0] += 1
+    return FAILED, STALLED, w, th, w
+
+
+#: hand-backs (the list grown, a longer pattern) of one solve before it counts as failed
+HAND_BACKS = 20
+
+
+def run(cell, springs, F, w, th, inc, settings, counts) -> tuple:
+    """:func:`newton` on the cell's block pattern for the candidates visited at (F, w), the
+    list grown and the pattern lengthened where it hands back: ``(code, why, w, th)``, the
+    residuals appended to ``counts.history``."""
+    F = np.ascontiguousarray(F, dtype=np.float64)
+    F_smin = float(singular_values_2x2(F[None])[1][0])
+    ft0 = inc.forces(cell.pi.shape[0])
+    history = np.empty(HAND_BACKS * (settings.max_iterations + 1))
+    tally = np.zeros(4, np.int64)
+    need = cell.visited(F, w)  # (grows the list where it must)
+    for _ in range(HAND_BACKS):
+        p, lu, cover = cell.block_pattern(-1, max(need, 1), d=3, new_factor=BlockLU.on)
+        pattern = (p.n, p.perm, p.diag_slot, p.pair_slot, p.pair_flip, cover, p.Ap, p.Ai, p.Lp,
+                   p.Li, p.Rp, p.Rc, p.Rq)  # fmt: skip
+        code, why, w, th, reached = newton(
+            F, F_smin, w, th, (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, ft0),
+            (cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii),
+            (springs.kn, springs.kt, springs.mu, springs.inv_area), cell.geometry(),
+            cell.verlet(), pattern, (lu.values, lu.Lx, lu.Ux, lu.Dinv), settings.force_tol,
+            settings.max_iterations, history, tally,
+        )  # fmt: skip
+        if code != HAND_BACK:
+            break
+        if why == GROW_LIST:
+            _grow(cell, F, w, reached)
+            ft0 = inc.forces(cell.pi.shape[0])
+        need = cell.pi.shape[0] if why == BEYOND_PATTERN else cell.visited(F, w)
+    else:
+        code, why = FAILED, STALLED
+    counts.history.extend(history[: tally[3]].tolist())
+    counts.steps += int(tally[0])
+    counts.factorisations += int(tally[1])
+    counts.chord_steps += int(tally[2])
+    return code, why, w, th
+
+
+def _grow(cell, F, w, reached):
+    """Grow the candidate list around the iterate w and the positions ``reached`` from it
+    (N, 2), with a Verlet skin that holds both and every trial between."""
+    move = reached - w
+    move -= move.mean(axis=0)
+    reach = float(np.sqrt((move * move).sum(axis=1).max()))
+    cell.grow(F, 0.5 * (w + reached), SKIN * cell.R.min() + 2.0 * reach)
