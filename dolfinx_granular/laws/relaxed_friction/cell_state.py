@@ -132,6 +132,23 @@ class CellState:
 
 
 @njit(cache=True)
+def overlap_ratio(F, w, pi, pj, X, Y, R, m):
+    """The mean overlap over the mean radius sum of the contacts among the first m candidates
+    at (F, w) (0 without a contact)."""
+    sum_e, sum_R = 0.0, 0.0
+    for c in range(m):
+        x = X[c] + w[pj[c], 0] - w[pi[c], 0]
+        y = Y[c] + w[pj[c], 1] - w[pi[c], 1]
+        a = F[0, 0] * x + F[0, 1] * y
+        b = F[1, 0] * x + F[1, 1] * y
+        e = R[c] - np.sqrt(a * a + b * b)
+        if e > 0.0:
+            sum_e += e
+            sum_R += R[c]
+    return sum_e / sum_R if sum_R > 0.0 else 0.0
+
+
+@njit(cache=True)
 def diagonal(status, network, keep, pi, pj, radii, r, kn, kt, inv_area, pinned, reach,
              rattler_shift, tangent, free_rotation):  # fmt: skip
     """The extra diagonal (3N,) of the Jacobian.

@@ -18,7 +18,7 @@ import numpy as np
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
 from ..relaxed.path import stretch, stretches_between
-from .cell_state import CellState, Increment, Springs
+from .cell_state import CellState, Increment, Springs, overlap_ratio
 from .fire import fire
 from .newton import Counts, solve
 from .path_tangent import Chain, stretch_derivative
@@ -173,9 +173,9 @@ def substep(cell: Cell, springs: Springs, inc: Increment, F, settings: Settings)
     takes the target's), but at least :data:`MIN_SUBSTEP` of ``settings.substep``."""
     ratio = 0.0
     for G in (inc.F0, F):
-        s = CellState(cell, springs, G, inc.w0, inc.th0, inc)
-        if s.on.any():
-            ratio = max(ratio, float(s.e[s.on].mean() / cell.R[: s.m][s.on].mean()))
+        G = np.ascontiguousarray(G, dtype=np.float64)
+        m = cell.visited(G, inc.w0)
+        ratio = max(ratio, overlap_ratio(G, inc.w0, cell.pi, cell.pj, cell.X, cell.Y, cell.R, m))
     if ratio == 0.0:
         return settings.substep
     # (a floor: near a stress-free packing the overlaps are ~1e-11 of the radii)
