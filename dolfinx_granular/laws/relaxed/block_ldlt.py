@@ -475,12 +475,7 @@ def _invert(M, out, dims):
         out[0, 0], out[0, 1] = M[1, 1], -M[0, 1]
         out[1, 0], out[1, 1] = -M[1, 0], M[0, 0]
     else:
-        for a in range(3):
-            for b in range(3):
-                a1, a2 = (b + 1) % 3, (b + 2) % 3
-                b1, b2 = (a + 1) % 3, (a + 2) % 3
-                out[a, b] = M[a1, b1] * M[a2, b2] - M[a1, b2] * M[a2, b1]
-        det = M[0, 0] * out[0, 0] + M[0, 1] * out[1, 0] + M[0, 2] * out[2, 0]
+        det = adjugate3(M, out)
         c1 = M[0, 0] + M[1, 1] + M[2, 2]
         c2 = out[0, 0] + out[1, 1] + out[2, 2]  # the principal 2 x 2 minors
     # det(lam I - M) = lam^d - c1 lam^(d-1) + c2 lam^(d-2) - c3 ..., c_d = det
@@ -493,6 +488,17 @@ def _invert(M, out, dims):
             for b in range(d):
                 out[a, b] /= det
     return True, pos, neg, d - pos - neg
+
+
+@njit(cache=True)
+def adjugate3(M, out):
+    """out = the adjugate of a 3 x 3 block M (M^-1 det M); returns det M."""
+    for a in range(3):
+        for b in range(3):
+            a1, a2 = (b + 1) % 3, (b + 2) % 3
+            b1, b2 = (a + 1) % 3, (a + 2) % 3
+            out[a, b] = M[a1, b1] * M[a2, b2] - M[a1, b2] * M[a2, b1]
+    return M[0, 0] * out[0, 0] + M[0, 1] * out[1, 0] + M[0, 2] * out[2, 0]
 
 
 @njit(cache=True)

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..relaxed.block_ldlt import BlockPattern
+from ..relaxed.block_ldlt import BlockPattern, adjugate3
 
 #: a D block counts as singular where |det| < SINGULAR * the product of its rows' norms (the
 #: Hadamard bound of |det|: the test holds whatever the units of the rows, forces or moments)
@@ -222,12 +222,7 @@ def numeric(n, Ap, Ai, values, Lp, Li, Rp, Rc, Rq, Lx, Ux, Dinv):
 def invert3(M, out):
     """out = M^-1 of a 3 x 3 block by its adjugate; False where M is singular relative to its
     rows (:data:`SINGULAR`) or not finite."""
-    for a in range(3):
-        for b in range(3):
-            a1, a2 = (b + 1) % 3, (b + 2) % 3
-            b1, b2 = (a + 1) % 3, (a + 2) % 3
-            out[a, b] = M[a1, b1] * M[a2, b2] - M[a1, b2] * M[a2, b1]
-    det = M[0, 0] * out[0, 0] + M[0, 1] * out[1, 0] + M[0, 2] * out[2, 0]
+    det = adjugate3(M, out)
     bound = 1.0
     for a in range(3):
         bound *= np.sqrt(M[a, 0] ** 2 + M[a, 1] ** 2 + M[a, 2] ** 2)
