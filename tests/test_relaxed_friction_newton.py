@@ -1,0 +1,101 @@
+"""The compiled Newton loop of the frictional relaxed RVE (laws/relaxed_friction/newton_kernel.py):
+its residual and merit against the Python cell state's, its hand-backs (a contact beyond the block
+pattern, a trial beyond the Verlet skin) and what run() does with them, and its counts."""
+
+from dolfinx_granular import FrictionalRelaxedRVE, generate_packing
+from dolfinx_granular.laws.relaxed.newton import visited
+from dolfinx_granular.laws.relaxed_friction import newton_kernel as nk
+from dolfinx_granular.laws.relaxed_friction.block_lu import BlockLU
+from dolfinx_granular.laws.relaxed_friction.cell_state import CellState
+from dolfinx_granular.laws.relaxed_friction.newton import Counts, solve
+from dolfinx_granular.laws.relaxed_friction.point import predicted
+
+import numpy as np
+import pytest
+
+F1 = np.diag([0.99, 0.99])
+F2 = np.array([[0.99, 0.003], [0.001, 0.991]])
+
+
+@pytest.fixture(scope="module")
+def start():
+    """A frictional relaxed cell committed at F1 and the predicted start of its increment to
+    F2: ``(rve, inc, w, th)``."""
+    rve = FrictionalRelaxedRVE(generate_packing(70, seed=1), 1e8, 1e8, friction=0.3)
+    committed = rve.evaluate(F1, rve.initial_state(1))[3]
+    inc = rve.increment(committed, 0)
+    w, th = predicted(inc.w0, inc.th0, committed.sensitivity[0], inc.F0, F2)
+    return rve, inc, w, th
+
+
+def _arguments(rve, inc, F):
+    cell, sp = rve.cell, rve.springs
+    return (
+        (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, inc.forces(cell.pi.shape[0])),
+        (cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii),
+        (sp.kn, sp.kt, sp.mu, sp.inv_area),
+    )
+
+
+def test_its_residual_is_the_cell_states(start):
+    rve, inc, w, th = start
+    cell = rve.cell
+    s = CellState(cell, rve.springs, F2, w, th, inc)
+    k = nk.cell_state(F2, w, th, *_arguments(rve, inc, F2), s.m)
+    assert np.array_equal(k[8], s.status) and np.allclose(
+        k[14], s.r, rtol=0, atol=1e-12 * abs(s.r).max()
+    )
+    residual, floor = nk.residual(k, cell.R, cell.radii)
+    assert residual == pytest.approx(s.residual(cell)[0], rel=1e-12)
+    assert floor == pytest.approx(s.residual(cell)[1], rel=1e-9)
+    assert residual > 1e-6  # (a start, not an equilibrium)
+
+
+def _pattern(cell, cover):
+    p, lu, cover = cell.block_pattern(-1, cover, d=3, new_factor=BlockLU.on)
+    pattern = (p.n, p.perm, p.diag_slot, p.pair_slot, p.pair_flip, cover, p.Ap, p.Ai, p.Lp,
+               p.Li, p.Rp, p.Rc, p.Rq)  # fmt: skip
+    return pattern, (lu.values, lu.Lx, lu.Ux, lu.Dinv)
+
+
+def test_a_contact_beyond_the_pattern_hands_back_and_run_takes_a_longer_one(start):
+    rve, inc, w, th = start
+    cell = rve.cell
+    F_smin = float(np.linalg.svd(F2, compute_uv=False)[-1])
+    pattern, lu = _pattern(cell, 3)
+    history, counts = np.empty(100), np.zeros(4, np.int64)
+    code, why, w_out, _, _ = nk.newton(
+        F2, F_smin, w, th, *_arguments(rve, inc, F2), cell.geometry(), cell.verlet(), pattern,
+        lu, 1e-10, 60, history, counts,
+    )  # fmt: skip
+    assert (code, why) == (nk.HAND_BACK, nk.BEYOND_PATTERN) and np.array_equal(w_out, w)
+    tally = Counts()
+    code, _, w_end, th_end = nk.run(cell, rve.springs, F2, w, th, inc, rve.settings, tally)
+    assert code == nk.CONVERGED and tally.factorisations >= 1
+    s = CellState(cell, rve.springs, F2, w_end, th_end, inc)
+    assert s.residual(cell)[0] <= rve.settings.force_tol
+    assert tally.history[-1] == pytest.approx(s.residual(cell)[0], rel=1e-6, abs=1e-14)
+
+
+def test_the_list_grown_around_an_iterate_and_a_trial_holds_both(start):
+    rve, inc, w, _ = start
+    cell = rve.cell
+    reached = w.copy()
+    reached[5] += 0.8 * cell.R.min()  # one disk past the sorted list and any Verlet skin
+    F_smin = float(np.linalg.svd(F2, compute_uv=False)[-1])
+    assert visited(F_smin, reached, cell.geometry(), cell.verlet()) == -1  # (must grow)
+    nk._grow(cell, F2, w, reached)
+    geo, verlet = cell.geometry(), cell.verlet()
+    for x in (w, reached, 0.5 * (w + reached)):
+        assert visited(F_smin, x, geo, verlet) >= 0
+
+
+def test_solve_counts_what_it_did(start):
+    rve, inc, w, th = start
+    counts = Counts()
+    w_end, th_end, s, residual = solve(rve.cell, rve.springs, F2, w, th, inc, rve.settings,
+                                       counts)  # fmt: skip
+    assert residual <= rve.settings.force_tol and s.residual(rve.cell)[0] == residual
+    assert counts.steps == len(counts.history) - 1 >= 1
+    assert 1 <= counts.factorisations <= counts.steps and counts.chord_steps >= 0
+    assert counts.history[0] > 1e3 * counts.history[-1]  # (from a start far from it)
