@@ -146,10 +146,61 @@ def check_relaxed_friction_study(out, stdout):
     # the Taylor RVE, held affine, mobilises several times that at the same strain
     assert 0.05 < float(tests["relaxed", 0.0]["qp_final"]) < 0.2
     assert float(tests["taylor", 0.0]["qp_final"]) > 2 * float(tests["relaxed", 0.0]["qp_final"])
+    for t in tests.values():  # critical state: the mean over the last quarter of gamma
+        assert float(t["critical_from"]) == 0.0075
+        assert float(t["qp_critical_last_quarter"]) <= float(t["qp_peak"])
     assert len(read_csv(out / "shear_summary.csv")) == 4
-    for name in ("convergence", "qp_gamma", "qp_mu"):
+    check_relaxed_friction_biaxial(out, p)
+    for name in ("convergence", "qp_gamma", "biaxial", "qp_mu"):
         assert is_png(out / f"relaxed_friction_{name}.png"), name
     assert "substep convergence" in stdout and "wrote" in stdout
+    assert "\nshear: mean" in stdout and "\nbiaxial: mean" in stdout
+
+
+def check_relaxed_friction_biaxial(out, p):
+    """3. The small biaxial test (70 disks, p / k_n = 1e-2, mu = 0 and 0.5, eps1 to 1 % in 4
+    steps): F = diag(F11, lam (1 - eps1)) with F12 = F21 = 0, sigma_11 = -p held."""
+    steps = read_csv(out / "biaxial_steps.csv")
+    columns = ("eps1", "e11", "F11", "F12", "F21", "F22", "sigma11_Pa", "sigma12_Pa",
+               "sigma22_Pa", "q_over_p", "volumetric_strain", "z", "sliding_share",
+               "dissipation_Pa", "newton_iterations", "wall_s")  # fmt: skip
+    assert set(columns) <= set(steps[0]), steps[0].keys()
+    tests = {(r["law"], float(r["mu"])): r for r in read_csv(out / "biaxial_tests.csv")}
+    assert set(tests) == {(law, mu) for law in ("relaxed", "taylor") for mu in (0.0, 0.5)}
+    for (law, mu), t in tests.items():
+        rows = [r for r in steps if (r["law"], float(r["mu"])) == (law, mu)]
+        assert [float(r["eps1"]) for r in rows] == pytest.approx([0, 0.0025, 0.005, 0.0075, 0.01])
+        lam = float(rows[0]["F11"])  # (the confined F_c = lam I)
+        for r in rows:
+            s11, s12, s22 = (float(r[f"sigma{ij}_Pa"]) for ij in ("11", "12", "22"))
+            assert float(r["F12"]) == float(r["F21"]) == 0.0
+            assert float(r["F22"]) == pytest.approx(lam * (1.0 - float(r["eps1"])), rel=1e-14)
+            # q / p from the principal stresses (s1 <= s3 < 0): (s3 - s1) / -(s1 + s3)
+            s1, s3 = np.linalg.eigvalsh([[s11, s12], [s12, s22]])
+            assert float(r["q_over_p"]) == pytest.approx((s3 - s1) / -(s1 + s3), rel=1e-9)
+            if int(r["step"]) > 0:  # the lateral stress held, the axial one the larger
+                assert abs(s11 + p) <= 1e-8 * p and -s22 > p
+            if law == "relaxed":  # rigid networks (as in the shear)
+                assert float(r["z"]) >= (4.0 if mu == 0.0 else 3.0)
+            if mu == 0.0:
+                assert r["sliding_share"] == "" and float(r["dissipation_Pa"]) == 0.0
+        assert t["stopped"] == "False", (law, mu, t)
+        assert float(t["eps1_reached"]) == pytest.approx(0.01, rel=1e-12)
+        assert float(t["critical_from"]) == pytest.approx(0.0075, rel=1e-12)
+        assert float(t["qp_critical_last_quarter"]) <= float(t["qp_peak"])
+        assert np.mean([float(r["q_over_p"]) for r in rows[3:]]) == pytest.approx(
+            float(t["qp_critical_last_quarter"]), rel=1e-12
+        )
+    last = tests["relaxed", 0.5]
+    assert float(last["dissipation_final_Pa"]) > 0.0 and 0.0 < float(last["sliding_final"]) < 1.0
+    qp = {k: float(t["qp_critical_last_quarter"]) for k, t in tests.items()}
+    # friction raises q/p (critical 0.12 -> 0.33 at 1 %); the affine Taylor RVE mobilises more
+    # than the relaxed disks without friction (0.29)
+    assert 0.05 < qp["relaxed", 0.0] < 0.2 and qp["relaxed", 0.5] > 2 * qp["relaxed", 0.0]
+    assert qp["taylor", 0.0] > 2 * qp["relaxed", 0.0]
+    summary = read_csv(out / "biaxial_summary.csv")
+    assert len(summary) == 4 and {"qp_peak_mean", "qp_critical_last_quarter_mean",
+                                  "eps1_reached_min", "stopped"} <= set(summary[0])  # fmt: skip
 
 
 def check_relaxed_study(out, stdout):
