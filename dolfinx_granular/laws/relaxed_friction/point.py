@@ -17,7 +17,7 @@ import numpy as np
 
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
-from ..relaxed.path import stretch, stretches_between
+from ..relaxed.path import stretches_between
 from .cell_state import CellState, Increment, Springs, overlap_ratio
 from .fire import fire
 from .newton import Counts, solve
@@ -28,8 +28,6 @@ from .tangent import path_condensation
 
 #: the shortest substep, relative to ``Settings.substep``
 MIN_SUBSTEP = 1e-2
-#: halvings of an increment where Newton fails, before FIRE (a substep / 2^HALVINGS)
-HALVINGS = 4
 
 
 @dataclass
@@ -73,27 +71,20 @@ def predicted(w, th, dq, Fc, F):
 
 
 def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Settings,
-          tangent: bool, depth: int = 0) -> tuple[Equilibrium, float]:  # fmt: skip
+          tangent: bool) -> tuple[Equilibrium, float]:  # fmt: skip
     """The equilibrium of the increment from ``inc`` to G (2, 2) (dG/dF = DG (4, 4), F the
     path's end) and the energy dissipated (Pa): Newton from the predicted start. Where it
-    fails, the increment is halved (in the right stretch: the path through the midpoint, its
-    history committed there), up to :data:`HALVINGS` times; at the last halving, FIRE relaxes
-    the cell from the predicted start to ``settings.fire_tol`` and Newton goes on from there
-    (then FIRE to a thousandth of that, then to the equilibrium itself, each as far as FIRE
-    gets)."""
+    fails, FIRE relaxes the cell under the same increment from the predicted start to
+    ``settings.fire_tol`` and Newton goes on from there (then FIRE to a thousandth of that,
+    then to the equilibrium itself, each as far as FIRE gets). The fallback solves the same
+    increment: it does not change the path, so the answer stays the model's (a halved
+    increment would commit a midpoint, another path, and make P jump with F where Newton's
+    success does)."""
     counts = Counts()
     w, th = predicted(inc.w0, inc.th0, dq, inc.F0, G)
     done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
     if done is not None:
         return done, done.dissipated
-    if depth < HALVINGS:
-        mid = 0.5 * (stretch(inc.F0) + stretch(G))
-        D0 = np.zeros((4, 4)) if inc.chain is None else inc.chain.DF0
-        Dmid = 0.5 * (stretch_derivative(inc.F0) @ D0 + stretch_derivative(G) @ DG)
-        first, dissipated = relax(cell, springs, mid, Dmid, inc, dq, settings, True, depth + 1)
-        inc, dq = committed(cell, first, mid), first.sensitivity
-        eq, more = relax(cell, springs, G, DG, inc, dq, settings, tangent, depth + 1)
-        return eq, dissipated + more
     for tol in (settings.fire_tol, 1e-3 * settings.fire_tol, settings.force_tol):
         w, th, steps, converged = fire(
             cell, springs, G, w, th, inc, replace(settings, fire_tol=tol)
