@@ -12,12 +12,16 @@
 """
 
 from .geometry import SlopeGeometry, create_mesh
+from .limit_equilibrium import SlipCircle, bishop_factor_of_safety, infinite_slope_factor_of_safety
 from .model import SlopeModel, granular_material, newton_solver
 from .run import SlopeOptions, SlopeRun, load_restart, run_slope
 
 __all__ = [
     "SlopeGeometry",
     "create_mesh",
+    "SlipCircle",
+    "bishop_factor_of_safety",
+    "infinite_slope_factor_of_safety",
     "SlopeModel",
     "granular_material",
     "newton_solver",
