@@ -26,7 +26,8 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
 - ``frictional P+A``: :class:`FrictionalRelaxedRVE` (mu = ``--friction``, k_t = k_n), its
   committed state the same compression reached along its own path, the same steps: ms per
   point, its ratio to the frictionless relaxed RVE and to Taylor, and where its time goes (the
-  SuperLU factorisations, the return maps and equations, the rest);
+  compiled Newton loop, the rest: the path, the tangent, the history, in Python), the block
+  LU's numeric factorisation with its flops and rate, and the floor it sets;
 - ``--save`` writes the points' W, P and A to an ``.npz``; ``--against`` compares them with such
   a file (from another version of the solver: the largest relative difference per quantity and
   the points beyond 1e-10).
@@ -222,27 +223,18 @@ def frictional(packing, a, F0, F, t_relaxed, t_taylor):
         f"frictionless relaxed RVE, {t / t_taylor:.0f} x Taylor"
     )
     counts = [rve.equilibrium(F[q], state, q)[0].counts for q in range(a.points)]
-    mean = {k: np.mean([getattr(c, k) for c in counts]) for k in ("steps", "factorisations",
-                                                                  "fire_steps")}  # fmt: skip
+    keys = ("steps", "factorisations", "chord_steps", "fire_steps", "newton_seconds")
+    mean = {k: np.mean([getattr(c, k) for c in counts]) for k in keys}
+    newton_ms = 1e3 * mean["newton_seconds"]
+    print(
+        f"  per point: {mean['steps']:.2f} Newton steps ({mean['chord_steps']:.2f} chord), "
+        f"{mean['factorisations']:.2f} factorisations and the tangent's; the compiled Newton "
+        f"loop {newton_ms:.2f} ms, the rest (path, tangent, history; Python) "
+        f"{ms - newton_ms:.2f} ms; FIRE steps {mean['fire_steps']:.1f}"
+    )
     inc = rve.increment(state, 0)
     s = cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc)
-    t_lu, (lu, _) = best_time(
-        lambda: friction_newton.factorise(rve.cell, rve.springs, F0, s, False), 20
-    )
-    t_eval, _ = best_time(
-        lambda: cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc), 20
-    )
-    # a point: the path's substate, the Newton steps' states and their line searches' trial
-    # states (at least one each), the tangent's factorisation
-    lu_ms = 1e3 * t_lu * (mean["factorisations"] + 1)
-    eval_ms = 1e3 * t_eval * (2 * mean["steps"] + 3)
-    print(
-        f"  per point: {mean['steps']:.2f} Newton steps, {mean['factorisations'] + 1:.2f} "
-        f"factorisations ({1e3 * t_lu:.2f} ms each: {lu_ms:.2f} ms), about "
-        f"{2 * mean['steps'] + 3:.0f} contact states ({1e3 * t_eval:.3f} ms each: "
-        f"{eval_ms:.2f} ms), the rest {ms - lu_ms - eval_ms:.2f} ms; FIRE steps "
-        f"{mean['fire_steps']:.1f}"
-    )
+    lu = friction_newton.factorise(rve.cell, rve.springs, F0, s, False)[0]
     print_block_lu(lu, t_relaxed / a.points, mean["factorisations"] + 1)
 
 

@@ -26,7 +26,7 @@ def test_relaxed_benchmark_counts_and_times_the_parts(capsys, tmp_path):
     for part in ("Newton steps", "factorisations", "solves", "trial states", "solver's pattern"):
         assert part in out, part
     assert "frictional P+A" in out and "x the frictionless relaxed RVE" in out
-    assert "block LU:" in out and "GFLOP/s); floor" in out
+    assert "block LU:" in out and "GFLOP/s); floor" in out and "compiled Newton loop" in out
     relaxed.main(["--points", "3", "--particles", "70", "--repeats", "1", "--against", str(saved)])
     out = capsys.readouterr().out
     assert "A: largest relative difference 0.0e+00; points beyond 1e-10: []" in out

@@ -14,6 +14,7 @@ ends the cycling. The loop itself is compiled (:mod:`.newton_kernel`, where its 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,13 +42,15 @@ _FAILURES = {
 @dataclass
 class Counts:
     """What a solve did: Newton steps, factorisations, chord steps (on an earlier
-    factorisation), steps of the fallback; ``history`` the residual of every iterate."""
+    factorisation), steps of the fallback; ``history`` the residual of every iterate;
+    ``newton_seconds`` the wall time in Newton's loop."""
 
     steps: int = 0
     factorisations: int = 0
     chord_steps: int = 0
     fire_steps: int = 0
     history: list = field(default_factory=list)
+    newton_seconds: float = 0.0
 
 
 def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
@@ -101,7 +104,9 @@ def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Sett
     w, th = np.array(w, dtype=np.float64), np.array(th, dtype=np.float64)
     history = counts.history
     start = len(history)
+    t0 = time.perf_counter()
     code, why, w, th = newton_kernel.run(cell, springs, F, w, th, inc, settings, counts)
+    counts.newton_seconds += time.perf_counter() - t0
     if code == newton_kernel.RIGIDITY_LOST:
         raise RigidityLostError("no two disks touch (the cell has come apart)")
     if code == newton_kernel.FAILED:
