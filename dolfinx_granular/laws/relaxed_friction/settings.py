@@ -16,7 +16,8 @@ class Settings:
             larger: overlaps below ~1e-5 of the radii).
         max_iterations: Newton steps of one solve before the fallback takes over.
         fire_tol, fire_steps: the fallback (damped dynamics of the same increment) stops at this
-            net force, or fails after that many steps.
+            net force, or after that many steps, and Newton takes over; up to
+            :data:`~dolfinx_granular.laws.relaxed_friction.point.FIRE_ROUNDS` such rounds.
         substep, substep_overlap: the quasi-static path's substeps |U_k+1 - U_k| (the right
             stretch, Frobenius norm) are at most ``substep``, and at most ``substep_overlap``
             times the mean overlap over the mean radius sum (of the committed state or, if
