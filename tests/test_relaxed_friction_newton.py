@@ -90,6 +90,35 @@ def test_the_list_grown_around_an_iterate_and_a_trial_holds_both(start):
         assert visited(F_smin, x, geo, verlet) >= 0
 
 
+def test_a_start_that_grows_the_list_is_solved_with_a_force_for_every_candidate():
+    """Positions that reach past the sorted list (as FIRE's can) grow it before Newton: the
+    committed forces must cover the new candidates (they are read by index)."""
+    rve = FrictionalRelaxedRVE(generate_packing(70, seed=1), 1e8, 1e8, friction=0.3)
+    committed = rve.evaluate(F1, rve.initial_state(1))[3]
+    inc = rve.increment(committed, 0)
+    w, th = predicted(inc.w0, inc.th0, committed.sensitivity[0], inc.F0, F2)
+    w[5] += 0.8 * rve.cell.R.min()  # (past the sorted list: the list must grow)
+    before, counts = rve.cell.pi.shape[0], Counts()
+    nk.run(rve.cell, rve.springs, F2, w, th, inc, rve.settings, counts)
+    assert rve.cell.pi.shape[0] > before and inc.ft0.shape[0] == rve.cell.pi.shape[0]
+    s = CellState(rve.cell, rve.springs, F2, w, th, inc)
+    assert counts.history[0] == pytest.approx(s.residual(rve.cell)[0], rel=1e-9)
+
+
+def test_a_missing_committed_force_is_refused(start):
+    """The compiled loop reads the committed forces by candidate index: a list of forces
+    shorter than the candidates' is an error, not a read past its end."""
+    rve, inc, w, th = start
+    cell = rve.cell
+    F_smin = float(np.linalg.svd(F2, compute_uv=False)[-1])
+    pattern, lu = _pattern(cell, cell.pi.shape[0])
+    args = list(_arguments(rve, inc, F2))
+    args[0] = args[0][:3] + (args[0][3][: cell.pi.shape[0] - 1],)
+    with pytest.raises(ValueError, match="committed tangential force is missing"):
+        nk.newton(F2, F_smin, w, th, *args, cell.geometry(), cell.verlet(), pattern, lu, 1e-10,
+                  60, np.empty(100), np.zeros(4, np.int64))  # fmt: skip
+
+
 def test_solve_counts_what_it_did(start):
     rve, inc, w, th = start
     counts = Counts()

@@ -227,6 +227,8 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
     NO_DESCENT, is tried)."""
     pi, pj, X, Y, R, radii = cell
     kn, kt, mu, inv_area = springs
+    if inc[3].shape[0] < pi.shape[0]:
+        raise ValueError("a committed tangential force is missing for a candidate contact")
     m = visited(F_smin, w, geo, verlet)
     if m < 0:
         return HAND_BACK, GROW_LIST, w, th, w
@@ -285,11 +287,11 @@ def run(cell, springs, F, w, th, inc, settings, counts) -> tuple:
     residuals appended to ``counts.history``."""
     F = np.ascontiguousarray(F, dtype=np.float64)
     F_smin = float(singular_values_2x2(F[None])[1][0])
-    ft0 = inc.forces(cell.pi.shape[0])
     history = np.empty(HAND_BACKS * (settings.max_iterations + 1))
     tally = np.zeros(4, np.int64)
     need = cell.visited(F, w)  # (grows the list where it must)
     for _ in range(HAND_BACKS):
+        ft0 = inc.forces(cell.pi.shape[0])  # (after the list grew: a force for every candidate)
         p, lu, cover = cell.block_pattern(-1, max(need, 1), d=3, new_factor=BlockLU.on)
         pattern = (p.n, p.perm, p.diag_slot, p.pair_slot, p.pair_flip, cover, p.Ap, p.Ai, p.Lp,
                    p.Li, p.Rp, p.Rc, p.Rq)  # fmt: skip
@@ -304,7 +306,6 @@ def run(cell, springs, F, w, th, inc, settings, counts) -> tuple:
             break
         if why == GROW_LIST:
             _grow(cell, F, w, reached)
-            ft0 = inc.forces(cell.pi.shape[0])
         need = cell.pi.shape[0] if why == BEYOND_PATTERN else cell.visited(F, w)
     else:
         code, why = FAILED, STALLED
