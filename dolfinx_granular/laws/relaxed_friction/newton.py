@@ -30,6 +30,9 @@ from .contact_law import OPEN
 from .settings import Settings
 from .system import EXACT, SKIPPED
 
+#: the cell state's residual at the compiled loop's equilibrium is at most CHECK times the
+#: tolerance (a safety net: both compute the same balance)
+CHECK = 10.0
 #: why Newton failed (:data:`newton_kernel.STALLED`, ``NO_DESCENT``), with its steps and residual
 _FAILURES = {
     newton_kernel.STALLED: "Newton stalled after {} steps (largest net force or moment {:.3g} "
@@ -114,5 +117,11 @@ def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Sett
         raise RelaxationError(_FAILURES[why].format(len(history) - start - 1, last))
     if code == newton_kernel.CONVERGED:
         s = CellState(cell, springs, F, w, th, inc)
-        return w, th, s, s.residual(cell)[0]
+        residual, floor = s.residual(cell)
+        if residual > CHECK * max(settings.force_tol, floor):  # (the two sum in other orders)
+            raise RelaxationError(
+                f"the compiled Newton loop's equilibrium does not hold in the cell state "
+                f"(largest net force or moment {residual:.3g} of the mean contact force)"
+            )
+        return w, th, s, residual
     raise AssertionError(f"unknown outcome {code} of the compiled Newton loop")
