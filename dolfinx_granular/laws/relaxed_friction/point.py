@@ -76,9 +76,9 @@ def predicted(w, th, dq, Fc, F):
 
 
 def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Settings,
-          tangent: bool) -> tuple[Equilibrium, float]:  # fmt: skip
+          tangent: bool) -> Equilibrium:  # fmt: skip
     """The equilibrium of the increment from ``inc`` to G (2, 2) (dG/dF = DG (4, 4), F the
-    path's end) and the energy dissipated (Pa): Newton from the predicted start. Where it
+    path's end): Newton from the predicted start. Where it
     fails, FIRE relaxes the cell under the same increment from the predicted start to
     ``settings.fire_tol`` and Newton goes on from there; where Newton fails again, FIRE goes on
     (to a thousandth of its tolerance where it reached it), :data:`FIRE_ROUNDS` times in all.
@@ -89,7 +89,7 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     w, th = predicted(inc.w0, inc.th0, dq, inc.F0, G)
     done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
     if done is not None:
-        return done, done.dissipated
+        return done
     tol = settings.fire_tol
     for _ in range(FIRE_ROUNDS):
         w, th, steps, converged = fire(
@@ -98,7 +98,7 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
         counts.fire_steps += steps
         done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
         if done is not None:
-            return done, done.dissipated
+            return done
         if converged:  # (Newton failed from there: FIRE goes closer)
             tol = max(1e-3 * tol, settings.force_tol)
     raise RelaxationError(
@@ -156,11 +156,11 @@ def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settin
     stretches = stretches_between(inc.F0, F, substep(cell, springs, inc, F, settings))
     dU = stretch_derivative(F)
     for k, Uk in enumerate(stretches, start=1):
-        eq, more = relax(cell, springs, Uk, k / (len(stretches) + 1) * dU, inc, dq, settings, True)
-        dissipated += more
+        eq = relax(cell, springs, Uk, k / (len(stretches) + 1) * dU, inc, dq, settings, True)
+        dissipated += eq.dissipated
         inc, dq = committed(cell, eq, Uk), eq.sensitivity
-    eq, more = relax(cell, springs, F, np.eye(4), inc, dq, settings, tangent)
-    return eq, dissipated + more
+    eq = relax(cell, springs, F, np.eye(4), inc, dq, settings, tangent)
+    return eq, dissipated + eq.dissipated
 
 
 def substep(cell: Cell, springs: Springs, inc: Increment, F, settings: Settings) -> float:
