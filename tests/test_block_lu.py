@@ -5,7 +5,7 @@ contacts; a singular block pivot is refused."""
 
 from dolfinx_granular import FrictionalRelaxedRVE, generate_packing
 from dolfinx_granular.laws.relaxed import block_ldlt
-from dolfinx_granular.laws.relaxed_friction import block_lu, newton
+from dolfinx_granular.laws.relaxed_friction import block_lu, cell_state, newton, system
 from dolfinx_granular.laws.relaxed_friction.contact_law import SLIP
 
 import numpy as np
@@ -94,23 +94,24 @@ def test_it_solves_the_frictional_jacobian_as_superlu_does(slipping, tangent):
     B[held] = 0.0
     X = lu.solve(B)
     Y = splu(J.tocsc()).solve(B)
+    assert abs(lu.to_csc() - J).max() <= 1e-12 * abs(J).max()  # (SuperLU's fallback matrix)
     assert np.abs(X - Y).max() <= 1e-9 * np.abs(Y).max()
 
 
 def _superlu_matrix(rve, F, s, tangent, held):
     """The Jacobian newton.factorise assembles, as scipy COO of the triplets."""
     cell, N = rve.cell, rve.cell.n_disks
-    mode = np.full(s.m, newton.EXACT, np.int8)
+    mode = np.full(s.m, system.EXACT, np.int8)
     if tangent:
-        mode[~s.network] = newton.SKIPPED
+        mode[~s.network] = system.SKIPPED
     _, _, (rows, cols, vals) = s.equations(cell, rve.springs, F, mode, True)
     use = ~(held[rows] | held[cols])
     pinned = int(np.argmax(s.keep))
-    reach = newton.RATTLER_REACH * s.e[s.on].mean()
+    reach = cell_state.RATTLER_REACH * s.e[s.on].mean()
     sp_ = rve.springs
-    diag = newton.diagonal(
+    diag = cell_state.diagonal(
         s.status, s.network, s.keep, cell.pi[: s.m], cell.pj[: s.m], cell.radii, s.r, sp_.kn,
-        sp_.kt, sp_.inv_area, pinned, reach, newton.RATTLER_SHIFT, tangent, 1.0,
+        sp_.kt, sp_.inv_area, pinned, reach, cell_state.RATTLER_SHIFT, tangent, 1.0,
     )  # fmt: skip
     idx = np.arange(3 * N)
     return sp.coo_matrix(

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from scipy.sparse import coo_matrix
 
 from ..relaxed.block_ldlt import BlockPattern, adjugate3
 
@@ -65,6 +66,25 @@ class BlockLU:
             pattern, np.zeros((n + 2 * nA, 3, 3)), np.empty((nL, 3, 3)),
             np.empty((nL, 3, 3)), np.empty((n, 3, 3)),
         )  # fmt: skip
+
+    def arrays(self) -> tuple:
+        """``(values, Lx, Ux, Dinv)`` as the compiled Newton loop takes them."""
+        return self.values, self.Lx, self.Ux, self.Dinv
+
+    def to_csc(self):
+        """The assembled matrix (3 n_blocks, 3 n_blocks) of :attr:`values` as scipy CSC (for
+        a pivoting LU where a block pivot is singular, and for tests)."""
+        p = self.pattern
+        row_of = np.repeat(np.arange(p.n), np.diff(p.Ap))  # (the position of each q's row)
+        rows = p.perm[np.concatenate([np.arange(p.n), row_of, p.Ai])]
+        cols = p.perm[np.concatenate([np.arange(p.n), p.Ai, row_of])]
+        a, b = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+        N = 3 * p.n_blocks
+        return coo_matrix(
+            (self.values.ravel(), ((3 * rows[:, None, None] + a).ravel(),
+                                   (3 * cols[:, None, None] + b).ravel())),
+            shape=(N, N),
+        ).tocsc()  # fmt: skip
 
     def factorise(self) -> bool:
         """L D U of :attr:`values`; False where a D block is singular."""

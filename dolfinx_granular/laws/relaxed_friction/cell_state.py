@@ -103,6 +103,13 @@ class CellState:
         )  # fmt: skip
         return r, P, (rows[:nnz], cols[:nnz], vals[:nnz])
 
+    def arrays(self) -> tuple:
+        """The state as the compiled Newton loop's cell states
+        (:func:`~dolfinx_granular.laws.relaxed_friction.newton_kernel.cell_state`)."""
+        return (self.qx, self.qy, self.lx, self.ly, self.d, self.e, self.ft, self.fstar,
+                self.status, self.keep, self.f, self.M, self.mean_force, self.count,
+                self.r)  # fmt: skip
+
     def held_rotations(self, cell: Cell) -> np.ndarray:
         """(N,) disks with a sticking contact in the network: their rotation has stiffness."""
         held = np.zeros(cell.n_disks, bool)

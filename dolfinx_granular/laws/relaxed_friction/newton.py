@@ -18,17 +18,14 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
 from . import newton_kernel
-from .block_lu import BlockLU, assemble
-from .cell_state import RATTLER_REACH, RATTLER_SHIFT, CellState, Increment, Springs, diagonal
-from .contact_law import OPEN
+from .block_lu import BlockLU
+from .cell_state import CellState, Increment, Springs
 from .settings import Settings
-from .system import EXACT, SKIPPED
 
 #: the cell state's residual at the compiled loop's equilibrium is at most CHECK times the
 #: tolerance (a safety net: both compute the same balance)
@@ -58,45 +55,26 @@ class Counts:
 
 def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
               free_rotation: float = 1.0):  # fmt: skip
-    """The Jacobian at s (3N, 3N) factorised, the pinned disk's translation and (for the
-    ``tangent``) the rattlers' unknowns held (``diagonal``); ``free_rotation`` scales the
-    diagonal of the rotations no sticking contact holds. Returns ``(lu, held (3N,) bool)``, lu
-    with ``solve(b)``: the block LU (:mod:`.block_lu`; the cell's one for its pattern, valid
-    until the next factorisation), or SuperLU where a block pivot of the block LU is singular;
-    RuntimeError where the Jacobian is."""
-    N, m = cell.n_disks, s.m
-    mode = np.full(m, EXACT, np.int8)
-    if tangent:
-        mode[~s.network] = SKIPPED
-    _, _, (rows, cols, vals) = s.equations(cell, springs, F, mode, True)
-    pinned = int(np.argmax(s.keep))
-    reach = RATTLER_REACH * s.e[s.on].mean()
-    diag = diagonal(
-        s.status, s.network, s.keep, cell.pi[:m], cell.pj[:m], cell.radii, s.r, springs.kn,
-        springs.kt, springs.inv_area, pinned, reach, RATTLER_SHIFT, tangent, free_rotation,
-    )  # fmt: skip
-    held = np.zeros(3 * N, bool)
-    held[[3 * pinned, 3 * pinned + 1]] = True
-    if tangent:
-        out = np.flatnonzero(~s.keep)
-        held[3 * out], held[3 * out + 1], held[3 * out + 2] = True, True, True
-    contacts = np.flatnonzero((s.status != OPEN) & (mode == EXACT))
-    # (the pattern's one BlockLU: each factorisation overwrites the last one's)
-    p, lu, _ = cell.block_pattern(
-        -1, int(contacts[-1]) + 1 if contacts.size else 1, d=3, new_factor=BlockLU.on
+    """The Jacobian at s (3N, 3N) factorised (:func:`.newton_kernel.factorise`: Newton's, or
+    the ``tangent``'s over the network), the pinned disk's translation and for the tangent the
+    rattlers' unknowns held; ``free_rotation`` scales the diagonal of the rotations no sticking
+    contact holds. Returns ``(lu, held (3N,) bool)``, lu with ``solve(b)``: the block LU
+    (:mod:`.block_lu`; the cell's one for its pattern, valid until the next factorisation), or
+    SuperLU of the same matrix where a block pivot is singular; RuntimeError where the Jacobian
+    is."""
+    used = np.flatnonzero(s.network if tangent else s.on)
+    p, lu, cover = cell.block_pattern(
+        -1, int(used[-1]) + 1 if used.size else 1, d=3, new_factor=BlockLU.on
     )
-    assemble(p.n, p.diag_slot, p.pair_slot, p.pair_flip, cell.pi, cell.pj, contacts,
-             vals.reshape(-1, 6, 6), held, diag, lu.values)  # fmt: skip
-    if lu.factorise():
-        return lu, held
-    use = ~(held[rows] | held[cols])
-    idx = np.arange(3 * N)
-    J = sp.csc_matrix(
-        (np.concatenate([vals[use], diag]),
-         (np.concatenate([rows[use], idx]), np.concatenate([cols[use], idx]))),
-        shape=(3 * N, 3 * N),
+    code, held, _ = newton_kernel.factorise(
+        np.ascontiguousarray(F, dtype=np.float64), s.arrays(), newton_kernel.cell_arrays(cell),
+        newton_kernel.spring_arrays(springs), newton_kernel.pattern_arrays(p, cover),
+        lu.arrays(), 0.0, tangent, float(free_rotation),
     )  # fmt: skip
-    return splu(J, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1), held
+    lu.ok = code == 0
+    if lu.ok:
+        return lu, held
+    return splu(lu.to_csc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1), held
 
 
 def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Settings,

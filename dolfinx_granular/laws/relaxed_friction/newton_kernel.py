@@ -20,7 +20,7 @@ from ..tools import singular_values_2x2
 from .block_lu import BlockLU, assemble, numeric, refined_solve
 from .cell_state import MIN_CONTACTS, RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal
 from .contact_law import OPEN, SLIP, STICK, return_map
-from .system import EXACT, balance, equations
+from .system import EXACT, SKIPPED, balance, equations
 
 #: longest move of a disk in one step (its centre, or its surface by turning), relative to the
 #: smallest radius sum
@@ -109,50 +109,89 @@ def step_limit(F, dq, radii, R_min, max_step):
 
 
 @njit(cache=True)
-def factorise(F, s, cell, springs, pattern, lu, edge):
-    """The Jacobian at s (contacts near the cone's edge within ``edge`` of their cap take the
-    other side's) assembled and factorised on the block LU: ``(code, held (3N,), statuses)``,
-    code 0, BEYOND_PATTERN or SINGULAR_PIVOT."""
+def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation):
+    """The Jacobian at s assembled and factorised on the block LU: ``(code, held (3N,),
+    statuses)``, code 0, BEYOND_PATTERN or SINGULAR_PIVOT. Newton's (``tangent`` False): every
+    contact, contacts near the cone's edge within ``edge`` of their cap taking the other side's,
+    the pinned disk's translation held. The tangent's: the network's contacts, the rattlers'
+    unknowns held too. ``free_rotation`` scales the diagonal of the rotations no sticking contact
+    holds (:func:`~dolfinx_granular.laws.relaxed_friction.cell_state.diagonal`)."""
     pi, pj, X, Y, R, radii = cell
     kn, kt, mu, inv_area = springs
     n, _, diag_slot, pair_slot, pair_flip, cover, Ap, Ai, Lp, Li, Rp, Rc, Rq = pattern
     values, Lx, Ux, Dinv = lu
     qx, qy, lx, ly, d, e, ft, fstar, status, keep, _, _, _, _, r = s
     N, m = radii.shape[0], status.shape[0]
-    status = status.copy()
-    if edge > 0.0:
-        for c in range(m):
-            cap = mu * kn * e[c]
-            if (status[c] == STICK or status[c] == SLIP) and abs(abs(fstar[c]) - cap) <= edge * cap:
-                status[c] = SLIP if status[c] == STICK else STICK
-    size = 0
-    for c in range(m):
-        if status[c] != OPEN:
-            size += 1
-            if c >= cover:
-                return BEYOND_PATTERN, np.zeros(3 * N, np.bool_), status
-    rows, cols = np.empty(36 * size, np.int64), np.empty(36 * size, np.int64)
-    vals = np.empty(36 * size)
-    equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu,
-              inv_area, N, np.full(m, EXACT, np.int8), True, rows, cols, vals)  # fmt: skip
-    pinned = np.argmax(keep)
+    status = _edge_flipped(status, e, fstar, mu * kn, edge)
     network = np.zeros(m, np.bool_)
+    mode = np.full(m, EXACT, np.int8)
     sum_e, n_on = 0.0, 0
     for c in range(m):
         network[c] = status[c] != OPEN and keep[pi[c]] and keep[pj[c]]
-        if s[8][c] != OPEN:
+        if status[c] != OPEN:
             sum_e += e[c]
             n_on += 1
+            if tangent and not network[c]:
+                mode[c] = SKIPPED
+            elif c >= cover:
+                return BEYOND_PATTERN, np.zeros(3 * N, np.bool_), status
+    contacts = np.flatnonzero((status != OPEN) & (mode == EXACT))
+    rows, cols = np.empty(36 * contacts.size, np.int64), np.empty(36 * contacts.size, np.int64)
+    vals = np.empty(36 * contacts.size)
+    equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu,
+              inv_area, N, mode, True, rows, cols, vals)  # fmt: skip
+    pinned = np.argmax(keep)
+    reach = RATTLER_REACH * sum_e / n_on
     diag = diagonal(status, network, keep, pi[:m], pj[:m], radii, r, kn, kt, inv_area, pinned,
-                    RATTLER_REACH * sum_e / n_on, RATTLER_SHIFT, False, 1.0)  # fmt: skip
+                    reach, RATTLER_SHIFT, tangent, free_rotation)  # fmt: skip
     held = np.zeros(3 * N, np.bool_)
     held[3 * pinned] = held[3 * pinned + 1] = True
-    contacts = np.flatnonzero(status != OPEN)
+    if tangent:
+        for k in range(N):
+            if not keep[k]:
+                held[3 * k] = held[3 * k + 1] = held[3 * k + 2] = True
     assemble(n, diag_slot, pair_slot, pair_flip, pi, pj, contacts, vals.reshape(-1, 6, 6), held,
              diag, values)  # fmt: skip
     if not numeric(n, Ap, Ai, values, Lp, Li, Rp, Rc, Rq, Lx, Ux, Dinv):
         return SINGULAR_PIVOT, held, status
     return 0, held, status
+
+
+@njit(cache=True, inline="always")
+def _at_edge(status, e, fstar, mu_kn, edge):
+    """A sticking or slipping contact whose trial force lies within ``edge`` of its cap
+    mu k_n e from the cone's edge."""
+    cap = mu_kn * e
+    return (status == STICK or status == SLIP) and abs(abs(fstar) - cap) <= edge * cap
+
+
+@njit(cache=True)
+def _edge_flipped(status, e, fstar, mu_kn, edge):
+    """A copy of the statuses, the contacts :func:`_at_edge` turned to the other side (none
+    for edge = 0)."""
+    out = status.copy()
+    if edge > 0.0:
+        for c in range(status.shape[0]):
+            if _at_edge(status[c], e[c], fstar[c], mu_kn, edge):
+                out[c] = SLIP if status[c] == STICK else STICK
+    return out
+
+
+def cell_arrays(cell) -> tuple:
+    """The cell's candidates as the compiled loop takes them: ``(pi, pj, X, Y, R, radii)``."""
+    return cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii
+
+
+def spring_arrays(springs) -> tuple:
+    """``(k_n, k_t, mu, 1 / V)``."""
+    return springs.kn, springs.kt, springs.mu, springs.inv_area
+
+
+def pattern_arrays(p, cover) -> tuple:
+    """A 3 x 3 block pattern (on the first ``cover`` candidates) as the compiled loop takes
+    it."""
+    return (p.n, p.perm, p.diag_slot, p.pair_slot, p.pair_flip, cover, p.Ap, p.Ai, p.Lp, p.Li,
+            p.Rp, p.Rc, p.Rq)  # fmt: skip
 
 
 @njit(cache=True)
@@ -210,8 +249,7 @@ def _near_edge(s, mu, kn, edge):
     from the cone's edge."""
     e, fstar, status = s[5], s[7], s[8]
     for c in range(status.shape[0]):
-        cap = mu * kn * e[c]
-        if (status[c] == STICK or status[c] == SLIP) and abs(abs(fstar[c]) - cap) <= edge * cap:
+        if _at_edge(status[c], e[c], fstar[c], mu * kn, edge):
             return True
     return False
 
@@ -256,7 +294,7 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
         for edge in (0.0, EDGE):
             if code != NO_DESCENT or (edge > 0.0 and not _near_edge(s, mu, kn, edge)):
                 break
-            why, held, status = factorise(F, s, cell, springs, pattern, lu, edge)
+            why, held, status = factorise(F, s, cell, springs, pattern, lu, edge, False, 1.0)
             if why == BEYOND_PATTERN:
                 return HAND_BACK, why, w, th, w
             if why == SINGULAR_PIVOT:
@@ -293,14 +331,11 @@ def run(cell, springs, F, w, th, inc, settings, counts) -> tuple:
     for _ in range(HAND_BACKS):
         ft0 = inc.forces(cell.pi.shape[0])  # (after the list grew: a force for every candidate)
         p, lu, cover = cell.block_pattern(-1, max(need, 1), d=3, new_factor=BlockLU.on)
-        pattern = (p.n, p.perm, p.diag_slot, p.pair_slot, p.pair_flip, cover, p.Ap, p.Ai, p.Lp,
-                   p.Li, p.Rp, p.Rc, p.Rq)  # fmt: skip
         code, why, w, th, reached = newton(
             F, F_smin, w, th, (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, ft0),
-            (cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii),
-            (springs.kn, springs.kt, springs.mu, springs.inv_area), cell.geometry(),
-            cell.verlet(), pattern, (lu.values, lu.Lx, lu.Ux, lu.Dinv), settings.force_tol,
-            settings.max_iterations, history, tally,
+            cell_arrays(cell), spring_arrays(springs), cell.geometry(), cell.verlet(),
+            pattern_arrays(p, cover), lu.arrays(), settings.force_tol, settings.max_iterations,
+            history, tally,
         )  # fmt: skip
         if code != HAND_BACK:
             break
