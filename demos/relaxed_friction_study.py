@@ -104,14 +104,13 @@ from dolfinx_granular import (
     FrictionalRVE,
     LawEvaluationError,
     MaterialPoint,
-    Packing,
-    generate_packing,
 )
 from dolfinx_granular.drivers.confinement import compress
 from dolfinx_granular.io.commandline import Parser, world_comm
 from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out
 from dolfinx_granular.io.shear_figures import save_figure
 from dolfinx_granular.laws.relaxed.path import stretch, stretches_between
+from dolfinx_granular.packings.cache import PackingCache
 from dolfinx_granular.packings.generation import MAX_PRESSURE
 
 import numpy as np
@@ -155,14 +154,6 @@ BUDGET_STOP = "time budget"
 
 
 # %%
-def packing_at(n, seed, pressure, folder):
-    """The packing of n disks jammed at ``pressure`` (p / k_n), cached in ``folder``."""
-    path = os.path.join(folder, f"relaxed_{n}_{seed}_{pressure:g}.npz")
-    if os.path.exists(path):
-        return Packing.load(path)
-    packing = generate_packing(n, seed=seed, pressure=pressure)
-    packing.save(path)
-    return packing
 
 
 def make_law(name, packing, mu):
@@ -659,7 +650,7 @@ def print_summary(say, loading, tests, summary):
 
 
 # %%
-def run_tests(loading, cfg, folder, say, t0):
+def run_tests(loading, cfg, cache, say, t0):
     """Every test of ``loading`` (both laws, each mu, p and seed): ``(steps, tests, summary,
     paths)``; writes nothing."""
     top, count = (cfg[key] for key in loading.limits)
@@ -670,7 +661,7 @@ def run_tests(loading, cfg, folder, say, t0):
     for p in cfg["pressures"]:
         for mu in cfg["mus"]:
             for s in cfg["seeds"]:
-                packing = packing_at(cfg["particles"], s, p, folder)
+                packing = cache.get(cfg["particles"], s, p)
                 for law in ("relaxed", "taylor"):
                     t = time.perf_counter()
                     rows, stop = load_test(loading, law, packing, mu, p, targets, cfg["budget"])
@@ -713,13 +704,12 @@ def run(out="results/relaxed_friction_study", small=False, verbose=True, force=F
     claim_out(out, FILES, force, "relaxed_friction_study")
     cfg = configuration(small, budget, options)
     say = print if verbose else (lambda *a, **k: None)
-    folder = os.path.join(out, "packings")  # (a cache: kept by force, reused)
-    os.makedirs(folder, exist_ok=True)
+    cache = PackingCache(os.path.join(out, "packings"))  # (kept by force, reused)
     t0 = time.perf_counter()
     figures, conv, results = {}, None, {}
 
     if "convergence" in cfg["tests"]:  # 1. the substep
-        packing = packing_at(cfg["particles"], cfg["seeds"][0], CONVERGENCE["pressure"], folder)
+        packing = cache.get(cfg["particles"], cfg["seeds"][0], CONVERGENCE["pressure"])
         conv, curves = convergence_rows(packing, cfg["convergence_shear"], say)
         write_csv(os.path.join(out, "convergence.csv"), conv)
         figures["convergence"] = convergence_figure(conv, curves)
@@ -727,7 +717,7 @@ def run(out="results/relaxed_friction_study", small=False, verbose=True, force=F
     for loading in (SHEAR, BIAXIAL):  # 2. confined shear, the biaxial test
         if loading.test not in cfg["tests"]:
             continue
-        steps, tests, summary, paths = run_tests(loading, cfg, folder, say, t0)
+        steps, tests, summary, paths = run_tests(loading, cfg, cache, say, t0)
         for name, rows in (("steps", steps), ("tests", tests), ("summary", summary)):
             write_csv(os.path.join(out, f"{loading.test}_{name}.csv"), rows)
         name = "qp_gamma" if loading is SHEAR else "biaxial"

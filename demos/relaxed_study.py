@@ -56,16 +56,15 @@ from dolfinx_granular import (
     ControlError,
     LawEvaluationError,
     MaterialPoint,
-    Packing,
     RelaxedRVE,
     TaylorRVE,
-    generate_packing,
 )
 from dolfinx_granular.drivers.confinement import compress, ramp
 from dolfinx_granular.io.commandline import Parser, world_comm
 from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out
 from dolfinx_granular.io.shear_figures import save_figure
 from dolfinx_granular.laws.relaxed import at_rest
+from dolfinx_granular.packings.cache import PackingCache
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -88,14 +87,6 @@ FILES = ("moduli.csv", "shear.csv", "relaxed_moduli.png", "relaxed_coordination.
 
 
 # %%
-def packing_at(n, seed, pressure, folder):
-    """The packing of n disks jammed at ``pressure`` (p / k_n), cached in ``folder``."""
-    path = os.path.join(folder, f"relaxed_{n}_{seed}_{pressure:g}.npz")
-    if os.path.exists(path):
-        return Packing.load(path)
-    packing = generate_packing(n, seed=seed, pressure=pressure)
-    packing.save(path)
-    return packing
 
 
 def moduli(F, P, A):
@@ -263,15 +254,12 @@ def run(out="results/relaxed_study", small=False, verbose=True, force=False):
     claim_out(out, FILES, force, "relaxed_study")
     cfg = SMALL if small else FULL
     say = print if verbose else (lambda *a, **k: None)
-    folder = os.path.join(out, "packings")  # (a cache: kept by force, reused)
-    os.makedirs(folder, exist_ok=True)
+    cache = PackingCache(os.path.join(out, "packings"))  # (kept by force, reused)
     t0, rows = time.perf_counter(), []
     total = len(cfg["pressures"]) * len(cfg["seeds"])
     for pressure in cfg["pressures"]:
         for seed in cfg["seeds"]:
-            rows.append(
-                moduli_row(packing_at(cfg["particles"], seed, pressure, folder), seed, pressure)
-            )
+            rows.append(moduli_row(cache.get(cfg["particles"], seed, pressure), seed, pressure))
             r, done = rows[-1], f"packing {len(rows)} of {total}, {time.perf_counter() - t0:.0f} s"
             if r["status"] != "ok":
                 say(f"p/kn {pressure:.0e} seed {seed}: {r['status']} ({done})")
@@ -283,7 +271,7 @@ def run(out="results/relaxed_study", small=False, verbose=True, force=False):
             )
     say(f"confined shear in {cfg['shear_steps']} steps (the full study's longest part)")
     shear = shear_rows(
-        packing_at(cfg["particles"], cfg["seeds"][0], SHEAR_PRESSURE, folder), cfg["shear_steps"]
+        cache.get(cfg["particles"], cfg["seeds"][0], SHEAR_PRESSURE), cfg["shear_steps"]
     )
     write_csv(os.path.join(out, "moduli.csv"), rows)
     write_csv(os.path.join(out, "shear.csv"), shear)

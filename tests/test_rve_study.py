@@ -5,7 +5,7 @@ import json
 import os
 import shutil
 
-from dolfinx_granular import Packing, TaylorRVE
+from dolfinx_granular import Packing, TaylorRVE, generate_packing
 from dolfinx_granular.packings.cache import PackingCache
 
 import numpy as np
@@ -145,3 +145,12 @@ def test_cache_records_generation_times(tmp_path):
     assert again.get(12, 3) == p and again.times == cache.times
     fresh = PackingCache(tmp_path, use_cache=False)  # generated anew (deterministic per seed)
     assert fresh.times == {} and fresh.get(12, 3) == p and fresh.generation_time(12, 3) > 0
+
+
+def test_cache_keeps_packings_jammed_at_a_pressure_apart(tmp_path):
+    cache = PackingCache(tmp_path)
+    p = cache.get(12, 3, pressure=1e-3)
+    assert cache.path(12, 3, 1e-3) == str(tmp_path / "n12_s3_p0.001.npz")
+    assert p == generate_packing(12, seed=3, pressure=1e-3) and p != cache.get(12, 3)
+    assert cache.get(12, 3, 1e-3) is p and cache.generation_time(12, 3, 1e-3) > 0
+    assert PackingCache(tmp_path).get(12, 3, 1e-3) == p  # (read back in a later process)

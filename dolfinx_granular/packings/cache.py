@@ -21,8 +21,9 @@ if TYPE_CHECKING:
 
 
 class PackingCache:
-    """Packings of :func:`~dolfinx_granular.generate_packing` by (particles, seed),
-    stored as ``DIR/n{n}_s{seed}.npz``.
+    """Packings of :func:`~dolfinx_granular.generate_packing` by (particles, seed) and, where
+    given, the pressure p / k_n they are jammed at, stored as ``DIR/n{n}_s{seed}.npz`` (the
+    generator's default pressure) or ``DIR/n{n}_s{seed}_p{pressure}.npz``.
 
     :meth:`get` loads a packing this cache generated before (in this process or an earlier one,
     if ``use_cache``); otherwise it generates the packing, saves it and records the generation
@@ -53,26 +54,31 @@ class PackingCache:
         self._loaded = {}  # (n, seed) -> Packing, so that repeated gets do not reread the file
 
     @staticmethod
-    def _key(n, seed) -> str:
-        return f"{int(n)}/{int(seed)}"
+    def _key(n, seed, pressure=None) -> str:
+        key = f"{int(n)}/{int(seed)}"
+        return key if pressure is None else f"{key}/{float(pressure):g}"
 
-    def path(self, n: int, seed: int = 0) -> str:
-        """The file of the packing with ``n`` particles and ``seed``."""
-        return os.path.join(self.directory, f"n{int(n)}_s{int(seed)}.npz")
+    def path(self, n: int, seed: int = 0, pressure: float | None = None) -> str:
+        """The file of the packing with ``n`` particles and ``seed`` (jammed at ``pressure``,
+        p / k_n; None: the generator's default)."""
+        jammed = "" if pressure is None else f"_p{float(pressure):g}"
+        return os.path.join(self.directory, f"n{int(n)}_s{int(seed)}{jammed}.npz")
 
-    def get(self, n: int, seed: int = 0) -> Packing:
-        """The packing of ``n`` particles and ``seed``: from memory, from its file, or generated
-        (then saved and its generation time recorded)."""
-        key = (int(n), int(seed))
+    def get(self, n: int, seed: int = 0, pressure: float | None = None) -> Packing:
+        """The packing of ``n`` particles and ``seed``, jammed at ``pressure`` (p / k_n, as
+        :func:`~dolfinx_granular.generate_packing` takes it; None: its default): from memory,
+        from its file, or generated (then saved and its generation time recorded)."""
+        key = (int(n), int(seed), None if pressure is None else float(pressure))
         if key in self._loaded:
             return self._loaded[key]
-        path = self.path(n, seed)
-        if self.use_cache and os.path.isfile(path) and self._key(n, seed) in self.times:
+        path = self.path(n, seed, pressure)
+        if self.use_cache and os.path.isfile(path) and self._key(*key) in self.times:
             packing = Packing.load(path)
         else:
             t0 = time.perf_counter()
-            packing = generate_packing(int(n), seed=int(seed))
-            self.times[self._key(n, seed)] = time.perf_counter() - t0
+            jammed = {} if pressure is None else {"pressure": float(pressure)}
+            packing = generate_packing(int(n), seed=int(seed), **jammed)
+            self.times[self._key(*key)] = time.perf_counter() - t0
             packing.save(path)
             # imported here: runwriter imports mpi4py (MPI_Init), which the MPI-free studies that
             # use this cache (rve_study, friction_study) do not need
@@ -83,6 +89,6 @@ class PackingCache:
         self._loaded[key] = packing
         return packing
 
-    def generation_time(self, n: int, seed: int = 0) -> float:
+    def generation_time(self, n: int, seed: int = 0, pressure: float | None = None) -> float:
         """Wall seconds it took to generate the packing (after :meth:`get`)."""
-        return float(self.times[self._key(n, seed)])
+        return float(self.times[self._key(n, seed, pressure)])
