@@ -29,11 +29,11 @@ def start():
 
 
 def _arguments(rve, inc, F):
-    cell, sp = rve.cell, rve.springs
+    cell = rve.cell
     return (
         (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, inc.forces(cell.pi.shape[0])),
-        (cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii),
-        (sp.kn, sp.kt, sp.mu, sp.inv_area),
+        nk.cell_arrays(cell),
+        nk.spring_arrays(rve.springs),
     )
 
 
@@ -53,9 +53,7 @@ def test_its_residual_is_the_cell_states(start):
 
 def _pattern(cell, cover):
     p, lu, cover = cell.block_pattern(-1, cover, d=3, new_factor=BlockLU.on)
-    pattern = (p.n, p.perm, p.diag_slot, p.pair_slot, p.pair_flip, cover, p.Ap, p.Ai, p.Lp,
-               p.Li, p.Rp, p.Rc, p.Rq)  # fmt: skip
-    return pattern, (lu.values, lu.Lx, lu.Ux, lu.Dinv)
+    return nk.pattern_arrays(p, cover), lu.arrays()
 
 
 def test_a_contact_beyond_the_pattern_hands_back_and_run_takes_a_longer_one(start):
