@@ -7,9 +7,10 @@ tangent), and a backtracking line search on the squared residual (slip has no en
 the Coulomb cone is a pair of lines, so this is a semismooth Newton over the contacts'
 stick/slip statuses: quadratic near the equilibrium, but a step that changes many statuses at
 once can find no smaller residual, or the statuses can cycle. Newton then stops (no step lowers
-the residual, or it fell by less than half over 4 steps) and the caller's fallback relaxes the
-cell (:mod:`~dolfinx_granular.laws.relaxed_friction.fire`) before Newton takes up again: that
-ends the cycling. The loop itself is compiled (:mod:`.newton_kernel`, where its constants live).
+the residual, or it fell by less than half over 4 steps) and the caller's fallbacks take over:
+pseudo-transient continuation (:mod:`.pseudo_time`: damped implicit steps, ``solve(...,
+pseudo=True)``), then FIRE (:mod:`~dolfinx_granular.laws.relaxed_friction.fire`) before Newton
+takes up again. The loop itself is compiled (:mod:`.newton_kernel`, where its constants live).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from scipy.sparse.linalg import splu
 
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
-from . import newton_kernel
+from . import newton_kernel, pseudo_time
 from .block_lu import BlockLU
 from .cell_state import CellState, Increment, Springs
 from .settings import Settings
@@ -42,12 +43,14 @@ _FAILURES = {
 @dataclass
 class Counts:
     """What a solve did: Newton steps, factorisations, chord steps (on an earlier
-    factorisation), steps of the fallback; ``history`` the residual of every iterate;
-    ``newton_seconds`` the wall time in Newton's loop."""
+    factorisation), steps of the fallbacks (pseudo-transient continuation's among ``steps``
+    too); ``history`` the residual of every iterate; ``newton_seconds`` the wall time in the
+    compiled loops."""
 
     steps: int = 0
     factorisations: int = 0
     chord_steps: int = 0
+    pseudo_steps: int = 0
     fire_steps: int = 0
     history: list = field(default_factory=list)
     newton_seconds: float = 0.0
@@ -78,21 +81,30 @@ def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
 
 
 def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Settings,
-          counts: Counts) -> tuple:  # fmt: skip
-    """Newton from (w (N, 2), th (N,)) to the equilibrium of the increment: ``(w, th, state,
-    residual)``; RelaxationError where it fails or stalls (the caller's fallback takes over).
-    The steps are :func:`.newton_kernel.newton`'s."""
+          counts: Counts, pseudo: bool = False) -> tuple:  # fmt: skip
+    """Newton from (w (N, 2), th (N,)) to the equilibrium of the increment (or, ``pseudo``,
+    pseudo-transient continuation: :mod:`.pseudo_time`): ``(w, th, state, residual)``;
+    RelaxationError where it fails or stalls (the caller's fallback takes over). The steps are
+    :func:`.newton_kernel.newton`'s (:func:`.pseudo_time.transient`'s)."""
     w, th = np.array(w, dtype=np.float64), np.array(th, dtype=np.float64)
     history = counts.history
-    start = len(history)
+    start, steps = len(history), counts.steps
     t0 = time.perf_counter()
-    code, why, w, th = newton_kernel.run(cell, springs, F, w, th, inc, settings, counts)
+    if pseudo:
+        code, why, w, th = newton_kernel.run(
+            cell, springs, F, w, th, inc, settings, counts, pseudo_time.transient,
+            settings.pseudo_steps, (np.array([pseudo_time.SIGMA_START]),),
+        )  # fmt: skip
+        counts.pseudo_steps += counts.steps - steps
+    else:
+        code, why, w, th = newton_kernel.run(cell, springs, F, w, th, inc, settings, counts)
     counts.newton_seconds += time.perf_counter() - t0
     if code == newton_kernel.RIGIDITY_LOST:
         raise RigidityLostError("no two disks touch (the cell has come apart)")
     if code == newton_kernel.FAILED:
         last = history[-1] if len(history) > start else np.inf
-        raise RelaxationError(_FAILURES[why].format(len(history) - start - 1, last))
+        what = "pseudo-transient continuation: " if pseudo else ""
+        raise RelaxationError(what + _FAILURES[why].format(len(history) - start - 1, last))
     if code == newton_kernel.CONVERGED:
         s = CellState(cell, springs, F, w, th, inc)
         residual, floor = s.residual(cell)

@@ -109,13 +109,15 @@ def step_limit(F, dq, radii, R_min, max_step):
 
 
 @njit(cache=True)
-def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation):
+def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, shift=0.0):
     """The Jacobian at s assembled and factorised on the block LU: ``(code, held (3N,),
     statuses)``, code 0, BEYOND_PATTERN or SINGULAR_PIVOT. Newton's (``tangent`` False): every
     contact, contacts near the cone's edge within ``edge`` of their cap taking the other side's,
     the pinned disk's translation held. The tangent's: the network's contacts, the rattlers'
     unknowns held too. ``free_rotation`` scales the diagonal of the rotations no sticking contact
-    holds (:func:`~dolfinx_granular.laws.relaxed_friction.cell_state.diagonal`)."""
+    holds (:func:`~dolfinx_granular.laws.relaxed_friction.cell_state.diagonal`). ``shift`` adds
+    ``shift`` k_n / V to every translation's diagonal and ``shift`` k_n r^2 / V to every
+    rotation's (the pseudo-time steps of :mod:`.pseudo_time`)."""
     pi, pj, X, Y, R, radii = cell
     kn, kt, mu, inv_area = springs
     n, _, diag_slot, pair_slot, pair_flip, cover, Ap, Ai, Lp, Li, Rp, Rc, Rq = pattern
@@ -144,6 +146,11 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation):
     reach = RATTLER_REACH * sum_e / n_on
     diag = diagonal(status, network, keep, pi[:m], pj[:m], radii, r, kn, kt, inv_area, pinned,
                     reach, RATTLER_SHIFT, tangent, free_rotation)  # fmt: skip
+    if shift > 0.0:
+        for k in range(N):
+            diag[3 * k] += shift * kn * inv_area
+            diag[3 * k + 1] += shift * kn * inv_area
+            diag[3 * k + 2] += shift * kn * inv_area * radii[k] ** 2
     held = np.zeros(3 * N, np.bool_)
     held[3 * pinned] = held[3 * pinned + 1] = True
     if tangent:
@@ -319,23 +326,28 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
 HAND_BACKS = 20
 
 
-def run(cell, springs, F, w, th, inc, settings, counts) -> tuple:
-    """:func:`newton` on the cell's block pattern for the candidates visited at (F, w), the
-    list grown and the pattern lengthened where it hands back: ``(code, why, w, th)``, the
-    residuals appended to ``counts.history``."""
+def run(cell, springs, F, w, th, inc, settings, counts, kernel=None, max_steps=None,
+        extra=()) -> tuple:  # fmt: skip
+    """``kernel`` (:func:`newton`, or one with its arguments and outcome and ``extra`` ones
+    after them) at most ``max_steps`` (``settings.max_iterations``) steps on the cell's block
+    pattern for the candidates visited at (F, w), the list grown and the pattern lengthened
+    where it hands back: ``(code, why, w, th)``, the residuals appended to
+    ``counts.history``."""
+    kernel = newton if kernel is None else kernel
+    max_steps = settings.max_iterations if max_steps is None else max_steps
     F = np.ascontiguousarray(F, dtype=np.float64)
     F_smin = float(singular_values_2x2(F[None])[1][0])
-    history = np.empty(HAND_BACKS * (settings.max_iterations + 1))
+    history = np.empty(HAND_BACKS * (max_steps + 1))
     tally = np.zeros(4, np.int64)
     need = cell.visited(F, w)  # (grows the list where it must)
     for _ in range(HAND_BACKS):
         ft0 = inc.forces(cell.pi.shape[0])  # (after the list grew: a force for every candidate)
         p, lu, cover = cell.block_pattern(-1, max(need, 1), d=3, new_factor=BlockLU.on)
-        code, why, w, th, reached = newton(
+        code, why, w, th, reached = kernel(
             F, F_smin, w, th, (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, ft0),
             cell_arrays(cell), spring_arrays(springs), cell.geometry(), cell.verlet(),
-            pattern_arrays(p, cover), lu.arrays(), settings.force_tol, settings.max_iterations,
-            history, tally,
+            pattern_arrays(p, cover), lu.arrays(), settings.force_tol, max_steps, history,
+            tally, *extra,
         )  # fmt: skip
         if code != HAND_BACK:
             break

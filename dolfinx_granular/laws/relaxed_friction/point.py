@@ -78,16 +78,19 @@ def predicted(w, th, dq, Fc, F):
 def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Settings,
           tangent: bool) -> Equilibrium:  # fmt: skip
     """The equilibrium of the increment from ``inc`` to G (2, 2) (dG/dF = DG (4, 4), F the
-    path's end): Newton from the predicted start. Where it
-    fails, FIRE relaxes the cell under the same increment from the predicted start to
-    ``settings.fire_tol`` and Newton goes on from there; where Newton fails again, FIRE goes on
-    (to a thousandth of its tolerance where it reached it), :data:`FIRE_ROUNDS` times in all.
-    The fallback solves the same increment: it does not change the path, so the answer stays
-    the model's (a halved increment would commit a midpoint, another path, and make P jump with
-    F where Newton's success does)."""
+    path's end): Newton from the predicted start. Where it fails, pseudo-transient
+    continuation (:mod:`.pseudo_time`: implicit damped steps that lower the increment's
+    potential) from the predicted start; where that fails too, FIRE relaxes the cell under the
+    same increment to ``settings.fire_tol`` and Newton goes on from there; where Newton fails
+    again, FIRE goes on (to a thousandth of its tolerance where it reached it),
+    :data:`FIRE_ROUNDS` times in all. The fallbacks solve the same increment: they do not
+    change the path, so the answer stays the model's (a halved increment would commit a
+    midpoint, another path, and make P jump with F where Newton's success does)."""
     counts = Counts()
     w, th = predicted(inc.w0, inc.th0, dq, inc.F0, G)
     done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
+    if done is None:
+        done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, True)
     if done is not None:
         return done
     tol = settings.fire_tol
@@ -107,10 +110,11 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     )
 
 
-def _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent):
-    """The :class:`Equilibrium` Newton reaches from (w, th), or None where it fails."""
+def _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, pseudo=False):
+    """The :class:`Equilibrium` Newton (``pseudo``: pseudo-transient continuation) reaches from
+    (w, th), or None where it fails."""
     try:
-        found = solve(cell, springs, G, w, th, inc, settings, counts)
+        found = solve(cell, springs, G, w, th, inc, settings, counts, pseudo)
     except RigidityLostError:
         raise
     except RelaxationError:

@@ -15,8 +15,12 @@ class Settings:
             the mean radius (or a few times the round-off of the contact forces, where that is
             larger: overlaps below ~1e-5 of the radii).
         max_iterations: Newton steps of one solve before the fallback takes over.
-        fire_tol, fire_steps: the fallback (damped dynamics of the same increment) stops at this
-            net force, or after that many steps, and Newton takes over; up to
+        pseudo_steps: steps of the first fallback, pseudo-transient continuation (implicit
+            damped steps of the same increment, :mod:`.pseudo_time`), before the second takes
+            over.
+        fire_tol, fire_steps: the second fallback (explicit damped dynamics of the same
+            increment) stops at this net force, or after that many steps, and Newton takes
+            over; up to
             :data:`~dolfinx_granular.laws.relaxed_friction.point.FIRE_ROUNDS` such rounds.
         substep, substep_overlap: the quasi-static path's substeps |U_k+1 - U_k| (the right
             stretch, Frobenius norm) are at most ``substep``, and at most ``substep_overlap``
@@ -29,6 +33,7 @@ class Settings:
 
     force_tol: float = 1e-10
     max_iterations: int = 60
+    pseudo_steps: int = 400
     fire_tol: float = 1e-5
     fire_steps: int = 20_000
     substep: float = 1e-3
