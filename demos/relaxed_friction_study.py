@@ -35,7 +35,9 @@ the full run's) values, so the issue's study is e.g. ``--particles 700 --max-she
 --shear-steps 250 --max-strain 0.3 --biaxial-steps 60 --budget 0``. Under ``mpirun`` rank 0
 runs the (serial) study and the other ranks exit. An ``--out`` that holds the study's tables or
 figures is refused (exit status 2) unless ``--force``, which replaces those files and no
-others; the packings cached in ``OUT/packings`` stay and are reused.
+others; the packings cached in ``OUT/packings`` and the tests in ``OUT/tests`` (each shear and
+biaxial test's rows, :class:`~dolfinx_granular.drivers.element_cache.ElementTestCache`) stay and
+are reused, so that a study stopped and started again with ``--force`` goes on where it stopped.
 
 * packings: ``generate_packing(n, seed, pressure=p)`` for each confining pressure p / k_n (the
   network jammed at that pressure), cached; 200 disks, seeds 0-2 (``--small``: 70 disks, seed 0);
@@ -96,17 +98,19 @@ import csv
 import os
 import sys
 import time
-from dataclasses import dataclass
 
-from dolfinx_granular import (
-    ControlError,
-    FrictionalRelaxedRVE,
-    FrictionalRVE,
-    LawEvaluationError,
-    MaterialPoint,
+from dolfinx_granular import ControlError, LawEvaluationError, MaterialPoint
+from dolfinx_granular.drivers.element_cache import ElementTestCache
+from dolfinx_granular.drivers.element_tests import (
+    BIAXIAL,
+    LOADINGS,
+    SHEAR,
+    confine,
+    make_law,
+    measures,
+    ratios,
 )
-from dolfinx_granular.drivers.confinement import compress
-from dolfinx_granular.io.commandline import Parser, world_comm
+from dolfinx_granular.io.commandline import Parser, checked_values, world_comm
 from dolfinx_granular.io.outfolder import claim_or_refuse, claim_out
 from dolfinx_granular.io.shear_figures import save_figure
 from dolfinx_granular.laws.relaxed.path import stretch, stretches_between
@@ -117,12 +121,8 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
-K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
-K_T = K_N  # tangential stiffness, N/m² (a common DEM choice, as the friction study)
 SUBSTEPS = (1e-3, 5e-4, 2.5e-4, 1.25e-4)  # the substeps of the convergence study
 CONVERGENCE = dict(pressure=1e-2, mu=0.5)  # p / k_n and mu of the convergence study
-MAX_CUTS = 3  # halvings of a failed step before its test stops
-CRITICAL = 0.75  # the "critical state": the steps past this fraction of the strain reached
 # the literature's macroscopic friction q/p of 2-D disks (the reference of the q/p-mu figure):
 # about 0.1 without contact friction, 0.25-0.30 at the critical state for mu = 0.4-0.5
 # (da Cruz et al. 2005), saturating above mu ~ 0.5; a peak of 0.38-0.45 (dense, mu = 0.5)
@@ -143,58 +143,14 @@ FILES = ("convergence.csv", "shear_steps.csv", "shear_tests.csv", "shear_summary
          "biaxial_steps.csv", "biaxial_tests.csv", "biaxial_summary.csv",
          "relaxed_friction_convergence.png", "relaxed_friction_qp_gamma.png",
          "relaxed_friction_biaxial.png", "relaxed_friction_qp_mu.png")  # fmt: skip
-#: the stop reasons a test can have (a law or driver error's message follows "stopped: ")
-BUDGET_STOP = "time budget"
 
 # %% [markdown]
 # ## Packings, laws and measures
 #
 # The packings are jammed at the confining pressure and cached (the relaxed study's files); the
-# confinement compresses them along F = lam I to it.
-
-
-# %%
-
-
-def make_law(name, packing, mu):
-    """The frictional relaxed (``"relaxed"``) or Taylor (``"taylor"``) RVE with friction mu."""
-    cls = FrictionalRelaxedRVE if name == "relaxed" else FrictionalRVE
-    return cls(packing, K_N, K_T, mu)
-
-
-def ratios(sigma):
-    """(p in Pa, q / p, tau / p) of a Cauchy stress (2, 2)."""
-    s11, s22, s12 = sigma[0, 0], sigma[1, 1], sigma[0, 1]
-    p = -0.5 * (s11 + s22)
-    return p, np.hypot(0.5 * (s11 - s22), s12) / p, s12 / p
-
-
-def network(law, F, state, mu):
-    """(contacts with overlap > 0, z over the disks with >= 2 of them, sliding share or NaN at
-    mu = 0) of the 1-point ``state`` at F. The relaxed RVE's state is the one at F (its contacts
-    are read, not solved again; sliding: slid in the increment to it); the Taylor RVE's is the
-    committed state before the step to F (its ``contacts`` takes the step)."""
-    c = law.contacts(F, state)
-    on = c.overlap > 0.0
-    pairs = c.pairs[on]
-    n = law.packing.radii.shape[0]
-    degree = np.bincount(pairs.ravel(), minlength=n)
-    carried = degree >= 2
-    between = carried[pairs[:, 0]] & carried[pairs[:, 1]]
-    z = 2.0 * between.sum() / carried.sum() if carried.any() else 0.0
-    sliding = np.asarray(c.sliding)[on]
-    share = float(sliding.mean()) if mu > 0.0 and on.any() else float("nan")
-    return int(on.sum()), float(z), share
-
-
-def confine(law, pressure):
-    """A :class:`MaterialPoint` of ``law`` compressed along F = lam I to the mean pressure
-    ``pressure`` (p / k_n); its last result is the confined state. Raises what ``compress``
-    raises."""
-    point = MaterialPoint(law)
-    # (the driver's strain steps capped at ten times the strain the pressure asks for)
-    compress(point, pressure * K_N, max_increment=10 * pressure, isotropic=True)
-    return point
+# confinement compresses them along F = lam I to it. The laws (`make_law`), the confinement
+# (`confine`) and the measures (`ratios`, `network`) are the package's element tests,
+# `dolfinx_granular.drivers.element_tests`, as the `strength` command uses them.
 
 
 # %% [markdown]
@@ -276,164 +232,14 @@ def convergence_rows(packing, max_shear, say):
 # ## 2. Confined simple shear and the biaxial test
 #
 # Both start from the confined state F_c = lam I and prescribe one strain x in steps while the
-# material-point driver solves one more, y, so that a normal stress stays -p. A step that fails
-# is halved; a step that fails after :data:`MAX_CUTS` halvings ends the test, which keeps the
-# steps it reached and the error (the known limit of the micro solver at large strain, where
-# the cell rearranges).
-
-
-# %%
-@dataclass(frozen=True)
-class Loading:
-    """A test's path from F_c = lam I: F[drive_ij] = lam (base + sign x), x (column ``drive``)
-    prescribed; F[held_ij] = lam (1 + y), y (column ``free``) solved so that sigma[held_ij] =
-    -p; F's other components stay F_c's. ``limits``: the configuration's keys of the largest x
-    and of the number of steps to it."""
-
-    test: str
-    drive: str
-    free: str
-    drive_ij: tuple
-    held_ij: tuple
-    base: float
-    sign: float
-    limits: tuple
-    label: str  # the axis label of x
-    title: str
-
-    def strains(self, F, lam):
-        """(x, y) of F (+ 0.0: no -0.0 at x = 0)."""
-        x = (F[self.drive_ij] / lam - self.base) / self.sign + 0.0
-        return float(x), float(F[self.held_ij] / lam - 1.0)
-
-
-SHEAR = Loading("shear", "gamma", "e22", (0, 1), (1, 1), 0.0, 1.0, ("max_shear", "shear_steps"),
-                "shear strain γ [%]", "Confined simple shear (σ22 = −p, F11 held)")  # fmt: skip
-BIAXIAL = Loading("biaxial", "eps1", "e11", (1, 1), (0, 0), 1.0, -1.0,
-                  ("max_strain", "biaxial_steps"), "axial strain ε1 [%]",
-                  "Biaxial compression (σ11 = −p, F12 = F21 = 0)")  # fmt: skip
-LOADINGS = {loading.test: loading for loading in (SHEAR, BIAXIAL)}
-
-
-def step_row(loading, law, mu, Fc, Dc, r, before, seconds):
-    """A step's row (the result ``r``); ``Dc``: the confined state's dissipation; ``before``: the
-    committed state before the step (None: the confined state, no step: no sliding share)."""
-    lam = Fc[0, 0]
-    x, y = loading.strains(r.F, lam)
-    p, qp, taup = ratios(r.sigma)
-    relaxed = isinstance(law, FrictionalRelaxedRVE)
-    state = r.state if relaxed or before is None else before
-    contacts, z, share = network(law, r.F, state, mu)
-    return {
-        loading.drive: x,
-        loading.free: y,
-        **{f"F{i + 1}{j + 1}": float(r.F[i, j]) for i in range(2) for j in range(2)},
-        "sigma11_Pa": r.sigma[0, 0],
-        "sigma12_Pa": r.sigma[0, 1],
-        "sigma22_Pa": r.sigma[1, 1],
-        "p_Pa": p,
-        "q_over_p": qp,
-        "tau_over_p": taup,
-        "volumetric_strain": float(np.log(np.linalg.det(r.F) / np.linalg.det(Fc))),
-        "contacts": contacts,
-        "z": z,
-        "sliding_share": share if before is not None else float("nan"),
-        "dissipation_Pa": float(r.state.dissipation[0]) - Dc,
-        "newton_iterations": r.iterations,
-        "wall_s": seconds,
-    }
-
-
-def load_test(loading, law_name, packing, mu, pressure, targets, budget=None):
-    """One test (``loading``) of one packing to the strains ``targets``: ``(step rows, stop
-    message or "")``. Row 0 is the confined state (x = 0); a test whose confinement failed has
-    no rows."""
-    law = make_law(law_name, packing, mu)
-    P, t0 = pressure * K_N, time.perf_counter()
-    try:
-        point = confine(law, pressure)
-    except (ControlError, LawEvaluationError) as err:
-        return [], f"stopped: confinement failed: {err}"[:300]
-    Fc, (x, y) = point.F.copy(), (loading.drive, loading.free)
-    lam, Dc = Fc[0, 0], float(point.state.dissipation[0])
-    rows = [step_row(loading, law, mu, Fc, Dc, point.last, None, time.perf_counter() - t0)]
-    # each target gets MAX_CUTS halvings in all (those whose midpoints were reached included),
-    # as the driver's ramp
-    targets, done, cuts, stop = list(targets), 0.0, 0, ""
-    left, t_step = len(targets), time.perf_counter()
-    while targets:
-        if budget is not None and time.perf_counter() - t0 > budget:
-            stop = f"stopped: {BUDGET_STOP} of {budget:g} s reached"
-            break
-        F = point.F.copy()
-        F[loading.drive_ij] = lam * (loading.base + loading.sign * targets[0])
-        if len(rows) > 1:  # y's guess: extrapolated along the last step
-            a, b = rows[-2], rows[-1]
-            rate = (b[y] - a[y]) / (b[x] - a[x])
-            F[loading.held_ij] = lam * (1.0 + b[y] + rate * (targets[0] - b[x]))
-        before = point.state
-        try:
-            # (Newton's steps on y capped at p / k_n: a trial F far off the path takes the
-            # path-dependent micro solver there, and it fails more often; with 10 p / k_n,
-            # 200 disks at p / k_n = 1e-2, mu = 0.5 stopped at gamma = 0.8 %, not 6.8 %)
-            r = point.step(F, {loading.held_ij: -P}, max_increment=pressure)
-        except (ControlError, LawEvaluationError) as err:
-            if cuts == MAX_CUTS:
-                stop = f"stopped: {err}"[:300]
-                break
-            targets.insert(0, 0.5 * (done + targets[0]))
-            cuts += 1
-            continue
-        done = targets.pop(0)
-        if len(targets) < left:  # one of the targets reached: the next gets its halvings
-            left, cuts = len(targets), 0
-        rows.append(step_row(loading, law, mu, Fc, Dc, r, before, time.perf_counter() - t_step))
-        t_step = time.perf_counter()
-    return rows, stop
-
-
-def test_measures(rows, stop, target, loading):
-    """Scalars of one test: how far it got (x), peak, critical and final q/p (and final tau/p),
-    peak and final dilatancy d e_v / d x, final e_v, critical and final z and sliding share,
-    final dissipation. Critical: the mean over the steps with x >= CRITICAL x_reached."""
-    x_name = loading.drive
-    out = {f"{x_name}_reached": rows[-1][x_name] if rows else 0.0, "target": target,
-           "stopped": bool(stop), "message": stop}  # fmt: skip
-    if len(rows) < 2:
-        return out
-    g = np.array([r[x_name] for r in rows])
-    qp = np.array([r["q_over_p"] for r in rows])
-    ev = np.array([r["volumetric_strain"] for r in rows])
-    k = int(np.argmax(qp))
-    window = max(1, (len(rows) - 1) // 10)
-    dil = (ev[window:] - ev[:-window]) / (g[window:] - g[:-window])
-    tail = int(np.searchsorted(g, 0.8 * g[-1]))
-    tail = min(tail, len(rows) - 2)
-    critical = g >= (CRITICAL - 1e-9) * g[-1]  # (a step at 3/4 of x_reached, round-off aside)
-
-    def mean(key):  # over the critical steps (NaN where none has a value)
-        v = np.array([r[key] for r in rows], dtype=float)[critical]
-        return float(v[np.isfinite(v)].mean()) if np.isfinite(v).any() else float("nan")
-
-    last = rows[-1]
-    out.update({
-        "qp_start": qp[0],
-        "qp_peak": qp[k],
-        f"{x_name}_peak": g[k],
-        "critical_from": CRITICAL * g[-1],
-        "qp_critical_last_quarter": mean("q_over_p"),
-        "qp_final": qp[-1],
-        "taup_final": last["tau_over_p"],
-        "dilatancy_peak": float(dil.max()),
-        "dilatancy_final": float((ev[-1] - ev[tail]) / (g[-1] - g[tail])),
-        "ev_final": ev[-1],
-        "z_critical_last_quarter": mean("z"),
-        "z_final": last["z"],
-        "sliding_critical_last_quarter": mean("sliding_share"),
-        "sliding_final": last["sliding_share"],
-        "dissipation_final_Pa": last["dissipation_Pa"],
-    })  # fmt: skip
-    return out
+# material-point driver solves one more, y, so that a normal stress stays -p
+# (`dolfinx_granular.drivers.element_tests`: `Loading`, `SHEAR`, `BIAXIAL`, `load_test`). A
+# step that fails is halved; a step that fails after `MAX_CUTS` halvings ends the test, which
+# keeps the steps it reached and the error (the known limit of the micro solver at large
+# strain, where the cell rearranges). `measures` gives a test's scalars (how far it got, peak
+# and critical q/p, dilatancy, z, sliding share). Each test is run once: `ElementTestCache`
+# keeps its rows in `OUT/tests` (kept by `--force`, as the packings), so that a study stopped
+# and started again goes on where it stopped.
 
 
 # %% [markdown]
@@ -650,9 +456,10 @@ def print_summary(say, loading, tests, summary):
 
 
 # %%
-def run_tests(loading, cfg, cache, say, t0):
+def run_tests(loading, cfg, packings, stored, say, t0):
     """Every test of ``loading`` (both laws, each mu, p and seed): ``(steps, tests, summary,
-    paths)``; writes nothing."""
+    paths)``; writes nothing but the tests' cache: ``packings`` (:class:`PackingCache`) gives the
+    packings, ``stored`` (:class:`ElementTestCache`) runs each test once."""
     top, count = (cfg[key] for key in loading.limits)
     targets = np.linspace(0.0, top, count + 1)[1:]
     steps, tests, paths = [], [], {}
@@ -661,19 +468,20 @@ def run_tests(loading, cfg, cache, say, t0):
     for p in cfg["pressures"]:
         for mu in cfg["mus"]:
             for s in cfg["seeds"]:
-                packing = cache.get(cfg["particles"], s, p)
+                packing = packings.get(cfg["particles"], s, p)
                 for law in ("relaxed", "taylor"):
-                    t = time.perf_counter()
-                    rows, stop = load_test(loading, law, packing, mu, p, targets, cfg["budget"])
-                    seconds = time.perf_counter() - t
+                    rve = make_law(law, packing, mu)
+                    run = stored.run(loading, rve, packing, s, p, targets, cfg["budget"])
+                    rows, stop = run.rows, run.stop
                     paths[(law, mu, p, s)] = (rows, stop)
                     key = dict(law=law, mu=mu, p_over_kn=p, seed=s)
                     steps += [dict(key, step=k, **r) for k, r in enumerate(rows)]
-                    m = test_measures(rows, stop, top, loading)
-                    tests.append(dict(key, **m, seconds=seconds))
+                    m = measures(rows, stop, top, loading)
+                    tests.append(dict(key, **m, seconds=run.seconds))
                     if law == "relaxed":
                         say(f"{loading.test} relaxed mu {mu:g} p/kn {p:g} seed {s}: {x} "
-                            f"{100 * m[f'{x}_reached']:.2f} % in {seconds:.1f} s"
+                            f"{100 * m[f'{x}_reached']:.2f} % in {run.seconds:.1f} s"
+                            f"{' (cached)' if run.cached else ''}"
                             f"{' (' + stop[:100] + ')' if stop else ''} "
                             f"[test {len(tests) // 2 + 1} of {total}, "
                             f"{time.perf_counter() - t0:.0f} s]")  # fmt: skip
@@ -704,7 +512,9 @@ def run(out="results/relaxed_friction_study", small=False, verbose=True, force=F
     claim_out(out, FILES, force, "relaxed_friction_study")
     cfg = configuration(small, budget, options)
     say = print if verbose else (lambda *a, **k: None)
-    cache = PackingCache(os.path.join(out, "packings"))  # (kept by force, reused)
+    # (both kept by force, and reused: a study started again goes on where it stopped)
+    cache = PackingCache(os.path.join(out, "packings"))
+    stored = ElementTestCache(os.path.join(out, "tests"))
     t0 = time.perf_counter()
     figures, conv, results = {}, None, {}
 
@@ -717,7 +527,7 @@ def run(out="results/relaxed_friction_study", small=False, verbose=True, force=F
     for loading in (SHEAR, BIAXIAL):  # 2. confined shear, the biaxial test
         if loading.test not in cfg["tests"]:
             continue
-        steps, tests, summary, paths = run_tests(loading, cfg, cache, say, t0)
+        steps, tests, summary, paths = run_tests(loading, cfg, cache, stored, say, t0)
         for name, rows in (("steps", steps), ("tests", tests), ("summary", summary)):
             write_csv(os.path.join(out, f"{loading.test}_{name}.csv"), rows)
         name = "qp_gamma" if loading is SHEAR else "biaxial"
@@ -744,29 +554,6 @@ def run(out="results/relaxed_friction_study", small=False, verbose=True, force=F
 
 
 # %%
-def _values(kind, ok, what, example, many=False):
-    """An argparse type: a ``kind`` (a comma-separated tuple of distinct ones with ``many``),
-    each passing ``ok``; otherwise an error that says ``what`` to give, e.g. ``example``."""
-
-    def convert(text):
-        fix = f"give {what}, e.g. {example}"
-        values = []
-        for v in text.split(",") if many else (text,):
-            try:
-                values.append(kind(v))
-            except ValueError:
-                number = "whole number" if kind is int else "number"
-                raise argparse.ArgumentTypeError(f"{v!r} is not a {number}: {fix}") from None
-        for v in values:
-            if not (np.isfinite(v) and ok(v)):
-                raise argparse.ArgumentTypeError(f"{v!r} is out of range: {fix}")
-        if len(set(values)) < len(values):
-            raise argparse.ArgumentTypeError(f"{text!r} repeats a value: {fix}")
-        return tuple(values) if many else values[0]
-
-    return convert
-
-
 def _tests(text):
     """The tests of ``--tests`` in :data:`TESTS`'s order."""
     names = [t.strip() for t in text.split(",") if t.strip()]
@@ -782,16 +569,20 @@ def _tests(text):
 def parse_args(argv=None):
     """The options; ``out`` resolved (``results/relaxed_friction_study[-small]``)."""
     whole = "a whole number >= 1"
-    budget = _values(float, lambda v: v >= 0.0, "seconds >= 0 (0: none)", "90")
-    particles = _values(int, lambda v: v >= 10, "a whole number >= 10", "700")
-    seeds = _values(int, lambda v: v >= 0, "comma-separated whole numbers >= 0", "0,1,2", True)
-    mus = _values(float, lambda v: v >= 0.0, "comma-separated mu >= 0", "0,0.1,0.3,0.5,1", True)
+    budget = checked_values(float, lambda v: v >= 0.0, "seconds >= 0 (0: none)", "90")
+    particles = checked_values(int, lambda v: v >= 10, "a whole number >= 10", "700")
+    seeds = checked_values(
+        int, lambda v: v >= 0, "comma-separated whole numbers >= 0", "0,1,2", True
+    )
+    mus = checked_values(
+        float, lambda v: v >= 0.0, "comma-separated mu >= 0", "0,0.1,0.3,0.5,1", True
+    )
     range_p = f"comma-separated p / k_n in (0, {MAX_PRESSURE:g}]"
-    pressures = _values(float, lambda v: 0.0 < v <= MAX_PRESSURE, range_p, "1e-2,1e-3", True)
-    shear = _values(float, lambda v: 0.0 < v <= 2.0, "a shear strain in (0, 2]", "0.5")
-    strain = _values(float, lambda v: 0.0 < v < 0.9, "an axial strain in (0, 0.9)", "0.3")
-    shear_steps = _values(int, lambda v: v >= 1, whole, "250")
-    biaxial_steps = _values(int, lambda v: v >= 1, whole, "60")
+    pressures = checked_values(float, lambda v: 0.0 < v <= MAX_PRESSURE, range_p, "1e-2,1e-3", True)
+    shear = checked_values(float, lambda v: 0.0 < v <= 2.0, "a shear strain in (0, 2]", "0.5")
+    strain = checked_values(float, lambda v: 0.0 < v < 0.9, "an axial strain in (0, 0.9)", "0.3")
+    shear_steps = checked_values(int, lambda v: v >= 1, whole, "250")
+    biaxial_steps = checked_values(int, lambda v: v >= 1, whole, "60")
     parser = Parser(description=__doc__.split("\n")[0])
     parser.add_output("relaxed_friction_study")
     add = parser.add_argument

@@ -114,6 +114,8 @@ _LAZY = {
     "point_values": "fem.probing",
     "cauchy_field": "fem.fields",
     "validity_summary": "laws.validity",
+    "strength_curve": "drivers.strength",
+    "friction_angle": "drivers.strength",
 }
 __all__ += list(_LAZY)
 

@@ -9,6 +9,13 @@ Commands:
         Make an overlapping packing stress-free (see
         :func:`dolfinx_granular.relax_overlaps`): minimal moves of the disks, or, for
         overlaps too large for that, the disks jammed afresh in the same cell.
+    strength [--law relaxed|taylor] [--particles N] [--seeds 0,1,2] [--mus 0,0.1,0.3,0.5,1]
+            [--pressures 1e-2,1e-3] [--max-strain 0.3] [--steps K] [--kn KN] [--kt KT]
+            [--substep H] [--budget S] [--cache DIR] [-o strength.csv] [--force]
+        Biaxial tests of the frictional relaxed (or Taylor) RVE: print and write the strength
+        curve, peak and critical-state friction angles per mu and p / k_n (see
+        :func:`dolfinx_granular.drivers.strength.strength_curve`); each test is cached in
+        ``--cache``, so that a run started again goes on where it stopped.
 
 A user error (bad argument, bad sieve curve, unwritable file) prints one line ``error: ...`` to
 stderr and exits with status 2; ``--debug`` shows the traceback instead. New commands register a
@@ -25,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .io.commandline import Parser, world_rank
+from .io.commandline import Parser, checked_values, world_rank
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -120,7 +127,58 @@ def build_parser() -> argparse.ArgumentParser:
     relax.add_argument("--force", action="store_true", help="overwrite an existing output file")
     relax.add_argument("--debug", action="store_true", help=argparse.SUPPRESS)
     relax.set_defaults(handler=_cmd_relax)
+    _add_strength(sub)
     return parser
+
+
+def _add_strength(sub):
+    """The ``strength`` sub-parser (defaults: the issue's curve, 200 disks, 3 seeds)."""
+    from .packings.generation import MAX_PRESSURE
+
+    st = sub.add_parser(
+        "strength",
+        help="the strength curve of an RVE: biaxial tests, peak and critical friction angles",
+        description="Biaxial tests (sigma_11 = -p held, the axial strain eps1 prescribed) of "
+        "the frictional relaxed RVE on jammed packings, for each contact friction mu, "
+        "confining pressure p / k_n and seed; prints and writes the strength curve per mu and "
+        "p / k_n: sin phi = q / p at the peak and at the critical state (the mean over the last "
+        "quarter of the strain reached), phi in degrees and tan phi, mean and std over the "
+        "seeds, how far the tests got and why any stopped. Every test is kept in --cache: a "
+        "run started again (or with more mu, p or seeds) runs only the tests it lacks.",
+    )
+    whole = checked_values(int, lambda v: v >= 10, "a whole number >= 10", "200")
+    seeds = checked_values(int, lambda v: v >= 0, "comma-separated whole numbers >= 0", "0,1", True)
+    mus = checked_values(float, lambda v: v >= 0.0, "comma-separated mu >= 0", "0,0.5", True)
+    range_p = f"comma-separated p / k_n in (0, {MAX_PRESSURE:g}]"
+    pressures = checked_values(float, lambda v: 0.0 < v <= MAX_PRESSURE, range_p, "1e-2", True)
+    strain = checked_values(float, lambda v: 0.0 < v < 0.9, "an axial strain in (0, 0.9)", "0.3")
+    steps = checked_values(int, lambda v: v >= 1, "a whole number >= 1", "60")
+    stiffness = checked_values(float, lambda v: v > 0.0, "a stiffness > 0 in N/m²", "2.8e7")
+    substep = checked_values(float, lambda v: v > 0.0, "a substep > 0", "5e-4")
+    budget = checked_values(float, lambda v: v >= 0.0, "seconds >= 0 (0: none)", "600")
+    add = st.add_argument
+    add("--law", choices=("relaxed", "taylor"), default="relaxed",
+        help="relaxed: FrictionalRelaxedRVE (default); taylor: FrictionalRVE")  # fmt: skip
+    add("--particles", type=whole, default=200, help="disks per packing (default 200)")
+    add("--seeds", type=seeds, default=(0, 1, 2), help="packing seeds (default 0,1,2)")
+    add("--mus", type=mus, default=(0.0, 0.1, 0.3, 0.5, 1.0),
+        help="contact friction coefficients (default 0,0.1,0.3,0.5,1)")  # fmt: skip
+    add("--pressures", type=pressures, default=(1e-2, 1e-3),
+        help="confining pressures p / k_n (default 1e-2,1e-3)")  # fmt: skip
+    add("--max-strain", type=strain, default=0.3, help="the last axial strain (default 0.3)")
+    add("--steps", type=steps, default=60, help="equal steps to --max-strain (default 60)")
+    add("--kn", type=stiffness, default=2.8e7, help="k_n in N/m² (default 2.8e7)")
+    add("--kt", type=stiffness, default=2.8e7, help="k_t in N/m² (default 2.8e7)")
+    add("--substep", type=substep, help="the relaxed RVE's substep (default its own, 1e-3)")
+    add("--budget", type=budget, default=0.0, help="wall seconds per test (default 0: none)")
+    add("--cache", metavar="DIR", help="folder of the packings and tests (default: "
+        "strength_cache beside the output file; kept by --force)")  # fmt: skip
+    add("-o", "--output", default="strength.csv",
+        help="output CSV (default strength.csv; kept if it exists, see --force)")  # fmt: skip
+    add("--force", action="store_true", help="overwrite an existing output file")
+    add("--quiet", action="store_true", help="no line per test")
+    add("--debug", action="store_true", help=argparse.SUPPRESS)
+    st.set_defaults(handler=_cmd_strength)
 
 
 def _cmd_generate(args) -> int:
@@ -193,6 +251,40 @@ def _cmd_relax(args) -> int:
         f"% of the mean radius, radii changed up to "
         f"{100 * np.abs(after.radii / before.radii - 1).max():.2g} %; |P(I)| / |C| = {ratio:.1e}"
     )
+    return 0
+
+
+def _cmd_strength(args) -> int:
+    from .drivers.strength import curve_rows, strength_tests
+    from .io.strength_table import curve_lines, write_curve
+
+    if not args.output.endswith(".csv"):
+        raise ValueError(f"the output file must end in .csv, got {args.output!r}")
+    if os.path.exists(args.output) and not args.force:
+        raise ValueError(
+            f"{args.output!r} exists; choose another name with -o, or pass --force to overwrite it"
+        )
+    folder = os.path.dirname(args.output) or "."
+    if not os.path.isdir(folder):
+        raise ValueError(f"the folder of {args.output!r} does not exist: create it, or choose -o")
+    if args.substep is not None and args.law != "relaxed":
+        raise ValueError("--substep is a setting of the relaxed RVE: leave it out for --law taylor")
+    if world_rank() != 0:  # (a serial command: under mpirun rank 0 runs it, the others rest)
+        return 0
+    cache = args.cache or os.path.join(os.path.dirname(args.output), "strength_cache")
+    say = None if args.quiet else (lambda line: print(line, flush=True))
+    t0 = time.perf_counter()
+    tests = strength_tests(
+        particles=args.particles, seeds=args.seeds, mus=args.mus, pressures=args.pressures,
+        max_strain=args.max_strain, steps=args.steps, k_n=args.kn, k_t=args.kt, law=args.law,
+        substep=args.substep, budget=args.budget or None, cache=cache, say=say,
+    )  # fmt: skip
+    curve = curve_rows(tests)
+    write_curve(args.output, curve)
+    print("\n".join(curve_lines(curve)))
+    ran = sum(not t["cached"] for t in tests)
+    print(f"wrote {args.output}: {len(curve)} rows, {len(tests)} tests ({ran} run, "
+          f"{len(tests) - ran} from {cache}) in {time.perf_counter() - t0:.1f} s")  # fmt: skip
     return 0
 
 

@@ -151,6 +151,8 @@ def check_relaxed_friction_study(out, stdout):
         assert float(t["qp_critical_last_quarter"]) <= float(t["qp_peak"])
     assert len(read_csv(out / "shear_summary.csv")) == 4
     check_relaxed_friction_biaxial(out, p)
+    # every test of both loadings kept in OUT/tests (2 laws x 2 mu each), for a run started again
+    assert len(list((out / "tests").glob("*.json"))) == 8
     for name in ("convergence", "qp_gamma", "biaxial", "qp_mu"):
         assert is_png(out / f"relaxed_friction_{name}.png"), name
     assert "substep convergence" in stdout and "wrote" in stdout
@@ -201,6 +203,22 @@ def check_relaxed_friction_biaxial(out, p):
     summary = read_csv(out / "biaxial_summary.csv")
     assert len(summary) == 4 and {"qp_peak_mean", "qp_critical_last_quarter_mean",
                                   "eps1_reached_min", "stopped"} <= set(summary[0])  # fmt: skip
+
+
+def test_relaxed_friction_study_goes_on_where_it_stopped(tmp_path):
+    """A study stopped after mu = 0 and started again (``--force``, now with mu = 0 and 0.5)
+    takes the tests it ran from ``OUT/tests``: their rows come back as they were, wall times
+    included, and only the new ones run."""
+    demo = load_demo("relaxed_friction_study")
+    options = dict(small=True, verbose=False, tests=("biaxial",))
+    demo.run(tmp_path, mus=(0.0,), **options)
+    first = read_csv(tmp_path / "biaxial_steps.csv")
+    assert len(list((tmp_path / "tests").glob("*.json"))) == 2
+    demo.run(tmp_path, force=True, **options)
+    again = read_csv(tmp_path / "biaxial_steps.csv")
+    assert len(list((tmp_path / "tests").glob("*.json"))) == 4
+    assert [r for r in again if float(r["mu"]) == 0.0] == first  # (wall_s alike: not run again)
+    assert {float(r["mu"]) for r in again} == {0.0, 0.5}
 
 
 def check_relaxed_study(out, stdout):

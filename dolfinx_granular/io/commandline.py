@@ -4,12 +4,14 @@ output options every demo shares.
 Every rank of ``mpirun -n 2 python demos/X.py --help`` parses the same arguments; argparse would
 print the help on each of them. :class:`Parser` prints on rank 0 alone and exits on every rank
 alike (status 0 for ``--help``, 2 for an error). :meth:`Parser.add_output` gives a command
-``--out``, ``--force`` and ``--small`` with the rule of :mod:`.outfolder`.
+``--out``, ``--force`` and ``--small`` with the rule of :mod:`.outfolder`;
+:func:`checked_values` is an argument type whose error names the fix.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -82,3 +84,27 @@ class Parser(argparse.ArgumentParser):
         if self._command is not None:
             parsed.out = parsed.out or default_out(self._command, parsed.small)
         return parsed
+
+
+def checked_values(kind, ok, what, example, many=False):
+    """An argparse type: a ``kind`` (int or float; with ``many`` a comma-separated tuple of
+    distinct ones), each finite and passing ``ok``; otherwise an error that says ``what`` to
+    give, e.g. ``example``."""
+
+    def convert(text):
+        fix = f"give {what}, e.g. {example}"
+        values = []
+        for v in text.split(",") if many else (text,):
+            try:
+                values.append(kind(v))
+            except ValueError:
+                number = "whole number" if kind is int else "number"
+                raise argparse.ArgumentTypeError(f"{v!r} is not a {number}: {fix}") from None
+        for v in values:
+            if not (math.isfinite(v) and ok(v)):
+                raise argparse.ArgumentTypeError(f"{v!r} is out of range: {fix}")
+        if len(set(values)) < len(values):
+            raise argparse.ArgumentTypeError(f"{text!r} repeats a value: {fix}")
+        return tuple(values) if many else values[0]
+
+    return convert

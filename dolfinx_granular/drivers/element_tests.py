@@ -1,0 +1,248 @@
+"""Element tests of one material point: confined simple shear and the biaxial test.
+
+Both start from the confined state F_c = lam I (compressed isotropically to the mean pressure
+p = p / k_n times k_n, :func:`confine`) and prescribe one strain x in steps, while the
+material-point driver (:class:`~dolfinx_granular.MaterialPoint`) solves one more, y, so that a
+normal stress stays -p (:class:`Loading`: :data:`SHEAR`, :data:`BIAXIAL`). A step that fails is
+halved; a step that fails after :data:`MAX_CUTS` halvings ends the test, which keeps the steps
+it reached and the error (the known limit of the micro solver at large strain, where the cell
+rearranges). :func:`load_test` runs one test, :func:`step_row` is a step's row and
+:func:`measures` the test's scalars (peak and critical-state q/p = sin phi, dilatancy, ...).
+
+Measures (2-D, compression positive): p = -(sigma_11 + sigma_22) / 2,
+q = sqrt(((sigma_11 - sigma_22) / 2)^2 + sigma_12^2) = (sigma_1 - sigma_3) / 2, q / p = sin(phi
+mobilised); e_v = ln(det F / det F_c) (dilation positive); the "critical state" is the mean
+over the steps in the last quarter of the strain reached (of a test stopped early: where it got
+to). Used by ``demos/relaxed_friction_study.py`` and :mod:`.strength`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..laws.friction import FrictionalRVE
+from ..laws.protocol import LawEvaluationError
+from ..laws.relaxed_friction import FrictionalRelaxedRVE
+from .confinement import compress
+from .material_point import ControlError, MaterialPoint
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from ..packings.packing import Packing
+
+K_N = 2.8e7  # normal contact stiffness, N/m² (table 1 of the paper)
+K_T = K_N  # tangential stiffness, N/m² (a common DEM choice, as the friction study)
+#: the laws by name: the frictional relaxed RVE and the frictional Taylor RVE
+LAWS = {"relaxed": FrictionalRelaxedRVE, "taylor": FrictionalRVE}
+MAX_CUTS = 3  # halvings of a failed step before its test stops
+CRITICAL = 0.75  # the "critical state": the steps past this fraction of the strain reached
+#: the stop message of a test stopped by its time budget ("stopped: " BUDGET_STOP ...)
+BUDGET_STOP = "time budget"
+
+
+def make_law(name: str, packing: Packing, mu: float, k_n: float = K_N, k_t: float = K_T):
+    """The frictional relaxed (``"relaxed"``) or Taylor (``"taylor"``) RVE of ``packing`` with
+    friction ``mu`` and contact stiffnesses ``k_n``, ``k_t`` (N/m²)."""
+    if name not in LAWS:
+        raise ValueError(f"unknown law {name!r}: give one of {', '.join(LAWS)}")
+    return LAWS[name](packing, k_n, k_t, mu)
+
+
+@dataclass(frozen=True)
+class Loading:
+    """A test's path from F_c = lam I: F[drive_ij] = lam (base + sign x), x (column ``drive``)
+    prescribed; F[held_ij] = lam (1 + y), y (column ``free``) solved so that sigma[held_ij] =
+    -p; F's other components stay F_c's. ``limits``: the configuration's keys of the largest x
+    and of the number of steps to it."""
+
+    test: str
+    drive: str
+    free: str
+    drive_ij: tuple
+    held_ij: tuple
+    base: float
+    sign: float
+    limits: tuple
+    label: str  # the axis label of x
+    title: str
+
+    def strains(self, F, lam):
+        """(x, y) of F (+ 0.0: no -0.0 at x = 0)."""
+        x = (F[self.drive_ij] / lam - self.base) / self.sign + 0.0
+        return float(x), float(F[self.held_ij] / lam - 1.0)
+
+
+SHEAR = Loading("shear", "gamma", "e22", (0, 1), (1, 1), 0.0, 1.0, ("max_shear", "shear_steps"),
+                "shear strain γ [%]", "Confined simple shear (σ22 = −p, F11 held)")  # fmt: skip
+BIAXIAL = Loading("biaxial", "eps1", "e11", (1, 1), (0, 0), 1.0, -1.0,
+                  ("max_strain", "biaxial_steps"), "axial strain ε1 [%]",
+                  "Biaxial compression (σ11 = −p, F12 = F21 = 0)")  # fmt: skip
+LOADINGS = {loading.test: loading for loading in (SHEAR, BIAXIAL)}
+
+
+def ratios(sigma):
+    """(p in Pa, q / p, tau / p) of a Cauchy stress (2, 2)."""
+    s11, s22, s12 = sigma[0, 0], sigma[1, 1], sigma[0, 1]
+    p = -0.5 * (s11 + s22)
+    return p, np.hypot(0.5 * (s11 - s22), s12) / p, s12 / p
+
+
+def network(law, F, state, mu):
+    """(contacts with overlap > 0, z over the disks with >= 2 of them, sliding share or NaN at
+    mu = 0) of the 1-point ``state`` at F. The relaxed RVE's state is the one at F (its contacts
+    are read, not solved again; sliding: slid in the increment to it); the Taylor RVE's is the
+    committed state before the step to F (its ``contacts`` takes the step)."""
+    c = law.contacts(F, state)
+    on = c.overlap > 0.0
+    pairs = c.pairs[on]
+    n = law.packing.radii.shape[0]
+    degree = np.bincount(pairs.ravel(), minlength=n)
+    carried = degree >= 2
+    between = carried[pairs[:, 0]] & carried[pairs[:, 1]]
+    z = 2.0 * between.sum() / carried.sum() if carried.any() else 0.0
+    sliding = np.asarray(c.sliding)[on]
+    share = float(sliding.mean()) if mu > 0.0 and on.any() else float("nan")
+    return int(on.sum()), float(z), share
+
+
+def confine(law, pressure):
+    """A :class:`MaterialPoint` of ``law`` compressed along F = lam I to the mean pressure
+    ``pressure`` (p / k_n, times the law's k_n); its last result is the confined state. Raises
+    what ``compress`` raises."""
+    point = MaterialPoint(law)
+    # (the driver's strain steps capped at ten times the strain the pressure asks for)
+    compress(point, pressure * law.normal_stiffness, max_increment=10 * pressure, isotropic=True)
+    return point
+
+
+def step_row(loading, law, mu, Fc, Dc, r, before, seconds):
+    """A step's row (the result ``r``); ``Dc``: the confined state's dissipation; ``before``: the
+    committed state before the step (None: the confined state, no step: no sliding share)."""
+    lam = Fc[0, 0]
+    x, y = loading.strains(r.F, lam)
+    p, qp, taup = ratios(r.sigma)
+    relaxed = isinstance(law, FrictionalRelaxedRVE)
+    state = r.state if relaxed or before is None else before
+    contacts, z, share = network(law, r.F, state, mu)
+    return {
+        loading.drive: x,
+        loading.free: y,
+        **{f"F{i + 1}{j + 1}": float(r.F[i, j]) for i in range(2) for j in range(2)},
+        "sigma11_Pa": r.sigma[0, 0],
+        "sigma12_Pa": r.sigma[0, 1],
+        "sigma22_Pa": r.sigma[1, 1],
+        "p_Pa": p,
+        "q_over_p": qp,
+        "tau_over_p": taup,
+        "volumetric_strain": float(np.log(np.linalg.det(r.F) / np.linalg.det(Fc))),
+        "contacts": contacts,
+        "z": z,
+        "sliding_share": share if before is not None else float("nan"),
+        "dissipation_Pa": float(r.state.dissipation[0]) - Dc,
+        "newton_iterations": r.iterations,
+        "wall_s": seconds,
+    }
+
+
+def load_test(
+    loading: Loading,
+    law,
+    pressure: float,
+    targets: Sequence[float],
+    budget: float | None = None,
+) -> tuple[list[dict], str]:
+    """One test (``loading``) of ``law`` (a :data:`LAWS` RVE, e.g. from :func:`make_law`)
+    confined at ``pressure`` (p / k_n) to the strains ``targets`` (k,): ``(step rows, stop
+    message or "")``. Row 0 is the confined state (x = 0); a test whose confinement failed has
+    no rows. ``budget``: wall seconds, checked before every step (None: no limit)."""
+    mu = law.friction
+    P, t0 = pressure * law.normal_stiffness, time.perf_counter()
+    try:
+        point = confine(law, pressure)
+    except (ControlError, LawEvaluationError) as err:
+        return [], f"stopped: confinement failed: {err}"[:300]
+    Fc, (x, y) = point.F.copy(), (loading.drive, loading.free)
+    lam, Dc = Fc[0, 0], float(point.state.dissipation[0])
+    rows = [step_row(loading, law, mu, Fc, Dc, point.last, None, time.perf_counter() - t0)]
+    # each target gets MAX_CUTS halvings in all (those whose midpoints were reached included),
+    # as the driver's ramp
+    targets, done, cuts, stop = list(targets), 0.0, 0, ""
+    left, t_step = len(targets), time.perf_counter()
+    while targets:
+        if budget is not None and time.perf_counter() - t0 > budget:
+            stop = f"stopped: {BUDGET_STOP} of {budget:g} s reached"
+            break
+        F = point.F.copy()
+        F[loading.drive_ij] = lam * (loading.base + loading.sign * targets[0])
+        if len(rows) > 1:  # y's guess: extrapolated along the last step
+            a, b = rows[-2], rows[-1]
+            rate = (b[y] - a[y]) / (b[x] - a[x])
+            F[loading.held_ij] = lam * (1.0 + b[y] + rate * (targets[0] - b[x]))
+        before = point.state
+        try:
+            # (Newton's steps on y capped at p / k_n: a trial F far off the path takes the
+            # path-dependent micro solver there, and it fails more often; with 10 p / k_n,
+            # 200 disks at p / k_n = 1e-2, mu = 0.5 stopped at gamma = 0.8 %, not 6.8 %)
+            r = point.step(F, {loading.held_ij: -P}, max_increment=pressure)
+        except (ControlError, LawEvaluationError) as err:
+            if cuts == MAX_CUTS:
+                stop = f"stopped: {err}"[:300]
+                break
+            targets.insert(0, 0.5 * (done + targets[0]))
+            cuts += 1
+            continue
+        done = targets.pop(0)
+        if len(targets) < left:  # one of the targets reached: the next gets its halvings
+            left, cuts = len(targets), 0
+        rows.append(step_row(loading, law, mu, Fc, Dc, r, before, time.perf_counter() - t_step))
+        t_step = time.perf_counter()
+    return rows, stop
+
+
+def measures(rows, stop, target, loading):
+    """Scalars of one test: how far it got (x), peak, critical and final q/p (and final tau/p),
+    peak and final dilatancy d e_v / d x, final e_v, critical and final z and sliding share,
+    final dissipation. Critical: the mean over the steps with x >= CRITICAL x_reached."""
+    x_name = loading.drive
+    out = {f"{x_name}_reached": rows[-1][x_name] if rows else 0.0, "target": target,
+           "stopped": bool(stop), "message": stop}  # fmt: skip
+    if len(rows) < 2:
+        return out
+    g = np.array([r[x_name] for r in rows])
+    qp = np.array([r["q_over_p"] for r in rows])
+    ev = np.array([r["volumetric_strain"] for r in rows])
+    k = int(np.argmax(qp))
+    window = max(1, (len(rows) - 1) // 10)
+    dil = (ev[window:] - ev[:-window]) / (g[window:] - g[:-window])
+    tail = int(np.searchsorted(g, 0.8 * g[-1]))
+    tail = min(tail, len(rows) - 2)
+    critical = g >= (CRITICAL - 1e-9) * g[-1]  # (a step at 3/4 of x_reached, round-off aside)
+
+    def mean(key):  # over the critical steps (NaN where none has a value)
+        v = np.array([r[key] for r in rows], dtype=float)[critical]
+        return float(v[np.isfinite(v)].mean()) if np.isfinite(v).any() else float("nan")
+
+    last = rows[-1]
+    out.update({
+        "qp_start": qp[0],
+        "qp_peak": qp[k],
+        f"{x_name}_peak": g[k],
+        "critical_from": CRITICAL * g[-1],
+        "qp_critical_last_quarter": mean("q_over_p"),
+        "qp_final": qp[-1],
+        "taup_final": last["tau_over_p"],
+        "dilatancy_peak": float(dil.max()),
+        "dilatancy_final": float((ev[-1] - ev[tail]) / (g[-1] - g[tail])),
+        "ev_final": ev[-1],
+        "z_critical_last_quarter": mean("z"),
+        "z_final": last["z"],
+        "sliding_critical_last_quarter": mean("sliding_share"),
+        "sliding_final": last["sliding_share"],
+        "dissipation_final_Pa": last["dissipation_Pa"],
+    })  # fmt: skip
+    return out

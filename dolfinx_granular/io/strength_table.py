@@ -1,0 +1,82 @@
+"""The strength curve (:mod:`~dolfinx_granular.drivers.strength`) as a CSV file and a printed
+table.
+
+:func:`write_curve` writes :data:`~dolfinx_granular.drivers.strength.COLUMNS` (floats as their
+shortest round-trip repr, NaN as an empty cell) atomically; :func:`read_curve` reads it back
+with numbers as numbers, for :func:`~dolfinx_granular.drivers.strength.friction_angle`;
+:func:`curve_lines` is the table the ``strength`` command prints.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from typing import TYPE_CHECKING
+
+from ..drivers.strength import COLUMNS
+from .runwriter import atomic_write
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+#: the columns read back as text (the others are numbers)
+TEXT = ("law", "stop_reasons")
+
+
+def _cell(v):
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(v)
+    return v
+
+
+def write_curve(path: str | PathLike[str], curve: list[dict]) -> None:
+    """Write the rows of ``curve`` (:data:`COLUMNS`, in that order) to the CSV ``path``,
+    replacing it atomically."""
+    text = io.StringIO(newline="")
+    w = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
+    w.writeheader()
+    w.writerows({k: _cell(r[k]) for k in COLUMNS} for r in curve)
+    atomic_write(path, text.getvalue())
+
+
+def read_curve(path: str | PathLike[str]) -> list[dict]:
+    """The rows of a curve's CSV: text columns as text, whole numbers as int, others float
+    (an empty cell as NaN)."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    missing = sorted(set(COLUMNS) - set(rows[0] if rows else COLUMNS))
+    if missing:
+        raise ValueError(f"{path} is no strength curve (no column {', '.join(missing)}): give "
+                         "the CSV that 'python -m dolfinx_granular strength' wrote")  # fmt: skip
+    for r in rows:
+        for k in COLUMNS:
+            if k not in TEXT:
+                v = r[k]
+                r[k] = math.nan if v == "" else (int(v) if v.lstrip("-").isdigit() else float(v))
+    return rows
+
+
+def curve_lines(curve: list[dict]) -> list[str]:
+    """The printed table: per (law, mu, p / k_n) sin phi, phi and tan phi at the peak and the
+    critical state (mean ± std over the seeds), the strain reached and the tests stopped."""
+    lines = [
+        "strength: mean ± std over the seeds; peak: the largest q/p = sin phi of a test; cs: the "
+        "mean over the last quarter of the strain it reached",
+        "  law      mu     p/kn    sin phi_p     sin phi_cs    phi_p [deg]  phi_cs [deg]  "
+        "tan phi_p  tan phi_cs  eps1 reached (min)  stopped",
+    ]
+    for r in curve:
+        lines.append(
+            f"  {r['law']:7s} {r['mu']:5g}  {r['p_over_kn']:7.1e}  "
+            f"{r['sin_phi_peak_mean']:.3f}±{r['sin_phi_peak_std']:.3f}  "
+            f"{r['sin_phi_cs_mean']:.3f}±{r['sin_phi_cs_std']:.3f}  "
+            f"{r['phi_peak_deg_mean']:5.1f}±{r['phi_peak_deg_std']:4.1f}   "
+            f"{r['phi_cs_deg_mean']:5.1f}±{r['phi_cs_deg_std']:4.1f}   "
+            f"{r['tan_phi_peak_mean']:9.3f}  {r['tan_phi_cs_mean']:10.3f}  "
+            f"{100 * r['eps1_reached_mean']:6.2f} % ({100 * r['eps1_reached_min']:5.2f} %)  "
+            f"{r['stopped']} of {r['seeds']}"
+        )
+    lines += [f"  stopped: {r['law']} mu {r['mu']:g} p/kn {r['p_over_kn']:g}: "
+              f"{r['stop_reasons'][:300]}" for r in curve if r["stopped"]]  # fmt: skip
+    return lines

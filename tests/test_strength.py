@@ -1,0 +1,252 @@
+"""The strength of an RVE (drivers/strength.py, ``python -m dolfinx_granular strength``) and the
+element tests' cache (drivers/element_cache.py): 70 disks, p / k_n = 1e-2, mu 0 and 0.5, the
+axial strain to 1-2 % in 2-4 steps."""
+
+import contextlib
+import csv
+import io
+import json
+import math
+
+from dolfinx_granular import friction_angle, generate_packing, strength_curve
+from dolfinx_granular.__main__ import main
+from dolfinx_granular.drivers import element_tests as et
+from dolfinx_granular.drivers.element_cache import ElementTestCache
+from dolfinx_granular.drivers.strength import COLUMNS
+from dolfinx_granular.io.strength_table import read_curve
+
+import numpy as np
+import pytest
+
+P = 1e-2  # p / k_n
+TARGETS = (0.005, 0.01)  # the cache's tests: eps1 to 1 % in 2 steps
+#: the command's small curve: 70 disks, one seed, mu 0 and 0.5, eps1 to 2 % in 4 steps
+SMALL = ["--particles", "70", "--seeds", "0", "--mus", "0,0.5", "--pressures", "1e-2",
+         "--max-strain", "0.02", "--steps", "4"]  # fmt: skip
+
+
+def plain(rows):
+    """``rows`` as JSON text (NumPy scalars as Python's; NaN as NaN): equal iff equal values."""
+    return json.dumps(rows, default=lambda v: v.item())
+
+
+@pytest.fixture(scope="module")
+def packing():
+    return generate_packing(70, seed=0, pressure=P)
+
+
+def run(cache, packing, mu=0.5, targets=TARGETS, budget=None, k_t=et.K_T, substep=None):
+    law = et.make_law("relaxed", packing, mu, k_t=k_t)
+    if substep is not None:
+        law.settings.substep = substep
+    return cache.run(et.BIAXIAL, law, packing, 0, P, targets, budget)
+
+
+def test_the_cache_reads_a_test_back_instead_of_running_it(tmp_path, packing):
+    first = run(ElementTestCache(tmp_path), packing)
+    assert not first.cached and first.stop == "" and len(first.rows) == 3
+    [stored] = tmp_path.glob("*.json")
+    mtime = stored.stat().st_mtime_ns
+    # a fresh cache (as a study started again) and a fresh law: the same rows, the file untouched
+    again = run(ElementTestCache(tmp_path), packing)
+    assert again.cached and plain(again.rows) == plain(first.rows) and again.stop == first.stop
+    assert again.seconds == first.seconds and stored.stat().st_mtime_ns == mtime
+    # the rows come from the file, not from a run: a sentinel written into it comes back
+    record = json.loads(stored.read_text())
+    record["rows"][-1]["q_over_p"] = 42.0
+    stored.write_text(json.dumps(record))
+    assert run(ElementTestCache(tmp_path), packing).rows[-1]["q_over_p"] == 42.0
+
+
+def test_the_rows_are_load_tests(tmp_path, packing):
+    """The cache's first run is load_test's, row for row (the wall times aside)."""
+    stored = run(ElementTestCache(tmp_path), packing)
+    rows, stop = et.load_test(et.BIAXIAL, et.make_law("relaxed", packing, 0.5), P, TARGETS)
+    drop = [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+    assert plain(drop) == plain([{k: v for k, v in r.items() if k != "wall_s"}
+                                 for r in stored.rows])  # fmt: skip
+    assert stop == stored.stop == ""
+
+
+@pytest.mark.parametrize(
+    "change",
+    [dict(mu=0.0), dict(targets=(0.005, 0.0075)), dict(k_t=0.5 * et.K_T), dict(substep=5e-4)],
+    ids=["mu", "targets", "k_t", "substep"],
+)
+def test_a_changed_parameter_misses_the_cache(tmp_path, packing, change):
+    cache = ElementTestCache(tmp_path)
+    run(cache, packing)
+    other = run(cache, packing, **change)
+    assert not other.cached and len(list(tmp_path.glob("*.json"))) == 2
+    assert run(cache, packing, **change).cached  # (and is stored under its own key)
+
+
+def test_a_test_stopped_by_its_budget_is_run_again_under_a_larger_one(tmp_path, packing):
+    cache = ElementTestCache(tmp_path)
+    stopped = run(cache, packing, budget=0.0)  # (the budget is spent by the confinement)
+    assert stopped.stop.startswith(f"stopped: {et.BUDGET_STOP}") and len(stopped.rows) == 1
+    assert run(cache, packing, budget=0.0).cached
+    whole = run(cache, packing, budget=None)
+    assert not whole.cached and whole.stop == "" and len(whole.rows) == 3
+    assert run(cache, packing, budget=0.0).cached  # (the whole test serves any budget)
+
+
+@pytest.fixture(scope="module")
+def command(tmp_path_factory):
+    """The small curve written by the command: (folder, its CSV's path, stdout)."""
+    folder = tmp_path_factory.mktemp("strength")
+    out = folder / "strength.csv"
+    argv = ["strength", *SMALL, "-o", str(out)]
+    code, printed = _main(argv)
+    assert code == 0, printed
+    return folder, out, printed
+
+
+def _main(argv):
+    """``main(argv)`` with its stdout: (exit status, text)."""
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text):
+        code = main(argv)
+    return code, text.getvalue()
+
+
+def test_the_command_writes_the_documented_columns(command, packing):
+    folder, out, printed = command
+    with open(out, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == COLUMNS and len(rows) == 2
+    assert [float(r["mu"]) for r in rows] == [0.0, 0.5]
+    for r in rows:
+        assert r["law"] == "relaxed" and float(r["p_over_kn"]) == P and float(r["kappa"]) == 100
+        assert int(r["seeds"]) == 1 and int(r["stopped"]) == 0 and r["stop_reasons"] == ""
+        assert float(r["eps1_reached_min"]) == pytest.approx(0.02, rel=1e-12)
+        # the angles of the ratios: phi = asin(q/p), tan phi (one seed: no spread)
+        for which in ("peak", "cs"):
+            s = float(r[f"sin_phi_{which}_mean"])
+            phi = float(r[f"phi_{which}_deg_mean"])
+            assert phi == pytest.approx(math.degrees(math.asin(s)), rel=1e-12)
+            assert float(r[f"tan_phi_{which}_mean"]) == pytest.approx(
+                math.tan(math.radians(phi)), rel=1e-12
+            )
+            assert float(r[f"phi_{which}_deg_std"]) == 0.0
+        assert float(r["sin_phi_cs_mean"]) <= float(r["sin_phi_peak_mean"])
+    # the critical state of mu = 0.5 is the element test's: the mean q/p over the last quarter
+    targets = np.linspace(0.0, 0.02, 5)[1:]
+    steps, stop = et.load_test(et.BIAXIAL, et.make_law("relaxed", packing, 0.5), P, targets)
+    m = et.measures(steps, stop, 0.02, et.BIAXIAL)
+    assert float(rows[1]["sin_phi_cs_mean"]) == m["qp_critical_last_quarter"]
+    assert float(rows[1]["sin_phi_peak_mean"]) == m["qp_peak"]
+    # friction raises the strength (no number of the physics fixed here: that is the demo's)
+    assert float(rows[1]["phi_cs_deg_mean"]) > float(rows[0]["phi_cs_deg_mean"]) > 0.0
+    assert "phi_cs [deg]" in printed and "(2 run, 0 from" in printed
+
+
+def test_a_second_command_reads_its_tests_from_the_cache(command):
+    folder, out, _ = command
+    before = out.read_text()
+    code, printed = _main(["strength", *SMALL, "-o", str(out), "--force"])
+    assert code == 0 and "(0 run, 2 from" in printed and printed.count("(cached)") == 2
+    assert out.read_text() == before
+
+
+def test_the_python_function_gives_the_commands_curve(command):
+    folder, out, _ = command
+    curve = strength_curve(particles=70, seeds=(0,), mus=(0.0, 0.5), pressures=(P,),
+                           max_strain=0.02, steps=4, cache=folder / "strength_cache")  # fmt: skip
+    assert plain([[r[k] for k in COLUMNS] for r in curve]) == plain(
+        [[r[k] for k in COLUMNS] for r in read_curve(out)]
+    )
+
+
+def test_an_existing_output_is_refused_without_force(command, capsys):
+    _, out, _ = command
+    before = out.read_bytes()
+    assert main(["strength", *SMALL, "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "exists" in err and "--force" in err
+    assert out.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--mus", "0,-0.5"], "mu >= 0"),
+        (["--mus", "0,x"], "'x' is not a number"),
+        (["--pressures", "0.05"], "(0, 0.01]"),
+        (["--pressures", "0"], "(0, 0.01]"),
+        (["--particles", "5"], ">= 10"),
+        (["--seeds", "0,0"], "repeats a value"),
+        (["--max-strain", "1.2"], "(0, 0.9)"),
+        (["--steps", "0"], ">= 1"),
+        (["--kn", "-1"], "stiffness > 0"),
+        (["--law", "dem"], "invalid choice"),
+        (["--law", "taylor", "--substep", "1e-3"], "--substep"),
+        (["-o", "strength.txt"], ".csv"),
+        (["-o", "no/such/folder/s.csv"], "does not exist"),
+    ],
+)
+def test_bad_values_are_one_line_errors(tmp_path, capsys, argv, words):
+    if not any(a.startswith("no/") or a.endswith(".txt") for a in argv):
+        argv = [*argv, "-o", str(tmp_path / "s.csv")]
+    assert main(["strength", "--cache", str(tmp_path / "cache"), *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and len(err.splitlines()) == 1 and words in err, err
+    assert not (tmp_path / "cache").exists()  # (refused before any work)
+
+
+def test_the_python_function_names_a_bad_value(tmp_path):
+    with pytest.raises(ValueError, match=r"mu = -0.1 is out of range: give contact friction"):
+        strength_curve(mus=(-0.1,), cache=tmp_path)
+    with pytest.raises(ValueError, match=r"p_over_kn = 0.02 is out of range"):
+        strength_curve(pressures=(0.02,), cache=tmp_path)
+    with pytest.raises(ValueError, match=r"mu repeats a value in \(0.5, 0.5\)"):
+        strength_curve(mus=(0.5, 0.5), cache=tmp_path)
+    assert not any(tmp_path.iterdir())  # (refused before any work)
+
+
+CURVE = [  # a curve by hand: phi (cs) 10, 30, 32 degrees at mu 0, 0.5, 1; peak 2 degrees more
+    dict(law="relaxed", mu=mu, p_over_kn=P, phi_cs_deg_mean=phi, phi_peak_deg_mean=phi + 2.0)
+    for mu, phi in ((0.0, 10.0), (0.5, 30.0), (1.0, 32.0))
+] + [dict(law="relaxed", mu=0.5, p_over_kn=1e-3, phi_cs_deg_mean=25.0, phi_peak_deg_mean=27.0)]
+
+
+@pytest.mark.parametrize(
+    "mu, which, phi",
+    [(0.25, "cs", 20.0), (0.75, "cs", 31.0), (0.5, "cs", 30.0), (0.0, "cs", 10.0),
+     (1.0, "cs", 32.0), (0.1, "peak", 16.0)],
+)  # fmt: skip
+def test_friction_angle_is_linear_in_mu(mu, which, phi):
+    assert friction_angle(CURVE, mu, P, which) == pytest.approx(phi, rel=1e-14)
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, words",
+    [
+        ((1.5, P), {}, "mu = 1.5 lies outside the curve's mu = 0 to 1"),
+        ((-0.1, P), {}, "outside"),
+        ((0.5, 2e-3), {}, "give one of 0.001, 0.01"),
+        ((0.5, P), {"which": "mean"}, "give one of peak, cs"),
+        ((0.5, 1e-3), {}, "outside"),  # (one mu there: no range to interpolate in)
+    ],
+)
+def test_friction_angle_errors_outside_the_curve(args, kwargs, words):
+    if args == (0.5, 1e-3):
+        assert friction_angle(CURVE, *args) == 25.0  # (its one value, exactly)
+        args = (0.4, 1e-3)
+    with pytest.raises(ValueError, match=words.replace("(", r"\(")):
+        friction_angle(CURVE, *args, **kwargs)
+
+
+def test_friction_angle_errors_where_no_angle_was_measured():
+    curve = [dict(r) for r in CURVE]
+    curve[1]["phi_cs_deg_mean"] = math.nan  # mu = 0.5: its tests stopped before a step
+    with pytest.raises(ValueError, match="stop_reasons"):
+        friction_angle(curve, 0.25, P)
+    assert friction_angle(curve, 0.0, P) == 10.0  # (a tabulated mu needs only its own value)
+
+
+def test_friction_angle_of_the_commands_csv(command):
+    _, out, _ = command
+    curve = read_curve(out)
+    mid = friction_angle(curve, 0.25, P)
+    assert mid == pytest.approx(np.mean([r["phi_cs_deg_mean"] for r in curve]), rel=1e-14)
