@@ -110,8 +110,9 @@ def _superlu_matrix(rve, F, s, tangent, held):
     reach = cell_state.RATTLER_REACH * s.e[s.on].mean()
     sp_ = rve.springs
     diag = cell_state.diagonal(
-        s.status, s.network, s.keep, cell.pi[: s.m], cell.pj[: s.m], cell.radii, s.r, sp_.kn,
-        sp_.kt, sp_.inv_area, pinned, reach, cell_state.RATTLER_SHIFT, tangent, 1.0,
+        s.status, s.network, s.keep, cell.pi[: s.m], cell.pj[: s.m], cell.radii, s.r, s.fstar,
+        s.e, sp_.kn, sp_.kt, sp_.mu, sp_.inv_area, pinned, reach, cell_state.RATTLER_SHIFT,
+        tangent, 1.0,
     )  # fmt: skip
     idx = np.arange(3 * N)
     return sp.coo_matrix(

@@ -4,6 +4,7 @@ pattern, a trial beyond the Verlet skin) and what run() does with them, and its 
 
 from dolfinx_granular import FrictionalRelaxedRVE, generate_packing
 from dolfinx_granular.laws.relaxed.newton import visited
+from dolfinx_granular.laws.relaxed_friction import cell_state
 from dolfinx_granular.laws.relaxed_friction import newton_kernel as nk
 from dolfinx_granular.laws.relaxed_friction.block_lu import BlockLU
 from dolfinx_granular.laws.relaxed_friction.cell_state import CellState
@@ -126,3 +127,29 @@ def test_solve_counts_what_it_did(start):
     assert counts.steps == len(counts.history) - 1 >= 1
     assert 1 <= counts.factorisations <= counts.steps and counts.chord_steps >= 0
     assert counts.history[0] > 1e3 * counts.history[-1]  # (from a start far from it)
+
+
+def test_newtons_step_turns_an_all_slipping_disk_back_into_the_cone():
+    """Disk 0 touches disks 1 and 2, both contacts slipping: the moment r[0, 2] > 0 turns it
+    clockwise (d theta < 0), which lowers the trial force of the contact with f* < 0 (d f* /
+    d theta = -k_t r): its diagonal makes the step put that contact DEPTH into the cone. The
+    tangent's diagonal stays k_t r^2 per slipping contact / V."""
+    kn, kt, mu, inv_area = 1e8, 5e7, 0.5, 2.0
+    radii = np.array([0.3, 0.2, 0.25])
+    pi, pj = np.array([0, 0]), np.array([1, 2])
+    status = np.array([cell_state.SLIP, cell_state.SLIP], np.int8)
+    e = np.array([4e-8, 6e-8])
+    fstar = np.array([-10.0, 8.0])  # (caps 2 and 3: both far outside the cone)
+    r = np.zeros((3, 3))
+    r[0, 2] = 0.5
+    args = (status, np.ones(2, bool), np.ones(3, bool), pi, pj, radii, r, fstar, e, kn, kt, mu,
+            inv_area, 1, 1.0, cell_state.RATTLER_SHIFT)  # fmt: skip
+    newton_diag = cell_state.diagonal(*args, False, 1.0)
+    turn = -r[0, 2] / newton_diag[2]
+    assert fstar[0] - kt * radii[0] * turn == pytest.approx(-(1 - cell_state.DEPTH) * 2.0)
+    tangent_diag = cell_state.diagonal(*args, True, 1.0)
+    assert tangent_diag[2] == pytest.approx(kt * radii[0] ** 2 * 2 * inv_area)
+    r[0, 2] = -0.5  # (turning the other way lowers the second contact's)
+    newton_diag = cell_state.diagonal(*args, False, 1.0)
+    turn = -r[0, 2] / newton_diag[2]
+    assert fstar[1] - kt * radii[0] * turn == pytest.approx((1 - cell_state.DEPTH) * 3.0)

@@ -156,8 +156,8 @@ def overlap_ratio(F, w, pi, pj, X, Y, R, m):
 
 
 @njit(cache=True)
-def diagonal(status, network, keep, pi, pj, radii, r, kn, kt, inv_area, pinned, reach,
-             rattler_shift, tangent, free_rotation):  # fmt: skip
+def diagonal(status, network, keep, pi, pj, radii, r, fstar, e, kn, kt, mu, inv_area, pinned,
+             reach, rattler_shift, tangent, free_rotation):  # fmt: skip
     """The extra diagonal (3N,) of the Jacobian.
 
     * The pinned disk's translation: k_n / V (its rows and columns are dropped).
@@ -166,7 +166,8 @@ def diagonal(status, network, keep, pi, pj, radii, r, kn, kt, inv_area, pinned, 
     * A rotation that no sticking contact of the network resists (and a rattler's): k_t r^2
       per slipping contact / V (at least one). Its column of the Jacobian is zero elsewhere, so
       this value changes only that rotation's own step, neither the other unknowns' nor the
-      condensed tangent."""
+      condensed tangent. In Newton, where its moment can turn a slipping contact back into the
+      cone, the value that does so (:func:`_cone_rotations`)."""
     n = radii.shape[0]
     K = kn * inv_area
     out = np.zeros(3 * n)
@@ -188,5 +189,33 @@ def diagonal(status, network, keep, pi, pj, radii, r, kn, kt, inv_area, pinned, 
             out[3 * k] = out[3 * k + 1] = shift
         if not held[k] or not keep[k]:
             out[3 * k + 2] = free_rotation * spring * radii[k] ** 2 * max(slips[k], 1.0) * inv_area
+    if not tangent:
+        _cone_rotations(out, status, network, keep, held, pi, pj, radii, r, fstar, e, kn, kt, mu)
     out[3 * pinned] = out[3 * pinned + 1] = K
     return out
+
+
+#: :func:`_cone_rotations` turns a disk until a slipping contact's trial force is this part of
+#: its cap inside the cone
+DEPTH = 0.5
+
+
+@njit(cache=True)
+def _cone_rotations(out, status, network, keep, held, pi, pj, radii, r, fstar, e, kn, kt, mu):
+    """Newton's diagonal (in ``out``) of each rotation that only slipping contacts touch: its
+    step -M / diag turns the disk until the first contact whose trial force the turn lowers is
+    :data:`DEPTH` into the cone (the caps do not resist the turn: another value would turn it
+    by an arbitrary angle, and a disk whose moment no slipping contact can balance would crawl
+    towards the cone over many steps). d f* / d theta_k = -k_t r_k."""
+    n = radii.shape[0]
+    turn = np.full(n, np.inf)
+    for c in range(status.shape[0]):
+        if not network[c] or status[c] != SLIP:
+            continue
+        for k in (pi[c], pj[c]):
+            if keep[k] and not held[k] and r[k, 2] * fstar[c] < 0.0:
+                inside = abs(fstar[c]) - (1.0 - DEPTH) * mu * kn * e[c]
+                turn[k] = min(turn[k], inside / (kt * radii[k]))
+    for k in range(n):
+        if np.isfinite(turn[k]) and turn[k] > 0.0:
+            out[3 * k + 2] = max(abs(r[k, 2]) / turn[k], 1e-6 * out[3 * k + 2])

@@ -20,7 +20,7 @@ from ..tools import singular_values_2x2
 from .block_lu import BlockLU, assemble, numeric, refined_solve
 from .cell_state import MIN_CONTACTS, RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal
 from .contact_law import OPEN, SLIP, STICK, return_map
-from .system import EXACT, SKIPPED, balance, equations
+from .system import EXACT, SKIPPED, balance, equations, potential
 
 #: longest move of a disk in one step (its centre, or its surface by turning), relative to the
 #: smallest radius sum
@@ -97,6 +97,21 @@ def merit(s, held, mean_radius):
 
 
 @njit(cache=True)
+def potential_falls(s, trial, dq, springs, armijo):
+    """The step dq (N, 3) from the :func:`cell_state` s to ``trial`` lowers the increment's
+    potential with the Coulomb caps frozen at s (:func:`~dolfinx_granular.laws.
+    relaxed_friction.system.potential`) by at least ``armijo`` times its first-order
+    decrease."""
+    kn, kt, mu, inv_area = springs
+    slope = (s[14] * dq).sum() / inv_area  # (d Pi along the step)
+    if not slope < 0.0:
+        return False
+    caps = mu * kn * np.maximum(s[5], 0.0)
+    change = potential(trial[5], trial[7], caps, kn, kt) - potential(s[5], s[7], caps, kn, kt)
+    return change <= armijo * slope
+
+
+@njit(cache=True)
 def step_limit(F, dq, radii, R_min, max_step):
     """The largest step length <= 1 along dq (N, 3) that moves no disk's centre nor its
     surface by turning by more than ``max_step`` of the smallest radius sum."""
@@ -144,8 +159,8 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, sh
               inv_area, N, mode, True, rows, cols, vals)  # fmt: skip
     pinned = np.argmax(keep)
     reach = RATTLER_REACH * sum_e / n_on
-    diag = diagonal(status, network, keep, pi[:m], pj[:m], radii, r, kn, kt, inv_area, pinned,
-                    reach, RATTLER_SHIFT, tangent, free_rotation)  # fmt: skip
+    diag = diagonal(status, network, keep, pi[:m], pj[:m], radii, r, fstar, e, kn, kt, mu,
+                    inv_area, pinned, reach, RATTLER_SHIFT, tangent, free_rotation)  # fmt: skip
     if shift > 0.0:
         for k in range(N):
             diag[3 * k] += shift * kn * inv_area

@@ -7,19 +7,21 @@ return map,
 with J the Jacobian Newton takes and sigma the inverse pseudo-time step (dimensionless).
 
 A step is taken where it lowers the increment's potential with the Coulomb caps frozen at the
-current iterate,
+current iterate (by a part of its first-order decrease),
 
     Pi(q) = sum over contacts of  k_n e^2 / 2 + H_c(f*) / k_t,   c = mu k_n e(current),
 
 H_c the Huber function (x^2 / 2 inside the cap, c |x| - c^2 / 2 beyond): r is its gradient at
 the current iterate, so a short enough step always lowers it, and it keeps falling where a disk
 must move to a new equilibrium (the residual rising while it moves), where a line search on
-the residual stops. A step that cuts the residual :data:`CUT` fold is taken too (near the
-equilibrium Pi changes by round-off). Each taken step divides sigma by :data:`SHORTER`, each
+the residual stops. A step that lowers the squared residual is taken too (near the equilibrium
+Pi changes by round-off). Each taken step divides sigma by :data:`SHORTER`, each
 refused one multiplies it by :data:`LONGER`, so the steps end as Newton's, quadratically. Each
 step is one factorisation on the block LU, and no disk moves more than
 :data:`~dolfinx_granular.laws.relaxed_friction.newton_kernel.MAX_STEP` of the smallest radius
-sum in one. The equilibrium is the increment's, as Newton's: only the way to it differs.
+sum in one. Where sigma grows past :data:`SIGMA_MAX` or the steps run out, Newton takes over
+from the last iterate (a stall at a contact on the cone's edge, which Newton's retry handles).
+The equilibrium is the increment's, as Newton's: only the way to it differs.
 """
 
 from __future__ import annotations
@@ -31,16 +33,17 @@ from ..relaxed.newton import visited
 from .newton_kernel import (
     BEYOND_PATTERN,
     CONVERGED,
-    FAILED,
     GROW_LIST,
     HAND_BACK,
     MAX_STEP,
     RIGIDITY_LOST,
     SINGULAR_PIVOT,
-    STALLED,
     cell_state,
     direction,
     factorise,
+    merit,
+    newton,
+    potential_falls,
     residual,
     step_limit,
 )
@@ -52,24 +55,9 @@ SIGMA_START = 1.0
 SIGMA_MIN, SIGMA_MAX = 1e-12, 1e10
 #: sigma after a taken step is divided by SHORTER, after a refused one multiplied by LONGER
 SHORTER, LONGER = 3.0, 10.0
-#: a step that cuts the residual by this factor is taken whatever the potential does
-CUT = 0.5
-
-
-@njit(cache=True)
-def potential(s, caps, kn, kt):
-    """The increment's potential (N m) at the cell state s with the Coulomb caps ``caps`` (N;
-    beyond its length zero)."""
-    e, fstar = s[5], s[7]
-    total = 0.0
-    for c in range(e.shape[0]):
-        if e[c] <= 0.0:
-            continue
-        cap = caps[c] if c < caps.shape[0] else 0.0
-        x = abs(fstar[c])
-        total += 0.5 * kn * e[c] * e[c]
-        total += (0.5 * x * x if x <= cap else cap * x - 0.5 * cap * cap) / kt
-    return total
+#: a step is taken where it lowers the potential by ARMIJO times its first-order decrease, or
+#: the squared residual by twice that part
+ARMIJO = 1e-4
 
 
 @njit(cache=True)
@@ -79,7 +67,7 @@ def transient(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, fo
     :func:`~dolfinx_granular.laws.relaxed_friction.newton_kernel.newton`; ``sigma`` (1,) is
     read and updated in place (a hand-back resumes with it)."""
     pi, pj, X, Y, R, radii = cell
-    kn, kt, mu, _ = springs
+    mean_radius = radii.mean()
     m = visited(F_smin, w, geo, verlet)
     if m < 0:
         return HAND_BACK, GROW_LIST, w, th, w
@@ -113,11 +101,15 @@ def transient(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, fo
         trial = cell_state(F, wt, tt, inc, cell, springs, mt)
         if trial[13] == 0:
             continue
-        caps = mu * kn * np.maximum(s[5], 0.0)
-        lower = potential(trial, caps, kn, kt) < potential(s, caps, kn, kt)
-        if not (lower or residual(trial, R, radii)[0] <= CUT * res):
+        lower = merit(trial, held, mean_radius) <= (1.0 - 2.0 * ARMIJO) * merit(
+            s, held, mean_radius
+        ) or potential_falls(s, trial, alpha * dq, springs, ARMIJO)
+        if not lower:
             continue
-        sigma[0] = max(sigma[0] / (LONGER * SHORTER), SIGMA_MIN)
+        # (a step cut short by the step limit: the shift is too small for the softest mode)
+        sigma[0] = max(sigma[0] / LONGER * (SHORTER if alpha < 1.0 else 1.0 / SHORTER), SIGMA_MIN)
         w, th, s = wt, tt, trial
         counts[0] += 1
-    return FAILED, STALLED, w, th, w
+    # (stalled at a kink of the return map, a contact at the cone's edge: Newton's retry there)
+    return newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force_tol,
+                  max_steps, history, counts)  # fmt: skip

@@ -108,6 +108,24 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, 
 
 
 @njit(cache=True)
+def potential(e, fstar, caps, kn, kt):
+    """The increment's potential (N m) at the overlaps e (m,) and trial forces f* (m,) with
+    the Coulomb caps frozen at ``caps`` (N; beyond its length zero): k_n e^2 / 2 + H_c(f*) /
+    k_t over the contacts, H_c the Huber function (x^2 / 2 inside the cap, c |x| - c^2 / 2
+    beyond). With the caps mu k_n e of a state, the residual there is its gradient (times
+    1 / V)."""
+    total = 0.0
+    for c in range(e.shape[0]):
+        if e[c] <= 0.0:
+            continue
+        cap = caps[c] if c < caps.shape[0] else 0.0
+        x = abs(fstar[c])
+        total += 0.5 * kn * e[c] * e[c]
+        total += (0.5 * x * x if x <= cap else cap * x - 0.5 * cap * cap) / kt
+    return total
+
+
+@njit(cache=True)
 def energy(e, ft, status, kn, kt, inv_area):
     """The stored energy sum [k_n e^2 / 2 + f_t^2 / (2 k_t)] / V (Pa) over the contacts."""
     s = 0.0
