@@ -193,3 +193,43 @@ def test_bad_control_is_refused_in_one_line(kwargs, words):
     with pytest.raises(ValueError, match=None) as err:
         solve_point(LinearLaw(), **args)
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+class JumpLaw(LinearLaw):
+    """LinearLaw's P plus ``jump`` (Pa) on P11 where F11 > 1 + ``at``: a stress with no F
+    between two branches (a relaxed RVE that rearranges), its tangent the linear one's times
+    ``stiff`` (a tangent that overestimates the slope: Newton crawls)."""
+
+    def __init__(self, jump=0.0, at=1e-3, stiff=1.0):
+        super().__init__()
+        self.jump, self.at, self.stiff = jump, at, stiff
+
+    def evaluate(self, F):
+        W, P, A = super().evaluate(F)
+        P = P.copy()
+        if F[0, 0] > 1.0 + self.at:
+            P[0, 0] += self.jump
+        return W, P, self.stiff * A
+
+
+def test_a_stress_that_jumps_across_its_target_is_named_or_taken_at_the_nearer_side():
+    law = JumpLaw(jump=3e3)  # (P11 rises by 3 kPa as F11 passes 1.001)
+    below = (law.lam + 2 * law.mu) * 1e-3  # P11 just below the jump (F22 = 1, F12 = F21 = 0)
+    target = below + 1e3  # (in the gap: below < target < below + 3e3, no F gives it)
+    with pytest.raises(ControlError, match="jumps"):
+        solve_point(law, np.eye(2), {(0, 0): target}, measure="piola")
+    step = solve_point(law, np.eye(2), {(0, 0): target}, measure="piola", accept_jump=0.25)
+    assert step.F[0, 0] == pytest.approx(1.001, abs=1e-12)
+    assert step.control_error == pytest.approx(step.P[0, 0] - target)
+    assert step.control_error == pytest.approx(-1e3, rel=1e-6)  # (the nearer side: below)
+    with pytest.raises(ControlError, match="jumps"):  # (a miss beyond accept_jump)
+        solve_point(law, np.eye(2), {(0, 0): target}, measure="piola", accept_jump=0.1)
+
+
+def test_a_crawling_newton_is_bisected_in_its_bracket():
+    law = JumpLaw(stiff=1e3)  # (Newton's steps a thousandth of what they should be)
+    target = -(law.lam + 2 * law.mu) * 2e-3
+    step = solve_point(law, np.eye(2), {(0, 0): target}, measure="piola", max_increment=0.01,
+                       max_iter=80)  # fmt: skip
+    assert step.F[0, 0] == pytest.approx(0.998, rel=1e-12) and step.control_error == 0.0
+    assert abs(step.P[0, 0] - target) <= RTOL * abs(target)

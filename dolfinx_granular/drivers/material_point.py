@@ -5,8 +5,10 @@ F_ij is solved so that the matching stress component (Cauchy sigma_ij or first P
 a prescribed value. Newton's method uses the law's consistent tangent A = dP/dF (pushed forward
 for the Cauchy stress); steps are capped, and with one unknown an iterate that leaves the bracket
 of the root found so far is replaced by bisection (stick/slip switches make the stress only
-piecewise smooth). Works for :class:`~dolfinx_granular.MaterialLaw` (no history) and
-:class:`~dolfinx_granular.HistoryLaw` (a committed 1-point state), in any dimension d.
+piecewise smooth; where the last step did not halve the residual, too; where the stress jumps
+across its target, ``accept_jump`` takes the nearer side). Works for
+:class:`~dolfinx_granular.MaterialLaw` (no history) and :class:`~dolfinx_granular.HistoryLaw`
+(a committed 1-point state), in any dimension d.
 
     point = MaterialPoint(FrictionalRVE(packing, 2.8e7, friction=0.5))
     point.step(F=[[1, 0], [0, 1]], stress={(1, 1): -1e5})            # confine: sigma_22 = -p
@@ -17,7 +19,7 @@ Serial, pure NumPy around the law's own ``evaluate``: a step costs a few law eva
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -43,6 +45,8 @@ class PointResult:
         state: the law's trial state at F from the committed one (None without history).
         iterations: Newton iterations (0: the guess was converged).
         residuals: per iterate, the stress residual of largest magnitude (signed, Pa).
+        control_error: where the stress jumps across its target (``accept_jump``), how far it
+            is from it (Pa, signed); 0 otherwise.
     """
 
     F: np.ndarray
@@ -52,6 +56,7 @@ class PointResult:
     state: Any
     iterations: int
     residuals: tuple
+    control_error: float = 0.0
 
 
 def _evaluate(law, F, state):
@@ -109,6 +114,7 @@ def solve_point(
     stress_scale=None,
     max_iter=50,
     max_increment=0.02,
+    accept_jump=0.0,
 ):
     """Solve the unknown components of F so that the stress meets its targets, from ``state``.
 
@@ -123,6 +129,11 @@ def solve_point(
             (default scale: the largest |target|).
         max_iter: Newton iterations allowed.  max_increment: largest change of an unknown F_ij
             per iteration.
+        accept_jump: with one unknown, where the stress jumps across its target (the bracket
+            of the root has shrunk to round-off: a relaxed RVE that rearranges, a law with no F
+            between two branches), the bracket's end nearer the target is the answer if it
+            misses by at most ``accept_jump`` times the stress scale (its miss in
+            ``PointResult.control_error``); 0: never (a :class:`ControlError` names the jump).
 
     Returns:
         :class:`PointResult`. Raises :class:`ControlError` (with the residual history) when not
@@ -134,7 +145,7 @@ def solve_point(
     # the unknowns are the displacement gradient H_ij = F_ij - delta_ij: small numbers, and
     # F_ij = delta_ij + H_ij as the friction study's hand-written driver built it (bitwise)
     x = F0[idx] - one if keys else None
-    lo, hi = -np.inf, np.inf  # one unknown: residual < 0 at lo, > 0 at hi
+    bracket = _Bracket()
     residuals = []
     for it in range(max_iter + 1):
         F = F0.copy()
@@ -146,21 +157,81 @@ def solve_point(
             return PointResult(F, W, P, sigma, new, 0, ())
         r = (sigma if measure == "cauchy" else P)[idx] - targets
         residuals.append(float(r[np.argmax(np.abs(r))]))
+        result = PointResult(F, W, P, sigma, new, it, tuple(residuals))
         if np.abs(r).max() <= rtol * scale:
-            return PointResult(F, W, P, sigma, new, it, tuple(residuals))
+            return result
         K = stress_tangent(F, P, A, measure)[idx][:, idx[0], idx[1]]  # (k, k)
-        if r.size == 1:
-            lo, hi = (x[0], hi) if r[0] < 0.0 else (lo, x[0])
-        x = x + _newton_step(K, r, max_increment)
-        if r.size == 1 and not lo < x[0] < hi:
-            # a step always heads for the root's side of x, so only the far bound can be
-            # crossed, and that one is finite: bisect the bracket
-            x = np.array([0.5 * (lo + hi)])
+        step = _newton_step(K, r, max_increment)
+        if r.size > 1:
+            x = x + step
+            continue
+        bracket.add(x[0], r[0], result)
+        if bracket.closed():
+            return bracket.jump(accept_jump, scale, keys[0])
+        x = np.array([bracket.next(x[0], step[0], residuals, max_increment)])
     raise ControlError(
         f"material point: |s - target| = {abs(residuals[-1]):.3e} Pa > {rtol:.0e} x "
         f"{scale:.6g} Pa after {max_iter} iterations (residuals "
         f"{', '.join(f'{x:.2e}' for x in residuals[-5:])}); state not committed"
     )
+
+
+#: a bracket narrower than this (in F_ij, times max(1, |F_ij - delta_ij|)) has shrunk to
+#: round-off: the stress jumps across its target there
+JUMP_WIDTH = 1e-13
+
+
+class _Bracket:
+    """One unknown's root bracket: the nearest iterates with a residual < 0 (lo) and > 0 (hi),
+    and their results. Newton's iterate is kept inside it; where it would leave it, or where
+    the last step did not halve the residual (a piecewise smooth or jumping stress), the
+    bracket is bisected instead; a slow Newton without a bracket doubles its moves."""
+
+    def __init__(self):
+        self.lo, self.hi = -np.inf, np.inf
+        self.ends = {}
+        self.move = 0.0
+
+    def add(self, x, r, result):
+        if r < 0.0:
+            self.lo, self.ends["lo"] = x, (r, result)
+        else:
+            self.hi, self.ends["hi"] = x, (r, result)
+
+    def closed(self) -> bool:
+        width = JUMP_WIDTH * max(1.0, abs(self.lo), abs(self.hi))
+        return bool(np.isfinite(self.lo) and np.isfinite(self.hi) and self.hi - self.lo <= width)
+
+    def next(self, x, step, residuals, max_increment) -> float:
+        """The next iterate from x (its Newton step ``step``): where the last step did not
+        halve the residual, the bracket's midpoint, or without a bracket yet twice the last
+        move (at most ``max_increment``)."""
+        slow = len(residuals) > 1 and abs(residuals[-1]) > 0.5 * abs(residuals[-2])
+        closed = np.isfinite(self.lo) and np.isfinite(self.hi)
+        if slow and closed:
+            return 0.5 * (self.lo + self.hi)
+        if slow and abs(step) < 2.0 * abs(self.move):
+            step = np.sign(step) * min(2.0 * abs(self.move), max_increment)
+        if not self.lo < x + step < self.hi:
+            # a step always heads for the root's side of x, so only the far bound can be
+            # crossed, and that one is finite: bisect the bracket
+            return 0.5 * (self.lo + self.hi)
+        self.move = step
+        return x + step
+
+    def jump(self, accept, scale, key):
+        """The result at the end nearer the target, where it misses by at most ``accept`` x
+        ``scale``; else ControlError."""
+        (r_lo, lo), (r_hi, hi) = self.ends["lo"], self.ends["hi"]
+        r, result = (r_lo, lo) if -r_lo <= r_hi else (r_hi, hi)
+        if abs(r) <= accept * scale:
+            return replace(result, control_error=float(r))
+        raise ControlError(
+            f"material point: the stress {key} jumps from {r_lo:+.3e} to {r_hi:+.3e} Pa about its "
+            f"target at F{key[0] + 1}{key[1] + 1} = {1.0 * (key[0] == key[1]) + self.lo:.15g}: "
+            f"no F meets it (accept_jump = {accept:g} of {scale:.6g} Pa takes the nearer side); "
+            "state not committed"
+        )
 
 
 def solve_pressure(
