@@ -18,6 +18,11 @@ from .system import balance, equations
 #: two contacts can hold a disk, with forces along the chord between them (while that chord
 #: lies in both cones)
 MIN_CONTACTS = 2
+#: a contact whose overlap is below this part of the mean overlap does not count towards
+#: MIN_CONTACTS: a disk that only barely touches (two slipping contacts at 1e-10 of the radii,
+#: their caps ~1e-7 of the mean force) is loose, and held as a rattler it is pushed off them;
+#: held as a disk, Newton and the continuation crawled at a residual of 1e-7
+RATTLER_OVERLAP = 1e-6
 #: equilibrium also within this many times the round-off of the contact forces (as the
 #: frictionless relaxed RVE's :data:`~dolfinx_granular.laws.relaxed.newton.RESOLVED`)
 RESOLVED = 30.0
@@ -81,7 +86,7 @@ class CellState:
                        cell.R, cell.radii, m, sp.kn, sp.kt, sp.mu)
         )  # fmt: skip
         self.on = self.status != OPEN
-        self.keep = non_rattlers(cell.pi, cell.pj, self.e, cell.n_disks, MIN_CONTACTS)
+        self.keep = holding(cell.pi, cell.pj, self.e, cell.n_disks)
         self.network = self.on & self.keep[cell.pi[:m]] & self.keep[cell.pj[:m]]
         self.f, self.M, self.mean_force, self.count = balance(
             cell.pi, cell.pj, self.lx, self.ly, self.d, self.e, self.ft, cell.R, cell.radii,
@@ -136,6 +141,19 @@ class CellState:
         mean_e = self.e[self.on].mean()
         floor = RESOLVED * np.finfo(float).eps * cell.R[: self.m][self.on].mean() / mean_e
         return max(f, M), floor
+
+
+@njit(cache=True)
+def holding(pi, pj, e, n_disks):
+    """(N,) the disks that are no rattlers: :data:`MIN_CONTACTS` contacts or more with other
+    such disks, each with an overlap of at least :data:`RATTLER_OVERLAP` of the mean."""
+    total, count = 0.0, 0
+    for c in range(e.shape[0]):
+        if e[c] > 0.0:
+            total += e[c]
+            count += 1
+    floor = RATTLER_OVERLAP * total / count if count else 0.0
+    return non_rattlers(pi, pj, np.where(e > floor, e, 0.0), n_disks, MIN_CONTACTS)
 
 
 @njit(cache=True)

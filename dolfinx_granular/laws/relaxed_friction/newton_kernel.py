@@ -14,13 +14,12 @@ import numpy as np
 from numba import njit
 
 from ..relaxed.cell import SKIN
-from ..relaxed.contact_state import non_rattlers
 from ..relaxed.newton import visited
 from ..tools import singular_values_2x2
 from .block_lu import BlockLU, assemble, numeric, refined_solve
-from .cell_state import MIN_CONTACTS, RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal
+from .cell_state import RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal, holding
 from .contact_law import OPEN, SLIP, STICK, return_map
-from .system import EXACT, SKIPPED, balance, equations, potential
+from .system import EXACT, SKIPPED, balance, equations, potential_change
 
 #: longest move of a disk in one step (its centre, or its surface by turning), relative to the
 #: smallest radius sum
@@ -54,7 +53,7 @@ def cell_state(F, w, th, inc, cell, springs, m):
     qx, qy, lx, ly, d, e, ft, fstar, status = return_map(
         F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
     )
-    keep = non_rattlers(pi, pj, e, N, MIN_CONTACTS)
+    keep = holding(pi, pj, e, N)
     f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, N)
     none = np.empty(0, np.int64)
     r, _, _ = equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt,
@@ -107,8 +106,7 @@ def potential_falls(s, trial, dq, springs, armijo):
     if not slope < 0.0:
         return False
     caps = mu * kn * np.maximum(s[5], 0.0)
-    change = potential(trial[5], trial[7], caps, kn, kt) - potential(s[5], s[7], caps, kn, kt)
-    return change <= armijo * slope
+    return potential_change(s[5], s[7], trial[5], trial[7], caps, kn, kt) <= armijo * slope
 
 
 @njit(cache=True)
@@ -294,6 +292,7 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
         return HAND_BACK, GROW_LIST, w, th, w
     s = cell_state(F, w, th, inc, cell, springs, m)
     chord, chord_status, chord_held = False, s[8], np.zeros(3 * radii.shape[0], np.bool_)
+    first = counts[3]  # (the stall test looks at this call's residuals only)
     for step in range(max_iterations + 1):
         if s[13] == 0:
             return RIGIDITY_LOST, 0, w, th, w
@@ -304,7 +303,7 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
         if res <= max(force_tol, floor):
             return CONVERGED, 0, w, th, w
         if step == max_iterations or (
-            nh >= STALL_STEPS and res > STALL_RATE * history[nh - STALL_STEPS]
+            nh - first >= STALL_STEPS and res > STALL_RATE * history[nh - STALL_STEPS]
         ):
             return FAILED, STALLED, w, th, w
         code, wt, tt, trial = NO_DESCENT, w, th, s

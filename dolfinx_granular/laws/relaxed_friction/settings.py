@@ -33,7 +33,7 @@ class Settings:
 
     force_tol: float = 1e-10
     max_iterations: int = 60
-    pseudo_steps: int = 400
+    pseudo_steps: int = 2000
     fire_tol: float = 1e-5
     fire_steps: int = 20_000
     substep: float = 1e-3
