@@ -153,3 +153,15 @@ def test_newtons_step_turns_an_all_slipping_disk_back_into_the_cone():
     newton_diag = cell_state.diagonal(*args, False, 1.0)
     turn = -r[0, 2] / newton_diag[2]
     assert fstar[1] - kt * radii[0] * turn == pytest.approx((1 - cell_state.DEPTH) * 3.0)
+
+
+def test_a_disk_that_barely_touches_is_a_rattler():
+    """Disks 0-3 hold each other on overlaps near 1e-3; disk 4 touches 0 and 1 with overlaps a
+    millionth of the mean and less: it counts as loose (as Newton then treats it: pushed off)."""
+    pi = np.array([0, 0, 1, 0, 1, 2, 0, 1])
+    pj = np.array([1, 2, 2, 3, 3, 3, 4, 4])
+    e = np.array([1e-3, 2e-3, 1e-3, 1.5e-3, 1e-3, 2e-3, 3e-10, 2e-10])
+    keep = cell_state.holding(pi, pj, e, 5)
+    assert keep.tolist() == [True, True, True, True, False]
+    e[6:] = 1e-4  # (a tenth of the mean: it holds)
+    assert cell_state.holding(pi, pj, e, 5).all()
