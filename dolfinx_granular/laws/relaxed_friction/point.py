@@ -81,8 +81,8 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     path's end): Newton from the predicted start. Where it fails, pseudo-transient
     continuation (:mod:`.pseudo_time`: implicit damped steps that lower the increment's
     potential) from the committed positions and rotations carried to G (turned by its polar
-    rotation); where that fails too, FIRE relaxes the cell under the same increment from there
-    to ``settings.fire_tol`` and Newton goes on from there; where Newton fails
+    rotation), then from the predicted start; where that fails too, FIRE relaxes the cell under
+    the same increment from there to ``settings.fire_tol`` and Newton goes on; where Newton fails
     again, FIRE goes on (to a thousandth of its tolerance where it reached it),
     :data:`FIRE_ROUNDS` times in all. The fallbacks solve the same increment: they do not
     change the path, so the answer stays the model's (a halved increment would commit a
@@ -92,12 +92,14 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
     if done is not None:
         return done
-    # (the fallbacks relax the cell from its last equilibrium carried to G: the predictor
-    # extrapolates soft modes far, and damped motion from there is the physical relaxation)
-    w, th = inc.w0, inc.th0 + polar_angle(G) - polar_angle(inc.F0)
-    done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, True)
-    if done is not None:
-        return done
+    # (the continuation relaxes the cell first from its last equilibrium carried to G: the
+    # predictor extrapolates soft modes far, and damped motion from there is the physical
+    # relaxation; then from the predicted start)
+    start = (w, th)
+    for w, th in ((inc.w0, inc.th0 + polar_angle(G) - polar_angle(inc.F0)), start):
+        done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, True)
+        if done is not None:
+            return done
     tol = settings.fire_tol
     for _ in range(FIRE_ROUNDS):
         w, th, steps, converged = fire(
