@@ -18,6 +18,10 @@
 #
 # `--small` (or `DEMO_SMALL=1`) is a reduced run for the tests: `--particles 70 --steps 4`, into
 # `results/slope-small` unless `--out` is given.
+#
+# `--factor-of-safety` finds the slope's factor of safety by strength reduction of the contact
+# friction (the frictional relaxed RVE; see docs/slope.md); with `--small` on a 2-row mesh with
+# a coarse strength curve and bracket, into `results/slope-safety-small`.
 # An `--out` that holds a run is refused unless `--force` (replace it) or `--resume DIR`
 # (continue it); Ctrl-C stops after the load step in progress, and `--resume DIR` goes on.
 #
@@ -31,6 +35,12 @@ from dolfinx_granular.slope import SlopeOptions, cli, run_slope  # noqa: F401 (w
 
 #: what ``--small`` (or ``DEMO_SMALL=1``) puts before the other arguments (they override it)
 SMALL = ["--particles", "70", "--steps", "4", "--out", "results/slope-small"]
+#: the same with ``--factor-of-safety``: 40 cells, half the footing after the weight (on so
+#: coarse a mesh the weight alone fails only below mu = 0.125, where trials are slow), one
+#: packing per friction in the strength curve, its tests to 2 %, the bracket to 5 % in FS
+SMALL_SAFETY = ["--particles", "70", "--rows", "2", "--gravity-steps", "4", "--steps", "4",
+                "--footing-scale", "0.5", "--strength-seeds", "1", "--strength-strain", "0.02",
+                "--fs-tolerance", "0.05", "--out", "results/slope-safety-small"]  # fmt: skip
 
 # %% [markdown]
 # ## The pieces
@@ -54,6 +64,12 @@ SMALL = ["--particles", "70", "--steps", "4", "--out", "results/slope-small"]
 #    (`--resume DIR`, on any number of ranks).
 #
 # In your own code the same run is `run_slope(packing, SlopeOptions(steps=20), out="results")`.
+#
+# 5. **The factor of safety** (`--factor-of-safety`): trials from the start of the load path at
+#    reduced contact friction mu_f, bisected between one that fails and one that carries the
+#    whole load; FS = tan phi(mu) / tan phi(mu_f) from the RVE's strength curve
+#    (`dolfinx_granular.slope.safety_run.SafetyRun`). It writes `safety.json`, `trials.csv`,
+#    `mechanism.png` and each trial's run folder.
 
 
 # %%
@@ -61,7 +77,8 @@ def main(argv=None):
     """The slope's command line; ``--small`` (or ``DEMO_SMALL=1``): a reduced run for tests."""
     argv = list(sys.argv[1:] if argv is None else argv)
     small = "--small" in argv or os.environ.get("DEMO_SMALL") == "1"
-    return cli.main((SMALL if small else []) + [a for a in argv if a != "--small"])
+    prefix = SMALL_SAFETY if "--factor-of-safety" in argv else SMALL
+    return cli.main((prefix if small else []) + [a for a in argv if a != "--small"])
 
 
 if __name__ == "__main__":

@@ -7,6 +7,9 @@
 * :mod:`~dolfinx_granular.slope.run`: the load path, its records and files (:class:`SlopeRun`,
   :func:`run_slope`, restarts);
 * :mod:`~dolfinx_granular.slope.summary`: ``summary.json`` and the figure-7 view;
+* :mod:`~dolfinx_granular.slope.limit_equilibrium`: Bishop's method and the infinite slope;
+* :mod:`~dolfinx_granular.slope.safety_run`: the factor of safety by strength reduction of the
+  contact friction (:class:`SafetyRun`; the search in :mod:`~dolfinx_granular.slope.safety`);
 * :mod:`~dolfinx_granular.slope.interrupt`: SIGINT/SIGTERM stop a run after a load step;
 * :mod:`~dolfinx_granular.slope.cli`: the command line (``python -m dolfinx_granular.slope``).
 """
@@ -15,6 +18,7 @@ from .geometry import SlopeGeometry, create_mesh
 from .limit_equilibrium import SlipCircle, bishop_factor_of_safety, infinite_slope_factor_of_safety
 from .model import SlopeModel, granular_material, newton_solver
 from .run import SlopeOptions, SlopeRun, load_restart, run_slope
+from .safety_run import SafetyRun
 
 __all__ = [
     "SlopeGeometry",
@@ -29,4 +33,5 @@ __all__ = [
     "SlopeRun",
     "load_restart",
     "run_slope",
+    "SafetyRun",
 ]

@@ -8,6 +8,9 @@ stopped at a load step that did not converge (e.g. at a limit load); 130 (SIGINT
 
 A new run refuses an ``--out`` that holds a run's files unless ``--force`` (which removes those
 files, and only those, first) or ``--resume`` (which continues it).
+
+``--factor-of-safety`` runs the strength reduction of the contact friction instead
+(:mod:`.safety_cli`); its own options are refused without it.
 """
 
 from __future__ import annotations
@@ -25,12 +28,12 @@ from ..fem.compat import show_warnings
 from ..io.commandline import Parser
 from ..io.outfolder import writable
 from ..io.runwriter import RestartError
-from ..packings.packing import Packing, PackingFileError
+from ..packings.packing import PackingFileError
+from .arguments import UserError, make_packing, options_of
 from .geometry import SlopeGeometry
 from .interrupt import SIGNALS, RunInterrupted, StopRequest, exit_status
 from .options import K_N, LINEAR_SOLVERS, PHASES, RVES
 from .run import (
-    SlopeOptions,
     clear_run,
     converged_steps,
     is_complete,
@@ -41,11 +44,6 @@ from .run import (
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
-    from os import PathLike
-
-
-class UserError(ValueError):
-    """Bad input (options, files): reported as one line ``error: ...`` with exit status 2."""
 
 
 #: what a resumed run takes from the command line; its other options are those stored
@@ -110,6 +108,7 @@ def build_parser(prog: str = "demos/slope.py") -> argparse.ArgumentParser:
     _add_packing_and_output(p)
     _add_model(p)
     _add_path_and_run(p)
+    _add_safety(p)
     return p
 
 
@@ -257,6 +256,14 @@ def _add_path_and_run(p: argparse.ArgumentParser) -> None:
         help="mesh refinement: K times the columns and rows (K² x 380 cells at --slope-ratio 1)",
     )
     p.add_argument(
+        "--rows",
+        type=_int_at_least(1),
+        default=SlopeGeometry.rows,
+        metavar="N",
+        help=f"rows of cells over the slope's height before --refine (default "
+        f"{SlopeGeometry.rows}, the paper's mesh; 2: a coarse mesh for quick runs)",
+    )
+    p.add_argument(
         "--stop-after",
         type=_int_at_least(1),
         metavar="K",
@@ -269,6 +276,77 @@ def _add_path_and_run(p: argparse.ArgumentParser) -> None:
         "(of the options above only --no-figure and --stop-after apply)",
     )
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
+
+
+#: the options of the factor of safety alone (refused without --factor-of-safety)
+SAFETY_OPTIONS = ("footing_scale", "fs_tolerance", "strength", "strength_seeds", "strength_strain")
+
+
+def _fraction(text):
+    """A number in (0, 1) (argparse type)."""
+    value = _finite()(text)
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be a number in (0, 1), got {text!r}")
+    return value
+
+
+def _shown(value):
+    """A default as the command line takes it (2.8e5 as 280000)."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _add_safety(p: argparse.ArgumentParser) -> None:
+    """The options of the factor of safety (:mod:`.safety_cli`)."""
+    from .safety_cli import DEFAULTS
+
+    g = p.add_argument_group("factor of safety (strength reduction of the contact friction)")
+    g.add_argument(
+        "--factor-of-safety",
+        action="store_true",
+        help="find the factor of safety: trials from the start of the load path at reduced "
+        "friction mu_f, bisected between a failing and a passing one; FS = tan phi(mu) / tan "
+        "phi(mu_f) from the strength curve; with --resume DIR it goes on with a run's "
+        "finished trials. Unless given here: "
+        + " ".join(f"--{k.replace('_', '-')} {_shown(v)}" for k, v in DEFAULTS.items()),
+    )
+    g.add_argument(
+        "--footing-scale",
+        type=_finite(0.0),
+        default=0.0,
+        metavar="S",
+        help="the share of the footing load on the load path after the weight (default 0: the "
+        "weight alone)",
+    )
+    g.add_argument(
+        "--fs-tolerance",
+        type=_fraction,
+        default=0.01,
+        metavar="TOL",
+        help="bisect until the factors of safety of the bracket's ends differ by at most TOL "
+        "(relative; default 0.01)",
+    )
+    g.add_argument(
+        "--strength",
+        metavar="CSV",
+        help="the strength curve from this CSV ('python -m dolfinx_granular strength' wrote "
+        "it; it must cover mu at the slope's p/k_n); default: measured with the slope's RVE",
+    )
+    g.add_argument(
+        "--strength-seeds",
+        type=_int_at_least(1),
+        default=3,
+        metavar="N",
+        help="packings per friction of the measured curve: seeds --seed .. --seed + N - 1 "
+        "(default 3)",
+    )
+    g.add_argument(
+        "--strength-strain",
+        type=_fraction,
+        default=0.05,
+        metavar="EPS",
+        help="the measured curve's biaxial tests go to this axial strain in steps of 0.005 "
+        "(default 0.05)",
+    )
 
 
 def given_options(argv: Sequence[str], prog: str = "demos/slope.py") -> set[str]:
@@ -301,62 +379,6 @@ def check_combination(a: argparse.Namespace, given: set[str]) -> None:
             f"--path-following gravity ends the run with the weight (no footing load): drop "
             f"{names}, or follow the footing's path with --path-following footing"
         )
-
-
-def options_of(a: argparse.Namespace) -> SlopeOptions:
-    """The run's options from parsed command-line arguments (--tangential-stiffness with
-    --friction 0 is the frictionless model: k_t has no effect there)."""
-    geometry = _geometry(a.slope_ratio).refined(a.refine)
-    try:
-        return SlopeOptions(
-            steps=a.steps,
-            gravity_steps=a.gravity_steps,
-            load_factor=a.load_factor,
-            stabilise=a.stabilise,
-            petsc_options={"snes_linesearch_type": a.line_search},
-            friction=a.friction,
-            tangential_stiffness=a.tangential_stiffness,
-            unload=a.unload,
-            path_following=a.path_following,
-            max_increments=a.max_increments,
-            geometry=geometry,
-            allow_overlaps=a.allow_overlaps,
-            rve=a.rve,
-            linear_solver=a.linear_solver,
-            confinement=a.confinement,
-        )
-    except ValueError as err:
-        raise UserError(str(err)) from None
-
-
-def _geometry(ratio: float) -> SlopeGeometry:
-    """The slope of ``--slope-ratio`` on the coarse columns (``--refine`` keeps its slope)."""
-    try:
-        return SlopeGeometry.with_slope_ratio(ratio)
-    except ValueError as err:
-        raise UserError(f"--slope-ratio {ratio:g}: {err}") from None
-
-
-def make_packing(
-    particles: int,
-    seed: int | None,
-    packing_file: str | PathLike[str] | None = None,
-    pressure: float | None = None,
-) -> Packing:
-    """The RVE's packing: from ``packing_file`` if given; the shipped reference packing for the
-    default 700 particles of seed 0 (the same on every stack, where generation differs in the
-    last bits); else ``generate_packing``, jammed at ``pressure`` (p / k_n) if given."""
-    if packing_file:
-        return Packing.load(packing_file)
-    from ..packings import reference_packing as shipped
-
-    if (particles, seed) == (shipped.PARTICLES, shipped.SEED) and pressure is None:
-        return shipped.reference_packing()
-    from ..packings.generation import generate_packing
-
-    if pressure is None:
-        return generate_packing(particles, seed=seed)
-    return generate_packing(particles, seed=seed, pressure=pressure)
 
 
 def _claim_out(out, force):
@@ -437,7 +459,16 @@ def _resume(a, comm, started, stop):
 
 def _run(a, argv, prog, comm, started, stop):
     """The run that the parsed arguments ``a`` ask for; its summary dict."""
-    check_combination(a, given_options(argv, prog))
+    given = given_options(argv, prog)
+    if a.factor_of_safety:
+        from .safety_cli import run_safety
+
+        return run_safety(a, given, comm, stop, started)
+    only = sorted(given & set(SAFETY_OPTIONS))
+    if only:
+        names = ", ".join("--" + d.replace("_", "-") for d in only)
+        raise UserError(f"{names} apply to --factor-of-safety only: add it, or drop them")
+    check_combination(a, given)
     if a.resume:
         return _resume(a, comm, started, stop)
     options = options_of(a)

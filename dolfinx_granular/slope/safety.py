@@ -1,0 +1,238 @@
+"""The factor of safety by strength reduction on the contact friction: the search and its answer.
+
+Each trial runs the slope from the start of its load path with the contacts' friction reduced
+to mu_f: the weight by path following (and, with a ``footing_scale`` S > 0, the weight in load
+steps and then S x the footing by path following). A trial *passes* where the whole load is
+carried and *fails* where path following finds a limit point before it, or where no equilibrium
+is found along it (the run stops early).
+
+The search (:func:`next_friction`) starts at the user's mu; while every trial passes it halves
+mu_f (at most :data:`HALVINGS` times), while every trial fails it doubles it (at most
+:data:`DOUBLINGS` times); once a failing mu_f lies below a passing one it bisects that bracket
+until the factors of safety of its ends differ by at most ``tolerance`` (relative). The factor of
+safety is FS = tan phi(mu) / tan phi(mu_f) with phi from the strength curve
+(:func:`~dolfinx_granular.drivers.strength.friction_angle`, linear in mu) and mu_f the middle of
+the last bracket; mu / mu_f is reported beside it, never alone (phi saturates in mu).
+
+Pure Python: nothing here needs DOLFINx (:mod:`.safety_run` runs the trials).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping, Sequence
+
+#: the most halvings of mu_f below the user's mu while every trial passes (mu / 64)
+HALVINGS = 6
+#: the most doublings of mu_f above the user's mu while every trial fails (4 mu)
+DOUBLINGS = 2
+#: the default relative width of the last bracket in FS (1 %)
+TOLERANCE = 0.01
+#: a load parameter this close below its full value counts as the whole load (round-off)
+WHOLE = 1e-9
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One run of the slope at the reduced friction ``mu_f``.
+
+    ``passed``: the whole load was carried; ``phase``: the load phase where the run stopped
+    (``gravity`` or ``footing``); ``carried``: that phase's load reached, as a share of its
+    whole (the weight's factor, or the footing's share of S x the footing load; > 1 where the
+    last increment overshot); ``gravity``: the weight's factor reached; ``footing``: the share
+    of S x the footing reached (0 without a footing); ``seconds``: the run's wall time;
+    ``why``: how it ended; ``status``: the run's ``summary.json`` status; ``folder``: its run
+    folder, relative to the safety run's.
+    """
+
+    mu_f: float
+    passed: bool
+    phase: str
+    carried: float
+    gravity: float
+    footing: float
+    seconds: float
+    why: str
+    status: str
+    folder: str
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+#: the columns of trials.csv, in order
+TRIAL_COLUMNS = tuple(Trial.__dataclass_fields__)
+
+
+def trial_of(
+    summary: Mapping[str, Any],
+    mu_f: float,
+    footing_scale: float,
+    footing_load: float,
+    folder: str,
+    seconds: float,
+) -> Trial:
+    """The :class:`Trial` of a finished slope run (its ``summary.json`` dict) at ``mu_f`` with
+    ``footing_scale`` x the footing load ``footing_load`` (N/m, the geometry's) after the
+    weight."""
+    info = summary.get("step_info") or []
+    gravity = max([float(s["gravity"]) for s in info] or [0.0])
+    footing = 0.0
+    if footing_scale > 0.0:
+        whole = footing_scale * footing_load
+        footing = max([s["footing_load"] / whole for s in info if s["phase"] == "footing"] or [0.0])
+    carried_all = gravity >= 1.0 - WHOLE and (footing_scale == 0.0 or footing >= 1.0 - WHOLE)
+    phase = "footing" if footing_scale > 0.0 and gravity >= 1.0 - WHOLE else "gravity"
+    carried = footing if phase == "footing" else gravity
+    passed = carried_all and summary["status"] == "converged"
+    return Trial(
+        float(mu_f),
+        passed,
+        phase,
+        carried,
+        gravity,
+        footing,
+        float(seconds),
+        _why(summary, passed),
+        summary["status"],
+        folder,
+    )
+
+
+def _why(summary, passed):
+    """How a trial's run ended, in words."""
+    if passed:
+        return "carried the whole load"
+    failed = summary.get("failed")
+    if failed:
+        return f"no equilibrium in the {failed['phase']}: {failed['reason']}"
+    if summary["status"] == "interrupted":
+        return f"interrupted by {summary.get('interrupted_by')}"
+    stopped = (summary.get("path_following") or {}).get("stopped") or summary["status"]
+    # (past the peak: the path turned at a limit point; else it ran out of increments)
+    what = "limit point" if "past the peak" in stopped else "stopped"
+    return f"{what} before the whole load: {stopped}"
+
+
+def bracket(trials: Sequence[Trial]) -> tuple[Trial | None, Trial | None]:
+    """(failing, passing): the passing trial of least mu_f and the failing trial of largest
+    mu_f below it (None where there is none)."""
+    passes = sorted((t for t in trials if t.passed), key=lambda t: t.mu_f)
+    low = passes[0] if passes else None
+    fails = [t for t in trials if not t.passed and (low is None or t.mu_f < low.mu_f)]
+    return max(fails, key=lambda t: t.mu_f, default=None), low
+
+
+def next_friction(
+    trials: Sequence[Trial],
+    mu: float,
+    fs: Callable[[float], float],
+    tolerance: float = TOLERANCE,
+    mu_range: tuple[float, float] = (0.0, math.inf),
+) -> float | None:
+    """The next trial's mu_f, or None once the search is done (module docstring).
+
+    ``fs(mu_f)``: the factor of safety of mu_f; ``mu_range``: the frictions the strength curve
+    covers (a halving or doubling outside it ends the search with a bound)."""
+    if not trials:
+        return float(mu)
+    failing, passing = bracket(trials)
+    if failing is None:  # every trial passed: weaker
+        below = passing.mu_f / 2.0
+        ok = below >= mu / 2.0**HALVINGS * (1 - 1e-12) and below >= mu_range[0]
+        return below if ok else None
+    if passing is None:  # every trial failed: stronger
+        above = failing.mu_f * 2.0
+        ok = above <= mu * 2.0**DOUBLINGS * (1 + 1e-12) and above <= mu_range[1]
+        return above if ok else None
+    if width(fs, failing, passing) <= tolerance:
+        return None
+    return 0.5 * (failing.mu_f + passing.mu_f)
+
+
+def width(fs: Callable[[float], float], failing: Trial, passing: Trial) -> float:
+    """The bracket's relative width in FS: FS(failing) / FS(passing) - 1 (< 0 where phi falls
+    with mu on the curve between them)."""
+    return fs(failing.mu_f) / fs(passing.mu_f) - 1.0
+
+
+def outcome(
+    trials: Sequence[Trial],
+    mu: float,
+    fs: Callable[[float], float],
+    fs_peak: Callable[[float], float],
+    tolerance: float = TOLERANCE,
+) -> dict:
+    """The answer of the trials so far: ``factor_of_safety`` (critical state) and
+    ``factor_of_safety_peak`` at ``mu_f``, ``mu_ratio`` = mu / mu_f, the ``mu_f_bracket``
+    (failing, passing) and its ``factor_of_safety_bracket`` (low, high), ``bound``: None where
+    a bracket exists, ``"lower"`` where every trial passed (FS >= the value: even the least
+    mu_f carried the load), ``"upper"`` where every trial failed (FS < the value), and
+    ``converged`` (the bracket within ``tolerance``). Empty values without trials."""
+    failing, passing = bracket(trials)
+    out = dict(
+        factor_of_safety=None,
+        factor_of_safety_peak=None,
+        mu_f=None,
+        mu_ratio=None,
+        mu_f_bracket=None,
+        factor_of_safety_bracket=None,
+        bound=None,
+        converged=False,
+    )
+    if failing is None and passing is None:
+        return out
+    if failing is not None and passing is not None:
+        mu_f = 0.5 * (failing.mu_f + passing.mu_f)
+        ends = sorted((fs(passing.mu_f), fs(failing.mu_f)))
+        out.update(
+            mu_f_bracket=[failing.mu_f, passing.mu_f],
+            factor_of_safety_bracket=ends,
+            converged=width(fs, failing, passing) <= tolerance,
+        )
+    else:
+        mu_f = (passing or failing).mu_f
+        out["bound"] = "lower" if failing is None else "upper"
+    out.update(
+        mu_f=mu_f,
+        mu_ratio=mu / mu_f,
+        factor_of_safety=fs(mu_f),
+        factor_of_safety_peak=fs_peak(mu_f),
+    )
+    return out
+
+
+def search(
+    run_trial: Callable[[float], Trial | None],
+    mu: float,
+    fs: Callable[[float], float],
+    tolerance: float = TOLERANCE,
+    mu_range: tuple[float, float] = (0.0, math.inf),
+    trials: Sequence[Trial] = (),
+    on_trial: Callable[[list[Trial]], None] | None = None,
+) -> tuple[list[Trial], bool]:
+    """Run trials (``run_trial(mu_f)``: the :class:`Trial`, or None where the run was
+    interrupted) from the finished ``trials`` on until :func:`next_friction` is done;
+    ``on_trial(trials)`` after each. Returns the trials and whether the search finished."""
+    trials = list(trials)
+    while (mu_f := next_friction(trials, mu, fs, tolerance, mu_range)) is not None:
+        trial = run_trial(mu_f)
+        if trial is None:
+            return trials, False
+        trials.append(trial)
+        if on_trial is not None:
+            on_trial(trials)
+    return trials, True
+
+
+def trial_line(trial: Trial, fs: Callable[[float], float], n: int) -> str:
+    """The console line of the n-th trial."""
+    verdict = "passed" if trial.passed else "FAILED"
+    return (
+        f"safety: trial {n}: mu_f = {trial.mu_f:.6g} (FS {fs(trial.mu_f):.4g}) {verdict}: "
+        f"{trial.phase} x{trial.carried:.4g} carried, {trial.seconds:.1f} s; {trial.why[:160]}"
+    )
