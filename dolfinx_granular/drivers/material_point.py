@@ -166,7 +166,7 @@ def solve_point(
             x = x + step
             continue
         bracket.add(x[0], r[0], result)
-        if bracket.closed():
+        if bracket.shrunk():
             return bracket.jump(accept_jump, scale, keys[0])
         x = np.array([bracket.next(x[0], step[0], residuals, max_increment)])
     raise ControlError(
@@ -198,17 +198,21 @@ class _Bracket:
         else:
             self.hi, self.ends["hi"] = x, (r, result)
 
-    def closed(self) -> bool:
+    def found(self) -> bool:
+        """Both ends exist: the root lies between them."""
+        return bool(np.isfinite(self.lo) and np.isfinite(self.hi))
+
+    def shrunk(self) -> bool:
+        """Both ends exist and lie a round-off apart (:data:`JUMP_WIDTH`)."""
         width = JUMP_WIDTH * max(1.0, abs(self.lo), abs(self.hi))
-        return bool(np.isfinite(self.lo) and np.isfinite(self.hi) and self.hi - self.lo <= width)
+        return self.found() and self.hi - self.lo <= width
 
     def next(self, x, step, residuals, max_increment) -> float:
         """The next iterate from x (its Newton step ``step``): where the last step did not
         halve the residual, the bracket's midpoint, or without a bracket yet twice the last
         move (at most ``max_increment``)."""
         slow = len(residuals) > 1 and abs(residuals[-1]) > 0.5 * abs(residuals[-2])
-        closed = np.isfinite(self.lo) and np.isfinite(self.hi)
-        if slow and closed:
+        if slow and self.found():
             return 0.5 * (self.lo + self.hi)
         if slow and abs(step) < 2.0 * abs(self.move):
             step = np.sign(step) * min(2.0 * abs(self.move), max_increment)

@@ -19,7 +19,7 @@ from ..tools import singular_values_2x2
 from .block_lu import BlockLU, assemble, numeric, refined_solve
 from .cell_state import RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal, holding
 from .contact_law import OPEN, SLIP, STICK, return_map
-from .system import EXACT, SKIPPED, balance, equations, potential_change
+from .system import EXACT, SKIPPED, balance, equations
 
 #: longest move of a disk in one step (its centre, or its surface by turning), relative to the
 #: smallest radius sum
@@ -93,20 +93,6 @@ def merit(s, held, mean_radius):
                 v = r[k, a] / mean_radius if a == 2 else r[k, a]
                 total += v * v
     return 0.5 * total
-
-
-@njit(cache=True)
-def potential_falls(s, trial, dq, springs, armijo):
-    """The step dq (N, 3) from the :func:`cell_state` s to ``trial`` lowers the increment's
-    potential with the Coulomb caps frozen at s (:func:`~dolfinx_granular.laws.
-    relaxed_friction.system.potential`) by at least ``armijo`` times its first-order
-    decrease."""
-    kn, kt, mu, inv_area = springs
-    slope = (s[14] * dq).sum() / inv_area  # (d Pi along the step)
-    if not slope < 0.0:
-        return False
-    caps = mu * kn * np.maximum(s[5], 0.0)
-    return potential_change(s[5], s[7], trial[5], trial[7], caps, kn, kt) <= armijo * slope
 
 
 @njit(cache=True)

@@ -66,13 +66,19 @@ def polar_angle(F) -> float:
     return float(np.arctan2(F[1, 0] - F[0, 1], F[0, 0] + F[1, 1]))
 
 
+def carried(w, th, Fc, F):
+    """(w, th) at Fc carried to F at fixed fluctuations: the rotations turned by F's polar
+    rotation."""
+    return w, th + polar_angle(F) - polar_angle(Fc)
+
+
 def predicted(w, th, dq, Fc, F):
     """(w, th) at Fc carried to F: the sensitivities dq (N, 3, 4) times the rotation-free
-    increment dF_C = Fc^-T (C - C_c) / 2, and the rotations turned by F's polar rotation."""
+    increment dF_C = Fc^-T (C - C_c) / 2 added to :func:`carried`."""
     dF = 0.5 * np.linalg.solve(Fc.T, F.T @ F - Fc.T @ Fc)
     move = dq.reshape(-1, 4) @ dF.ravel()
     move = move.reshape(-1, 3)
-    return w + move[:, :2], th + move[:, 2] + polar_angle(F) - polar_angle(Fc)
+    return carried(w + move[:, :2], th + move[:, 2], Fc, F)
 
 
 def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Settings,
@@ -96,7 +102,7 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     # predictor extrapolates soft modes far, and damped motion from there is the physical
     # relaxation; then from the predicted start)
     start = (w, th)
-    for w, th in ((inc.w0, inc.th0 + polar_angle(G) - polar_angle(inc.F0)), start):
+    for w, th in (carried(inc.w0, inc.th0, inc.F0, G), start):
         done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, True)
         if done is not None:
             return done

@@ -43,10 +43,10 @@ from .newton_kernel import (
     factorise,
     merit,
     newton,
-    potential_falls,
     residual,
     step_limit,
 )
+from .system import potential_change
 
 #: sigma of the first step: a shift of one contact's normal stiffness per unknown
 SIGMA_START = 1.0
@@ -58,6 +58,21 @@ SHORTER, LONGER = 3.0, 10.0
 #: a step is taken where it lowers the potential by ARMIJO times its first-order decrease, or
 #: the squared residual by twice that part
 ARMIJO = 1e-4
+
+
+@njit(cache=True)
+def potential_falls(s, trial, dq, springs, armijo):
+    """The step dq (N, 3) from the :func:`~dolfinx_granular.laws.relaxed_friction.
+    newton_kernel.cell_state` s to ``trial`` lowers the increment's
+    potential with the Coulomb caps frozen at s (:func:`~dolfinx_granular.laws.
+    relaxed_friction.system.potential`) by at least ``armijo`` times its first-order
+    decrease."""
+    kn, kt, mu, inv_area = springs
+    slope = (s[14] * dq).sum() / inv_area  # (d Pi along the step)
+    if not slope < 0.0:
+        return False
+    caps = mu * kn * np.maximum(s[5], 0.0)
+    return potential_change(s[5], s[7], trial[5], trial[7], caps, kn, kt) <= armijo * slope
 
 
 @njit(cache=True)
