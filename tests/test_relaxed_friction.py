@@ -35,9 +35,20 @@ def packing():
     return generate_packing(70, seed=1)
 
 
-@pytest.fixture(scope="module")
-def rve(packing):
-    return FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.3, force_tol=1e-12)
+@pytest.fixture(scope="module", params=[0.0, 0.1], ids=["sliding", "rolling"])
+def rve(packing, request):
+    """Sliding friction, without and with rolling resistance (mu_r = 0.1: about a third of the
+    rolling springs slip at F_TWO)."""
+    return FrictionalRelaxedRVE(
+        packing, K_N, K_N, friction=0.3, force_tol=1e-12, rolling_friction=request.param
+    )
+
+
+def _rolling_caps(rve, c):
+    """(m,) the rolling moments' caps mu_r r_eff f_n of a ContactSet."""
+    r = rve.packing.radii
+    ri, rj = r[c.pairs[:, 0]], r[c.pairs[:, 1]]
+    return rve.rolling_friction * ri * rj / (ri + rj) * c.force
 
 
 @pytest.fixture(scope="module")
@@ -56,32 +67,37 @@ def test_it_is_a_history_law_with_a_history_state(rve):
 # -- the contact law's derivatives ---------------------------------------------------------------
 
 
-def _equations(cell, F, w, th, inc, mu, kt, jacobian=False):
+def _equations(cell, F, w, th, inc, mu, kt, jacobian=False, mu_r=0.0):
     m = cell.pi.shape[0]
+    kr = kt  # (rolling stiffness 1: k_r = k_t r_eff^2)
     c = contact_law.return_map(
-        F, w, th, inc.F0, inc.w0, inc.th0, inc.ft0, cell.pi, cell.pj, cell.X, cell.Y, cell.R,
-        cell.radii, m, K_N, kt, mu,
+        F, w, th, *inc.arrays(m), cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii, m, K_N,
+        kt, mu, kr, mu_r,
     )  # fmt: skip
     size = 36 * m
     rows, cols, vals = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
     mode = np.full(m, 2, np.int8)
     r, P, nnz = system.equations(
-        F, *c, cell.pi, cell.pj, cell.R, cell.radii, K_N, kt, mu, 1.0, cell.n_disks, mode,
-        jacobian, rows, cols, vals,
+        F, *c, cell.pi, cell.pj, cell.R, cell.radii, K_N, kt, mu, kr, mu_r, 1.0, cell.n_disks,
+        mode, jacobian, rows, cols, vals,
     )  # fmt: skip
-    W = system.energy(c[5], c[6], c[8], K_N, kt, 1.0)
+    _, krs = system.rolling_springs(cell.pi, cell.pj, cell.radii, c[5], K_N, kr, mu_r)
+    W = system.energy(c[5], c[6], c[8], K_N, kt, 1.0, c[9], c[11], krs)
     J = sp.coo_matrix((vals[:nnz], (rows[:nnz], cols[:nnz])), (r.size, r.size)).toarray()
     return W, r.ravel(), P.ravel(), J, c
 
 
 @pytest.fixture(scope="module")
 def increment(rve):
-    """A cell and an increment to a random (w, theta) at F, with random committed forces."""
+    """A cell and an increment to a random (w, theta) at F, with random committed forces and
+    rolling moments."""
     rng = np.random.default_rng(0)
-    cell, N = rve.cell, rve.cell.n_disks
+    cell, N, M = rve.cell, rve.cell.n_disks, rve.cell.pi.shape[0]
     F0 = np.array([[0.99, 0.003], [-0.002, 0.995]])
     w0, th0 = 1e-3 * rng.standard_normal((N, 2)), 1e-2 * rng.standard_normal(N)
-    inc = Increment(F0, w0, th0, 1e3 * rng.standard_normal(cell.pi.shape[0]))
+    reff = cell.radii[cell.pi] * cell.radii[cell.pj] / cell.R
+    mr0 = 1e3 * reff * rng.standard_normal(M)
+    inc = Increment(F0, w0, th0, 1e3 * rng.standard_normal(M), None, mr0)
     F = F0 + np.array([[-0.006, 0.004], [0.001, -0.005]])
     w, th = w0 + 1e-4 * rng.standard_normal((N, 2)), th0 + 1e-3 * rng.standard_normal(N)
     return cell, F, w, th, inc
@@ -97,22 +113,30 @@ def _unknowns(N, k):
     return dw, dth
 
 
-@pytest.mark.parametrize("mu", [1e3, 0.3])
-def test_the_jacobian_and_mixed_terms_are_derivatives(increment, mu):
+@pytest.mark.parametrize("mu, mu_r", [(1e3, 0.0), (0.3, 0.0), (1e3, 1e3), (0.3, 0.1)])
+def test_the_jacobian_and_mixed_terms_are_derivatives(increment, mu, mu_r):
     """dr/dq, dP/dF, dP/dq and dr/dF against central differences, no status changed (mu = 1e3:
-    all stick, then r = dW/dq and P = dW/dF too; mu = 0.3: some slip, non-symmetric)."""
+    all stick, then r = dW/dq and P = dW/dF too; mu = 0.3: some slip, non-symmetric), without
+    and with rolling resistance (mu_r = 1e3: every rolling spring sticks; 0.1: some slip)."""
     cell, F, w, th, inc = increment
     N, h = cell.n_disks, 1e-7
-    _, r, P, J, c = _equations(cell, F, w, th, inc, mu, 0.7 * K_N, True)
-    status = c[8]
+    _, r, P, J, c = _equations(cell, F, w, th, inc, mu, 0.7 * K_N, True, mu_r)
+    status, rolling = c[8], c[11]
     assert (status == contact_law.STICK).any()
     assert (status == contact_law.SLIP).any() == (mu < 1)
+    on = status != contact_law.OPEN
+    if mu_r == 0.0:
+        assert (rolling == contact_law.OPEN).all()
+    else:
+        assert (rolling[on] == contact_law.STICK).any()
+        assert (rolling[on] == contact_law.SLIP).any() == (mu_r < 1)
     dr, dW, dP = np.zeros((3 * N, 3 * N)), np.zeros(3 * N), np.zeros((4, 3 * N))
     for k in range(3 * N):
         dw, dth = _unknowns(N, k)
-        p = _equations(cell, F, w + h * dw, th + h * dth, inc, mu, 0.7 * K_N)
-        m = _equations(cell, F, w - h * dw, th - h * dth, inc, mu, 0.7 * K_N)
-        assert np.array_equal(p[4][8], status) and np.array_equal(m[4][8], status)
+        p = _equations(cell, F, w + h * dw, th + h * dth, inc, mu, 0.7 * K_N, mu_r=mu_r)
+        m = _equations(cell, F, w - h * dw, th - h * dth, inc, mu, 0.7 * K_N, mu_r=mu_r)
+        for side in (p, m):
+            assert np.array_equal(side[4][8], status) and np.array_equal(side[4][11], rolling)
         dW[k], dr[:, k], dP[:, k] = (
             (p[0] - m[0]) / (2 * h),
             (p[1] - m[1]) / (2 * h),
@@ -120,26 +144,16 @@ def test_the_jacobian_and_mixed_terms_are_derivatives(increment, mu):
         )
     assert np.abs(dr - J).max() <= 1e-7 * np.abs(J).max()
     KFF, KFq, KqF = system.mixed(
-        F,
-        *c,
-        cell.pi,
-        cell.pj,
-        cell.R,
-        cell.radii,
-        K_N,
-        0.7 * K_N,
-        mu,
-        1.0,
-        N,
-        np.ones(len(c[0]), bool),
-    )
+        F, *c, cell.pi, cell.pj, cell.R, cell.radii, K_N, 0.7 * K_N, mu, 0.7 * K_N, mu_r, 1.0,
+        N, np.ones(len(c[0]), bool),
+    )  # fmt: skip
     assert np.abs(dP - KFq).max() <= 1e-7 * np.abs(KFq).max()
     dPdF, drdF, dWdF = np.zeros((4, 4)), np.zeros((3 * N, 4)), np.zeros(4)
     for k in range(4):
         dF = np.zeros(4)
         dF[k] = h
-        p = _equations(cell, F + dF.reshape(2, 2), w, th, inc, mu, 0.7 * K_N)
-        m = _equations(cell, F - dF.reshape(2, 2), w, th, inc, mu, 0.7 * K_N)
+        p = _equations(cell, F + dF.reshape(2, 2), w, th, inc, mu, 0.7 * K_N, mu_r=mu_r)
+        m = _equations(cell, F - dF.reshape(2, 2), w, th, inc, mu, 0.7 * K_N, mu_r=mu_r)
         dWdF[k], drdF[:, k], dPdF[:, k] = (
             (p[0] - m[0]) / (2 * h),
             (p[1] - m[1]) / (2 * h),
@@ -148,7 +162,7 @@ def test_the_jacobian_and_mixed_terms_are_derivatives(increment, mu):
     assert np.abs(dPdF - KFF).max() <= 1e-7 * np.abs(KFF).max()
     assert np.abs(drdF - KqF).max() <= 1e-7 * np.abs(KqF).max()
     asym = np.abs(J - J.T).max() / np.abs(J).max()
-    if mu > 1:  # all stick: hyperelastic
+    if mu > 1 and (mu_r == 0.0 or mu_r > 1):  # all stick: hyperelastic
         assert np.abs(dW - r).max() <= 1e-7 * np.abs(r).max()
         assert np.abs(dWdF - P).max() <= 1e-7 * np.abs(P).max()
         assert asym <= 1e-14
@@ -209,8 +223,8 @@ def _brute_force_balance(packing, rve, F, state):
                     force = c.force[k] * n + c.tangential[k] * (r[i] + r[j]) / d * t
                     f[b_] += force
                     f[a_] -= force
-                    M[a_] -= r[a_] * c.tangential[k]
-                    M[b_] -= r[b_] * c.tangential[k]
+                    M[a_] -= r[a_] * c.tangential[k] + c.rolling[k]
+                    M[b_] -= r[b_] * c.tangential[k] - c.rolling[k]
     # every contact of the set is found, but one whose overlap is round-off (~1e-16 of the
     # radii: either side of touching, its force nothing against the balance's 1e-9)
     assert found[c.force > 1e-12 * c.force.mean()].all()
@@ -233,6 +247,15 @@ def test_every_contact_obeys_coulomb(rve, sheared):
     assert np.all(np.abs(c.tangential) <= cap * (1 + 1e-12))
     assert c.sliding.any() and (~c.sliding).any()
     assert np.allclose(np.abs(c.tangential[c.sliding]), cap[c.sliding], rtol=1e-12)
+    # the rolling moments within their caps, some on them (rolling), some inside
+    cap = _rolling_caps(rve, c)
+    assert np.all(np.abs(c.rolling) <= cap * (1 + 1e-12))
+    if rve.rolling_friction == 0.0:
+        assert not c.rolling.any()
+    else:
+        on_cap = np.abs(c.rolling) >= cap * (1 - 1e-12)
+        carry = c.force > 1e-12 * c.force.mean()
+        assert on_cap[carry].any() and (~on_cap[carry]).any()
 
 
 def test_the_dissipation_of_every_increment_is_not_negative(rve):
@@ -261,13 +284,16 @@ def _differences(rve, F, committed, h=1e-7):
 
 
 def _sliding(rve, F, committed):
-    """{(i, j, image): sliding} of the contacts at F that carry a force (a rattler's last
-    contact relaxes to a round-off overlap, on either side of touching)."""
+    """{(i, j, image): (sliding, rolling on its cap)} of the contacts at F that carry a force
+    (a rattler's last contact relaxes to a round-off overlap, on either side of touching)."""
     c = rve.contacts(F, committed)
     carry = c.force > 1e-12 * c.force.mean()
+    rolls = np.abs(c.rolling) >= _rolling_caps(rve, c) * (1 - 1e-12)
     return {
-        (int(i), int(j), int(s0), int(s1)): bool(slide)
-        for (i, j), (s0, s1), slide in zip(c.pairs[carry], c.shift[carry], c.sliding[carry])
+        (int(i), int(j), int(s0), int(s1)): (bool(slide), bool(roll))
+        for (i, j), (s0, s1), slide, roll in zip(
+            c.pairs[carry], c.shift[carry], c.sliding[carry], rolls[carry]
+        )
     }
 
 
@@ -280,7 +306,9 @@ def test_the_tangent_is_the_derivative_of_the_stress_within_a_substep(rve, shear
     status = _sliding(rve, F, committed)
     dP, moved = _differences(rve, F, committed)
     assert all(_sliding(rve, G, committed) == status for G in moved)
-    assert any(status.values())
+    assert any(slide for slide, _ in status.values())
+    if rve.rolling_friction > 0.0:
+        assert any(roll for _, roll in status.values())
     assert np.abs(dP - A).max() <= 1e-5 * np.abs(A).max()
     A4 = A.reshape(4, 4)
     assert np.abs(A4 - A4.T).max() > 1e-4 * np.abs(A4).max()  # slip: not symmetric
@@ -310,11 +338,12 @@ def test_a_superposed_rotation_rotates_everything(rve, sheared):
         assert np.abs(np.angle(np.exp(1j * (turn - alpha)))).max() <= 1e-9
         # the same forces by pair and image (a rattler's contact at zero overlap may be open
         # in one and closed in the other: its force is nil)
-        a = dict(zip(rotated.keys.tolist(), rotated.force))
-        b = dict(zip(state.keys.tolist(), state.force))
-        small = 1e-9 * np.abs(state.force).max()
-        for key in a.keys() | b.keys():
-            assert abs(a.get(key, 0.0) - b.get(key, 0.0)) <= 1e-8 * abs(b.get(key, 0.0)) + small
+        for field in ("force", "rolling"):  # (and rolling moments)
+            a = dict(zip(rotated.keys.tolist(), getattr(rotated, field)))
+            b = dict(zip(state.keys.tolist(), getattr(state, field)))
+            small = 1e-9 * np.abs(getattr(state, field)).max()
+            for key in a.keys() | b.keys():
+                assert abs(a.get(key, 0.0) - b.get(key, 0.0)) <= 1e-8 * abs(b.get(key, 0.0)) + small
 
 
 def test_a_triangular_lattice_does_not_move():
@@ -350,3 +379,58 @@ def test_a_rotation_nothing_resists_does_not_change_the_tangent(rve, sheared):
     A2, dq2 = condensation(rve.cell, rve.springs, F_TWO, eq.state, free_rotation=1e3)
     assert np.abs(A2 - A1).max() <= 1e-10 * np.abs(A1).max()
     assert np.abs(dq2 - dq1).max() <= 1e-8 * np.abs(dq1).max()
+
+
+# -- rolling resistance ---------------------------------------------------------------------------
+
+
+def test_without_rolling_friction_the_law_is_the_one_without_it(packing):
+    """mu_r = 0: the rolling stiffness changes nothing, bit for bit, and no moment is stored;
+    a small mu_r moves P by about its own size (the law is continuous in mu_r)."""
+    answers = []
+    for mu_r, beta in ((0.0, 1.0), (0.0, 7.0), (1e-6, 1.0)):
+        rve = FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.3, rolling_friction=mu_r,
+                                   rolling_stiffness=beta)  # fmt: skip
+        committed = rve.evaluate(F_ONE, rve.initial_state(1))[3]
+        answers.append(rve.evaluate(F_TWO, committed))
+    (W0, P0, A0, s0), (W1, P1, A1, s1), (_, P2, _, s2) = answers
+    assert W0 == W1 and np.array_equal(P0, P1) and np.array_equal(A0, A1) and s0.equals(s1)
+    assert not s0.rolling.any() and s2.rolling.any()
+    assert 0.0 < np.abs(P2 - P0).max() <= 1e-4 * np.abs(P0).max()
+
+
+def test_rolling_resistance_without_sliding_friction_changes_nothing(packing):
+    """mu = 0, mu_r > 0: normal forces pass through the centres, so nothing turns a disk
+    against another and no rolling spring is loaded: P and A are the frictionless relaxed
+    RVE's (computed here by the frictional solver, every rotation held by its sticking rolling
+    springs)."""
+    rve = FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.0, rolling_friction=0.2,
+                               force_tol=1e-12)  # fmt: skip
+    committed = rve.evaluate(F_ONE, rve.initial_state(1))[3]
+    _, P, A, state = rve.evaluate(F_TWO, committed)
+    c = rve.contacts(F_TWO, state)
+    assert not c.tangential.any() and not c.rolling.any()
+    assert np.ptp(state.theta) <= 1e-15  # (all turn alike: with F's polar rotation)
+    frictionless = RelaxedRVE(packing, K_N, force_tol=1e-12)
+    before = frictionless.evaluate(F_ONE, frictionless.initial_state(1))[3]
+    _, P0, A0, _ = frictionless.evaluate(F_TWO, before)
+    assert np.abs(P - P0).max() <= 1e-9 * np.abs(P0).max()
+    assert np.abs(A - A0).max() <= 1e-7 * np.abs(A0).max()
+
+
+def test_rolling_resistance_needs_its_springs(packing):
+    with pytest.raises(ValueError, match="tangential_stiffness must be > 0"):
+        FrictionalRelaxedRVE(packing, K_N, 0.0, friction=0.0, rolling_friction=0.1)
+    with pytest.raises(ValueError, match="rolling_stiffness must be > 0"):
+        FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.3, rolling_friction=0.1,
+                             rolling_stiffness=0.0)  # fmt: skip
+
+
+def test_a_state_without_rolling_moments_loads_with_none(rve, sheared):
+    """A state written before rolling resistance existed (no ``rolling`` array) loads, with
+    zero moments."""
+    (_, _, _, state), _ = sheared
+    arrays = state.to_arrays()
+    del arrays["rolling"]
+    old = FrictionalRelaxedState.from_arrays(arrays)
+    assert old.rolling.shape == state.force.shape and not old.rolling.any()

@@ -32,7 +32,7 @@ def start():
 def _arguments(rve, inc, F):
     cell = rve.cell
     return (
-        (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, inc.forces(cell.pi.shape[0])),
+        inc.arrays(cell.pi.shape[0]),
         nk.cell_arrays(cell),
         nk.spring_arrays(rve.springs),
     )
@@ -105,17 +105,19 @@ def test_a_start_that_grows_the_list_is_solved_with_a_force_for_every_candidate(
 
 
 def test_a_missing_committed_force_is_refused(start):
-    """The compiled loop reads the committed forces by candidate index: a list of forces
-    shorter than the candidates' is an error, not a read past its end."""
+    """The compiled loop reads the committed forces and rolling moments by candidate index: a
+    list shorter than the candidates' is an error, not a read past its end."""
     rve, inc, w, th = start
     cell = rve.cell
     F_smin = float(np.linalg.svd(F2, compute_uv=False)[-1])
     pattern, lu = _pattern(cell, cell.pi.shape[0])
     args = list(_arguments(rve, inc, F2))
-    args[0] = args[0][:3] + (args[0][3][: cell.pi.shape[0] - 1],)
-    with pytest.raises(ValueError, match="committed tangential force is missing"):
-        nk.newton(F2, F_smin, w, th, *args, cell.geometry(), cell.verlet(), pattern, lu, 1e-10,
-                  60, np.empty(100), np.zeros(4, np.int64))  # fmt: skip
+    full = args[0]
+    for short in (3, 4):  # (a tangential force, a rolling moment)
+        args[0] = tuple(a[:-1] if k == short else a for k, a in enumerate(full))
+        with pytest.raises(ValueError, match=r"rolling moment\) is missing for a candidate"):
+            nk.newton(F2, F_smin, w, th, *args, cell.geometry(), cell.verlet(), pattern, lu,
+                      1e-10, 60, np.empty(100), np.zeros(4, np.int64))  # fmt: skip
 
 
 def test_solve_counts_what_it_did(start):
@@ -142,8 +144,10 @@ def test_newtons_step_turns_an_all_slipping_disk_back_into_the_cone():
     fstar = np.array([-10.0, 8.0])  # (caps 2 and 3: both far outside the cone)
     r = np.zeros((3, 3))
     r[0, 2] = 0.5
-    args = (status, np.ones(2, bool), np.ones(3, bool), pi, pj, radii, r, fstar, e, kn, kt, mu,
-            inv_area, 1, 1.0, cell_state.RATTLER_SHIFT)  # fmt: skip
+    no_rolling = np.zeros(2, np.int8)
+    args = (status, no_rolling, np.ones(2, bool), np.ones(3, bool), pi, pj, radii, r, fstar,
+            np.zeros(2), e, kn, kt, mu, 0.0, 0.0, inv_area, 1, 1.0,
+            cell_state.RATTLER_SHIFT)  # fmt: skip
     newton_diag = cell_state.diagonal(*args, False, 1.0)
     turn = -r[0, 2] / newton_diag[2]
     assert fstar[0] - kt * radii[0] * turn == pytest.approx(-(1 - cell_state.DEPTH) * 2.0)

@@ -40,7 +40,7 @@ def _start(committed, F):
 
 def _state(rve, inc, F, w, th):
     cell = rve.cell
-    arrays = (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, inc.forces(cell.pi.shape[0]))
+    arrays = inc.arrays(cell.pi.shape[0])
     return nk.cell_state(F, w, th, arrays, nk.cell_arrays(cell), nk.spring_arrays(rve.springs),
                          cell.visited(F, w))  # fmt: skip
 
@@ -58,7 +58,8 @@ def test_the_residual_is_the_gradient_of_the_potential_with_frozen_caps(committe
 
     def potential(t):
         k = _state(rve, inc, HARD, w + t * d[:, :2], th + t * d[:, 2])
-        return system.potential(k[5], k[7], caps, sp.kn, sp.kt)
+        z = np.zeros(0)
+        return system.potential(k[5], k[7], caps, sp.kn, sp.kt, z, z, z)
 
     slope = (potential(h) - potential(-h)) / (2 * h)
     assert slope == pytest.approx((s[14] * d).sum() / sp.inv_area, rel=1e-6)

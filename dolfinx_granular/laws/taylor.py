@@ -72,6 +72,9 @@ class ContactSet:
             t = (-n_y, n_x), n the unit branch vector from i to j (N per unit thickness);
             None for the other laws.
         sliding: (m,) bool, True where the contact slips; None for the other laws.
+        rolling: (m,) for a frictional relaxed RVE, the rolling moment (couple) on j,
+            counter-clockwise positive (N m per unit thickness; i feels the opposite; zero
+            without rolling resistance); None for the other laws.
     """
 
     pairs: np.ndarray
@@ -81,6 +84,7 @@ class ContactSet:
     force: np.ndarray
     tangential: np.ndarray | None = None
     sliding: np.ndarray | None = None
+    rolling: np.ndarray | None = None
 
 
 def _user_stacklevel() -> int:

@@ -41,6 +41,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .rolling import rolling_map
+
 #: a contact's status in :func:`return_map`
 OPEN, STICK, SLIP = 0, 1, 2
 
@@ -68,18 +70,24 @@ def sliding(F, w, th, F0, w0, th0, i, j, X, Y, ri, rj, lx, ly):
 
 
 @njit(cache=True)
-def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu):
+def return_map(F, w, th, F0, w0, th0, ft0, mr0, pi, pj, X, Y, R, radii, m, kn, kt, mu, kr,
+               mu_r):  # fmt: skip
     """The contacts of the first m candidates at (F, w, theta) after the increment from the
-    committed (F0, w0, theta0) with tangential forces ft0 (>= m,) (N; zero for a new contact).
+    committed (F0, w0, theta0) with tangential forces ft0 and rolling moments mr0 (>= m,) (N,
+    N m; zero for a new contact), the rolling springs ``kr`` = beta k_t and ``mu_r``
+    (:mod:`.rolling`).
 
     Returns:
-        ``(qx, qy, lx, ly, d, e, ft, fstar, status)``, each (m,): the branches, the overlap, the
-        new tangential force f_t and the trial f* (N), and OPEN / STICK / SLIP.
+        ``(qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus)``, each (m,): the
+        branches, the overlap, the new tangential force f_t and the trial f* (N), OPEN / STICK /
+        SLIP, and the same for the rolling moment (OPEN everywhere without rolling resistance).
     """
     qx, qy, lx, ly = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     d, e = np.empty(m), np.empty(m)
     ft, fstar = np.zeros(m), np.zeros(m)
     status = np.zeros(m, np.int8)
+    mr, mstar = np.zeros(m), np.zeros(m)
+    rstatus = np.zeros(m, np.int8)
     for c in range(m):
         i, j = pi[c], pj[c]
         x = X[c] + w[j, 0] - w[i, 0]
@@ -99,7 +107,10 @@ def return_map(F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
             ft[c], status[c] = fs, STICK
         else:
             ft[c], status[c] = (cap if fs >= 0.0 else -cap), SLIP
-    return qx, qy, lx, ly, d, e, ft, fstar, status
+        mr[c], mstar[c], rstatus[c] = rolling_map(
+            th, th0, mr0[c], i, j, radii[i], radii[j], e[c], kn, kr, mu_r
+        )
+    return qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus
 
 
 @njit(cache=True)

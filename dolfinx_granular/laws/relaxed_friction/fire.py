@@ -32,9 +32,9 @@ def fire_chunk(F, Finv, u, th, v, inc_arrays, geo, law, m, params, n_steps, tol)
     place. Stops where every net force is at most ``tol`` of the mean normal force and every
     moment ``tol`` of it times the mean radius (CONVERGED), or where no two disks touch
     (UNJAMMED). Returns ``(status, steps taken)``."""
-    F0, w0, th0, ft0 = inc_arrays
+    F0, w0, th0, ft0, mr0 = inc_arrays
     pi, pj, X, Y, R, radii = geo
-    kn, kt, mu = law
+    kn, kt, mu, kr, mu_r = law
     N = radii.shape[0]
     mean_r = radii.mean()
     inertia = 0.5 * radii * radii
@@ -45,10 +45,10 @@ def fire_chunk(F, Finv, u, th, v, inc_arrays, geo, law, m, params, n_steps, tol)
         for i in range(N):
             w[i, 0] = Finv[0, 0] * u[i, 0] + Finv[0, 1] * u[i, 1]
             w[i, 1] = Finv[1, 0] * u[i, 0] + Finv[1, 1] * u[i, 1]
-        _, _, lx, ly, d, e, ft, _, _ = return_map(
-            F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
+        _, _, lx, ly, d, e, ft, _, _, mr, _, _ = return_map(
+            F, w, th, F0, w0, th0, ft0, mr0, pi, pj, X, Y, R, radii, m, kn, kt, mu, kr, mu_r
         )
-        f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, N)
+        f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, mr, R, radii, kn, N)
         if count == 0:
             params[0], params[1], params[2] = dt, alpha, since
             return UNJAMMED, step
@@ -99,11 +99,11 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
     # disk's stiffness reaches ~ z (k_n + k_t), so explicit steps stay below ~2 / sqrt(that)
     dt_max = 0.5 / np.sqrt(springs.kn + springs.kt)
     params = np.array([0.1 * dt_max, 0.1, 0.0, dt_max])
-    law = (springs.kn, springs.kt, springs.mu)
+    law = (springs.kn, springs.kt, springs.mu, springs.kr, springs.mu_r)
     steps, best = 0, (np.inf, w, th)
     while steps < settings.fire_steps:
         m = cell.visited(F, u @ Finv.T)
-        inc_arrays = (inc.F0, inc.w0, inc.th0, inc.forces(cell.pi.shape[0]))
+        inc_arrays = inc.arrays(cell.pi.shape[0])
         geo = (cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii)
         status, taken = fire_chunk(
             F, Finv, u, th, v, inc_arrays, geo, law, m, params,

@@ -36,10 +36,11 @@ class FrictionalRelaxedRVE:
     Args:
         packing: the reference microstructure (e.g. a confined packing).
         normal_stiffness: k_n > 0 (N/m²).
-        tangential_stiffness: k_t > 0 (N/m²) where friction > 0.
-        friction: Coulomb coefficient mu >= 0. With mu = 0 no contact carries a tangential
-            force and nothing resists a rotation: the point is the frictionless
-            :class:`~dolfinx_granular.RelaxedRVE`'s, computed by it (the rotations stay).
+        tangential_stiffness: k_t > 0 (N/m²) where friction or rolling_friction > 0.
+        friction: Coulomb coefficient mu >= 0. With mu = 0 (and rolling_friction = 0) no
+            contact carries a tangential force and nothing resists a rotation: the point is
+            the frictionless :class:`~dolfinx_granular.RelaxedRVE`'s, computed by it (the
+            rotations stay).
         min_stretch: smallest singular value of F supported (the candidates' reach).
         force_tol: equilibrium when every net force is at most this times the mean contact
             force, and every net moment this times the mean contact force times the mean
@@ -48,10 +49,17 @@ class FrictionalRelaxedRVE:
             also at most a quarter of the mean overlap over the mean radius sum (part of the
             model: each substep is one increment of the contact law,
             :class:`~dolfinx_granular.laws.relaxed_friction.settings.Settings`).
+        rolling_friction: mu_r >= 0, rolling resistance: every contact also carries a rolling
+            moment, a spring on the disks' relative rotation capped at mu_r r_eff f_n
+            (r_eff = r_i r_j / (r_i + r_j); Iwashita & Oda, LIGGGHTS' epsd2;
+            :mod:`~dolfinx_granular.laws.relaxed_friction.rolling`). 0: none (the law
+            without it, bit for bit).
+        rolling_stiffness: beta > 0, the rolling spring k_r = beta k_t r_eff^2 (1: epsd2's).
 
     The contact law is :class:`~dolfinx_granular.FrictionalRVE`'s: k_n, k_t, the cap mu f_n,
     sliding measured with lever arms r_i, r_j (:mod:`.contact_law`); W is the stored energy
-    sum [k_n e^2 / 2 + f_t^2 / (2 k_t)] / V, P and A per reference area (Pa), A = dP/dF at
+    sum [k_n e^2 / 2 + f_t^2 / (2 k_t) + m_r^2 / (2 k_r)] / V, P and A per reference area
+    (Pa), A = dP/dF at
     fixed committed history (not symmetric where contacts slip).
     """
 
@@ -66,15 +74,25 @@ class FrictionalRelaxedRVE:
         min_stretch: float = 0.5,
         force_tol: float = 1e-10,
         substep: float = 1e-3,
+        rolling_friction: float = 0.0,
+        rolling_stiffness: float = 1.0,
     ) -> None:
         self._frictionless = RelaxedRVE(packing, normal_stiffness, min_stretch, force_tol)
         kt = non_negative(tangential_stiffness, "tangential_stiffness", " (N/m²)")
         mu = non_negative(friction, "friction")
-        if mu > 0.0 and kt == 0.0:
+        mu_r = non_negative(rolling_friction, "rolling_friction")
+        beta = non_negative(rolling_stiffness, "rolling_stiffness")
+        if (mu > 0.0 or mu_r > 0.0) and kt == 0.0:
             raise ValueError(
-                "tangential_stiffness must be > 0 where friction > 0 (a contact without a "
-                "tangential spring has no stick state); pass e.g. tangential_stiffness = "
-                "normal_stiffness"
+                "tangential_stiffness must be > 0 where friction or rolling_friction > 0 (a "
+                "contact without a tangential spring has no stick state); pass e.g. "
+                "tangential_stiffness = normal_stiffness"
+            )
+        if mu_r > 0.0 and beta == 0.0:
+            raise ValueError(
+                "rolling_stiffness must be > 0 where rolling_friction > 0 (the rolling spring "
+                "k_r = rolling_stiffness k_t r_eff^2 has no stick state without it); the usual "
+                "value is 1 (LIGGGHTS' epsd2)"
             )
         step = to_float(substep, "substep")
         if not (np.isfinite(step) and step > 0.0):
@@ -83,11 +101,18 @@ class FrictionalRelaxedRVE:
         self.normal_stiffness = self._frictionless.normal_stiffness
         self.tangential_stiffness = kt
         self.friction = mu
+        self.rolling_friction = mu_r
+        self.rolling_stiffness = beta
         self.min_stretch = self._frictionless.min_stretch
         self.candidates = self._frictionless.candidates
         self.cell = self._frictionless.cell
         self.settings = Settings(force_tol=self._frictionless.settings.force_tol, substep=step)
-        self.springs = Springs(self.normal_stiffness, kt, mu, 1.0 / packing.area)
+        self.springs = Springs(self.normal_stiffness, kt, mu, 1.0 / packing.area, beta * kt, mu_r)
+
+    @property
+    def _without_friction(self) -> bool:
+        """Neither sliding nor rolling friction: the frictionless relaxed RVE's points."""
+        return self.friction == 0.0 and self.rolling_friction == 0.0
 
     # -- states ----------------------------------------------------------------------------------
 
@@ -97,17 +122,18 @@ class FrictionalRelaxedRVE:
         z = np.zeros
         return FrictionalRelaxedState(
             z((n, N, 2)), z((n, N)), np.tile(np.eye(2), (n, 1, 1)), z((n, N, 3, 4)), z(n),
-            z(n), z(n + 1, np.int64), z(0, np.int64), z(0), z(0, bool),
+            z(n), z(n + 1, np.int64), z(0, np.int64), z(0), z(0, bool), z(0),
         )  # fmt: skip
 
     def increment(self, state: FrictionalRelaxedState, q: int) -> Increment:
         """Point q of ``state`` as the committed side of an increment (its tangential forces
-        by this RVE's candidates)."""
-        keys, forces, _ = state.contacts(q)
+        and rolling moments by this RVE's candidates)."""
+        keys, forces, _, moments = state.contacts(q)
         idx = self.cell.index_of(keys)
-        ft0 = np.zeros(self.cell.pi.shape[0])
+        ft0, mr0 = np.zeros(self.cell.pi.shape[0]), np.zeros(self.cell.pi.shape[0])
         ft0[idx] = forces
-        return Increment(state.F[q].copy(), state.w[q], state.theta[q], ft0)
+        mr0[idx] = moments
+        return Increment(state.F[q].copy(), state.w[q], state.theta[q], ft0, None, mr0)
 
     # -- one point -------------------------------------------------------------------------------
 
@@ -146,14 +172,15 @@ class FrictionalRelaxedRVE:
         W, P, A = output_buffers(n, tangent, out)
         w, th = np.empty_like(state.w), state.theta.copy()
         dq, D = np.empty_like(state.sensitivity), state.dissipation.copy()
-        keys, forces, sliding = [], [], []
+        keys, forces, sliding, moments = [], [], [], []
         for q in range(n):
             try:
-                if self.friction == 0.0:
+                if self._without_friction:
                     W[q], P[q], a, w[q], dq[q] = self._frictionless_point(F[q], state, q, tangent)
                     keys.append(np.zeros(0, np.int64))
                     forces.append(np.zeros(0))
                     sliding.append(np.zeros(0, bool))
+                    moments.append(np.zeros(0))
                 else:
                     eq, dissipated = self.equilibrium(F[q], state, q, tangent)
                     W[q], P[q], a, w[q], th[q], dq[q] = (
@@ -165,10 +192,11 @@ class FrictionalRelaxedRVE:
                         eq.sensitivity,
                     )
                     D[q] += dissipated
-                    k, f, slips = self._history(eq, state, q, F[q])
+                    k, f, slips, mr = self._history(eq, state, q, F[q])
                     keys.append(k)
                     forces.append(f)
                     sliding.append(slips)
+                    moments.append(mr)
             except RelaxationError as err:
                 raise type(err)(f"point {q}: {err}", np.array([q])) from None
             if tangent:
@@ -181,19 +209,21 @@ class FrictionalRelaxedRVE:
             np.concatenate(keys) if keys else np.zeros(0, np.int64),
             np.concatenate(forces) if forces else np.zeros(0),
             np.concatenate(sliding) if sliding else np.zeros(0, bool),
+            np.concatenate(moments) if moments else np.zeros(0),
         )  # fmt: skip
         if single:
             return W[0], P[0], (A[0] if tangent else None), new
         return W, P, A, new
 
     def _history(self, eq: Equilibrium, state, q, F) -> tuple:
-        """``(keys, tangential forces, sliding)`` of the contacts of an equilibrium of point q
-        (at its committed F: the committed contacts, which slid in the increment to it)."""
+        """``(keys, tangential forces, sliding, rolling moments)`` of the contacts of an
+        equilibrium of point q (at its committed F: the committed contacts, which slid in the
+        increment to it)."""
         s, c = eq.state, self.cell
         on = np.flatnonzero(s.on)
         keys = c.keys_of(c.pi[on], c.pj[on], np.asarray(c.shift)[on])
         if np.array_equal(F, state.F[q]):
-            committed, _, slid = state.contacts(q)
+            committed, _, slid, _ = state.contacts(q)
             sliding = np.zeros(on.size, bool)
             if committed.size:
                 order = np.argsort(committed)
@@ -201,8 +231,8 @@ class FrictionalRelaxedRVE:
                     np.minimum(np.searchsorted(committed, keys, sorter=order), order.size - 1)
                 ]
                 sliding = (committed[k] == keys) & slid[k]
-            return keys, s.ft[on].copy(), sliding
-        return keys, s.ft[on].copy(), s.status[on] == SLIP
+            return keys, s.ft[on].copy(), sliding, s.mr[on].copy()
+        return keys, s.ft[on].copy(), s.status[on] == SLIP, s.mr[on].copy()
 
     def evaluate(self, F: ArrayLike, state: FrictionalRelaxedState, out: tuple | None = None):
         """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F from the committed
@@ -239,17 +269,18 @@ class FrictionalRelaxedRVE:
     def contacts(self, F: ArrayLike, state: FrictionalRelaxedState) -> ContactSet:
         """The contacts (overlap > 0) of one point of ``state`` at F (2, 2) after its
         increment, with ``tangential`` (the force on j along t = (-n_y, n_x), = -f_t; the
-        balance of forces takes it times R / d) and ``sliding``."""
+        balance of forces takes it times R / d), ``sliding`` and ``rolling`` (the couple on
+        j)."""
         F = np.asarray(F, dtype=np.float64)
         if F.shape != (2, 2) or state.n_points != 1:
             raise ValueError(
                 f"contacts() takes one F of shape (2, 2) and a one-point state, got F of shape "
                 f"{F.shape} and {state.n_points} points (state.take([i]) selects one)"
             )
-        if self.friction == 0.0:
+        if self._without_friction:
             c = self._frictionless.contacts(F, self._frictionless_state(state))
             zero = np.zeros(c.force.shape[0])
-            return ContactSet(c.pairs, c.shift, c.branch, c.overlap, c.force, zero, zero > 0)
+            return ContactSet(c.pairs, c.shift, c.branch, c.overlap, c.force, zero, zero > 0, zero)
         eq = self.equilibrium(F, state, 0, False)[0]
         s = eq.state
         on = np.flatnonzero(s.on)
@@ -263,6 +294,7 @@ class FrictionalRelaxedRVE:
             force=self.normal_stiffness * s.e[on],
             tangential=-s.ft[on],
             sliding=sliding,
+            rolling=s.mr[on].copy(),
         )
 
     def _frictionless_state(self, state):

@@ -19,6 +19,7 @@ from ..tools import singular_values_2x2
 from .block_lu import BlockLU, assemble, numeric, refined_solve
 from .cell_state import RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal, holding
 from .contact_law import OPEN, SLIP, STICK, return_map
+from .rolling import radius
 from .system import EXACT, SKIPPED, balance, equations
 
 #: longest move of a disk in one step (its centre, or its surface by turning), relative to the
@@ -45,21 +46,22 @@ STALLED, NO_DESCENT, GROW_LIST, BEYOND_PATTERN, SINGULAR_PIVOT = 1, 2, 3, 4, 5
 def cell_state(F, w, th, inc, cell, springs, m):
     """The return map and balance at (F, w, theta) over the first m candidates, as
     :class:`~dolfinx_granular.laws.relaxed_friction.cell_state.CellState`: ``(qx, qy, lx, ly,
-    d, e, ft, fstar, status, keep, f, M, mean_force, count, r)``."""
-    F0, w0, th0, ft0 = inc
+    d, e, ft, fstar, status, keep, f, M, mean_force, count, r, mr, mstar, rstatus)``."""
+    F0, w0, th0, ft0, mr0 = inc
     pi, pj, X, Y, R, radii = cell
-    kn, kt, mu, inv_area = springs
+    kn, kt, mu, inv_area, kr, mu_r = springs
     N = radii.shape[0]
-    qx, qy, lx, ly, d, e, ft, fstar, status = return_map(
-        F, w, th, F0, w0, th0, ft0, pi, pj, X, Y, R, radii, m, kn, kt, mu
+    qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus = return_map(
+        F, w, th, F0, w0, th0, ft0, mr0, pi, pj, X, Y, R, radii, m, kn, kt, mu, kr, mu_r
     )
     keep = holding(pi, pj, e, N)
-    f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, N)
+    f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, mr, R, radii, kn, N)
     none = np.empty(0, np.int64)
-    r, _, _ = equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt,
-                        mu, inv_area, N, np.zeros(m, np.int8), False, none, none,
-                        np.empty(0))  # fmt: skip
-    return qx, qy, lx, ly, d, e, ft, fstar, status, keep, f, M, mean_force, count, r
+    r, _, _ = equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj,
+                        R, radii, kn, kt, mu, kr, mu_r, inv_area, N, np.zeros(m, np.int8), False,
+                        none, none, np.empty(0))  # fmt: skip
+    return (qx, qy, lx, ly, d, e, ft, fstar, status, keep, f, M, mean_force, count, r, mr, mstar,
+            rstatus)  # fmt: skip
 
 
 @njit(cache=True)
@@ -110,7 +112,8 @@ def step_limit(F, dq, radii, R_min, max_step):
 @njit(cache=True)
 def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, shift=0.0):
     """The Jacobian at s assembled and factorised on the block LU: ``(code, held (3N,),
-    statuses)``, code 0, BEYOND_PATTERN or SINGULAR_PIVOT. Newton's (``tangent`` False): every
+    statuses (2m,): the sliding's, then the rolling's)``, code 0, BEYOND_PATTERN or
+    SINGULAR_PIVOT. Newton's (``tangent`` False): every
     contact, contacts near the cone's edge within ``edge`` of their cap taking the other side's,
     the pinned disk's translation held. The tangent's: the network's contacts, the rattlers'
     unknowns held too. ``free_rotation`` scales the diagonal of the rotations no sticking contact
@@ -118,12 +121,15 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, sh
     ``shift`` k_n / V to every translation's diagonal and ``shift`` k_n r^2 / V to every
     rotation's (the pseudo-time steps of :mod:`.pseudo_time`)."""
     pi, pj, X, Y, R, radii = cell
-    kn, kt, mu, inv_area = springs
+    kn, kt, mu, inv_area, kr, mu_r = springs
     n, _, diag_slot, pair_slot, pair_flip, cover, Ap, Ai, Lp, Li, Rp, Rc, Rq = pattern
     values, Lx, Ux, Dinv = lu
-    qx, qy, lx, ly, d, e, ft, fstar, status, keep, _, _, _, _, r = s
+    qx, qy, lx, ly, d, e, ft, fstar, status, keep, _, _, _, _, r, mr, mstar, rstatus = s
     N, m = radii.shape[0], status.shape[0]
-    status = _edge_flipped(status, e, fstar, mu * kn, edge)
+    rcaps = _rolling_caps(pi, pj, radii, e, kn, mu_r)
+    status = _edge_flipped(status, fstar, mu * kn * e, edge)
+    rstatus = _edge_flipped(rstatus, mstar, rcaps, edge)
+    statuses = np.concatenate((status, rstatus))
     network = np.zeros(m, np.bool_)
     mode = np.full(m, EXACT, np.int8)
     sum_e, n_on = 0.0, 0
@@ -135,16 +141,17 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, sh
             if tangent and not network[c]:
                 mode[c] = SKIPPED
             elif c >= cover:
-                return BEYOND_PATTERN, np.zeros(3 * N, np.bool_), status
+                return BEYOND_PATTERN, np.zeros(3 * N, np.bool_), statuses
     contacts = np.flatnonzero((status != OPEN) & (mode == EXACT))
     rows, cols = np.empty(36 * contacts.size, np.int64), np.empty(36 * contacts.size, np.int64)
     vals = np.empty(36 * contacts.size)
-    equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu,
-              inv_area, N, mode, True, rows, cols, vals)  # fmt: skip
+    equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj, R, radii,
+              kn, kt, mu, kr, mu_r, inv_area, N, mode, True, rows, cols, vals)  # fmt: skip
     pinned = np.argmax(keep)
     reach = RATTLER_REACH * sum_e / n_on
-    diag = diagonal(status, network, keep, pi[:m], pj[:m], radii, r, fstar, e, kn, kt, mu,
-                    inv_area, pinned, reach, RATTLER_SHIFT, tangent, free_rotation)  # fmt: skip
+    diag = diagonal(status, rstatus, network, keep, pi[:m], pj[:m], radii, r, fstar, mstar, e,
+                    kn, kt, mu, kr, mu_r, inv_area, pinned, reach, RATTLER_SHIFT, tangent,
+                    free_rotation)  # fmt: skip
     if shift > 0.0:
         for k in range(N):
             diag[3 * k] += shift * kn * inv_area
@@ -159,26 +166,35 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, sh
     assemble(n, diag_slot, pair_slot, pair_flip, pi, pj, contacts, vals.reshape(-1, 6, 6), held,
              diag, values)  # fmt: skip
     if not numeric(n, Ap, Ai, values, Lp, Li, Rp, Rc, Rq, Lx, Ux, Dinv):
-        return SINGULAR_PIVOT, held, status
-    return 0, held, status
-
-
-@njit(cache=True, inline="always")
-def _at_edge(status, e, fstar, mu_kn, edge):
-    """A sticking or slipping contact whose trial force lies within ``edge`` of its cap
-    mu k_n e from the cone's edge."""
-    cap = mu_kn * e
-    return (status == STICK or status == SLIP) and abs(abs(fstar) - cap) <= edge * cap
+        return SINGULAR_PIVOT, held, statuses
+    return 0, held, statuses
 
 
 @njit(cache=True)
-def _edge_flipped(status, e, fstar, mu_kn, edge):
-    """A copy of the statuses, the contacts :func:`_at_edge` turned to the other side (none
+def _rolling_caps(pi, pj, radii, e, kn, mu_r):
+    """(m,) the rolling moments' caps mu_r r_eff k_n e (:mod:`.rolling`)."""
+    caps = np.zeros(e.shape[0])
+    if mu_r > 0.0:
+        for c in range(e.shape[0]):
+            caps[c] = mu_r * radius(radii[pi[c]], radii[pj[c]]) * kn * max(e[c], 0.0)
+    return caps
+
+
+@njit(cache=True, inline="always")
+def _at_edge(status, trial, cap, edge):
+    """A sticking or slipping spring whose trial force (or moment) lies within ``edge`` of its
+    cap from the cap's edge."""
+    return (status == STICK or status == SLIP) and abs(abs(trial) - cap) <= edge * cap
+
+
+@njit(cache=True)
+def _edge_flipped(status, trial, caps, edge):
+    """A copy of the statuses, the springs :func:`_at_edge` turned to the other side (none
     for edge = 0)."""
     out = status.copy()
     if edge > 0.0:
         for c in range(status.shape[0]):
-            if _at_edge(status[c], e[c], fstar[c], mu_kn, edge):
+            if _at_edge(status[c], trial[c], caps[c], edge):
                 out[c] = SLIP if status[c] == STICK else STICK
     return out
 
@@ -189,8 +205,8 @@ def cell_arrays(cell) -> tuple:
 
 
 def spring_arrays(springs) -> tuple:
-    """``(k_n, k_t, mu, 1 / V)``."""
-    return springs.kn, springs.kt, springs.mu, springs.inv_area
+    """``(k_n, k_t, mu, 1 / V, kr, mu_r)``."""
+    return springs.kn, springs.kt, springs.mu, springs.inv_area, springs.kr, springs.mu_r
 
 
 def pattern_arrays(p, cover) -> tuple:
@@ -250,14 +266,24 @@ def _same(a, b):
 
 
 @njit(cache=True)
-def _near_edge(s, mu, kn, edge):
-    """Some sticking or slipping contact of s has its trial force within ``edge`` of its cap
-    from the cone's edge."""
-    e, fstar, status = s[5], s[7], s[8]
+def _near_edge(s, cell, springs, edge):
+    """Some sticking or slipping contact of s has its trial force (or rolling moment) within
+    ``edge`` of its cap from the cap's edge."""
+    e, fstar, status, mstar, rstatus = s[5], s[7], s[8], s[16], s[17]
+    kn, _, mu, _, _, mu_r = springs
+    rcaps = _rolling_caps(cell[0], cell[1], cell[5], e, kn, mu_r)
     for c in range(status.shape[0]):
-        if _at_edge(status[c], e[c], fstar[c], mu * kn, edge):
+        if _at_edge(status[c], fstar[c], mu * kn * e[c], edge) or _at_edge(
+            rstatus[c], mstar[c], rcaps[c], edge
+        ):
             return True
     return False
+
+
+@njit(cache=True)
+def _statuses(s):
+    """(2m,) the sliding statuses of a cell state, then the rolling ones."""
+    return np.concatenate((s[8], s[17]))
 
 
 @njit(cache=True)
@@ -270,14 +296,15 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
     pivot that is singular counts as no factorisation there (the step at the cone's edge, else
     NO_DESCENT, is tried)."""
     pi, pj, X, Y, R, radii = cell
-    kn, kt, mu, inv_area = springs
-    if inc[3].shape[0] < pi.shape[0]:
-        raise ValueError("a committed tangential force is missing for a candidate contact")
+    if inc[3].shape[0] < pi.shape[0] or inc[4].shape[0] < pi.shape[0]:
+        raise ValueError(
+            "a committed tangential force (or rolling moment) is missing for a candidate contact"
+        )
     m = visited(F_smin, w, geo, verlet)
     if m < 0:
         return HAND_BACK, GROW_LIST, w, th, w
     s = cell_state(F, w, th, inc, cell, springs, m)
-    chord, chord_status, chord_held = False, s[8], np.zeros(3 * radii.shape[0], np.bool_)
+    chord, chord_status, chord_held = False, _statuses(s), np.zeros(3 * radii.shape[0], np.bool_)
     first = counts[3]  # (the stall test looks at this call's residuals only)
     for step in range(max_iterations + 1):
         if s[13] == 0:
@@ -293,13 +320,13 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
         ):
             return FAILED, STALLED, w, th, w
         code, wt, tt, trial = NO_DESCENT, w, th, s
-        if chord and _same(chord_status, s[8]):
+        if chord and _same(chord_status, _statuses(s)):
             dq = direction(s, chord_held, pattern, lu)
             code, wt, tt, trial = line_search(F, F_smin, w, th, s, dq, chord_held, inc, cell,
                                               springs, geo, verlet)  # fmt: skip
             counts[2] += code == 0
         for edge in (0.0, EDGE):
-            if code != NO_DESCENT or (edge > 0.0 and not _near_edge(s, mu, kn, edge)):
+            if code != NO_DESCENT or (edge > 0.0 and not _near_edge(s, cell, springs, edge)):
                 break
             why, held, status = factorise(F, s, cell, springs, pattern, lu, edge, False, 1.0)
             if why == BEYOND_PATTERN:
@@ -341,10 +368,11 @@ def run(cell, springs, F, w, th, inc, settings, counts, kernel=None, max_steps=N
     tally = np.zeros(4, np.int64)
     need = cell.visited(F, w)  # (grows the list where it must)
     for _ in range(HAND_BACKS):
-        ft0 = inc.forces(cell.pi.shape[0])  # (after the list grew: a force for every candidate)
+        # (after the list grew: a force and moment for every candidate)
+        committed = inc.arrays(cell.pi.shape[0])
         p, lu, cover = cell.block_pattern(-1, max(need, 1), d=3, new_factor=BlockLU.on)
         code, why, w, th, reached = kernel(
-            F, F_smin, w, th, (np.asarray(inc.F0, np.float64), inc.w0, inc.th0, ft0),
+            F, F_smin, w, th, committed,
             cell_arrays(cell), spring_arrays(springs), cell.geometry(), cell.verlet(),
             pattern_arrays(p, cover), lu.arrays(), settings.force_tol, max_steps, history,
             tally, *extra,

@@ -23,7 +23,7 @@ from .fire import fire
 from .newton import Counts, solve
 from .path_tangent import Chain, stretch_derivative
 from .settings import Settings
-from .system import dissipation, energy
+from .system import dissipation, energy, rolling_springs
 from .tangent import path_condensation
 
 #: the shortest substep, relative to ``Settings.substep``
@@ -142,8 +142,9 @@ def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Eq
         chain0 = Chain.zero(cell.n_disks, cell.pi.shape[0]) if inc.chain is None else inc.chain
         A, dq, chain = path_condensation(cell, springs, G, s, inc, chain0, DG)
     sp = springs
-    W = energy(s.e, s.ft, s.status, sp.kn, sp.kt, sp.inv_area)
-    D = dissipation(s.ft, s.fstar, s.status, sp.kt, sp.inv_area)
+    _, kr = rolling_springs(cell.pi, cell.pj, cell.radii, s.e, sp.kn, sp.kr, sp.mu_r)
+    W = energy(s.e, s.ft, s.status, sp.kn, sp.kt, sp.inv_area, s.mr, s.rstatus, kr)
+    D = dissipation(s.ft, s.fstar, s.status, sp.kt, sp.inv_area, s.mr, s.mstar, s.rstatus, kr)
     return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, chain)
 
 
@@ -157,12 +158,13 @@ def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> E
 
 
 def committed(cell: Cell, eq: Equilibrium, F) -> Increment:
-    """The next substep's committed side: this equilibrium's positions and tangential forces
-    (those of open contacts dropped), with their derivatives."""
-    ft = np.zeros(cell.pi.shape[0])
+    """The next substep's committed side: this equilibrium's positions, tangential forces and
+    rolling moments (those of open contacts dropped), with their derivatives."""
+    ft, mr = np.zeros(cell.pi.shape[0]), np.zeros(cell.pi.shape[0])
     on = eq.state.on
     ft[: on.shape[0]][on] = eq.state.ft[on]
-    return Increment(np.array(F, dtype=np.float64), eq.w, eq.theta, ft, eq.chain)
+    mr[: on.shape[0]][on] = eq.state.mr[on]
+    return Increment(np.array(F, dtype=np.float64), eq.w, eq.theta, ft, eq.chain, mr)
 
 
 def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settings,

@@ -11,7 +11,8 @@ current iterate (by a part of its first-order decrease),
 
     Pi(q) = sum over contacts of  k_n e^2 / 2 + H_c(f*) / k_t,   c = mu k_n e(current),
 
-H_c the Huber function (x^2 / 2 inside the cap, c |x| - c^2 / 2 beyond): r is its gradient at
+H_c the Huber function (x^2 / 2 inside the cap, c |x| - c^2 / 2 beyond; the rolling springs'
+H(m*) / k_r likewise, :mod:`.rolling`): r is its gradient at
 the current iterate, so a short enough step always lowers it, and it keeps falling where a disk
 must move to a new equilibrium (the residual rising while it moves), where a line search on
 the residual stops. A step that lowers the squared residual is taken too (near the equilibrium
@@ -46,7 +47,7 @@ from .newton_kernel import (
     residual,
     step_limit,
 )
-from .system import potential_change
+from .system import potential_change, rolling_springs
 
 #: sigma of the first step: a shift of one contact's normal stiffness per unknown
 SIGMA_START = 1.0
@@ -61,18 +62,21 @@ ARMIJO = 1e-4
 
 
 @njit(cache=True)
-def potential_falls(s, trial, dq, springs, armijo):
+def potential_falls(s, trial, dq, cell, springs, armijo):
     """The step dq (N, 3) from the :func:`~dolfinx_granular.laws.relaxed_friction.
     newton_kernel.cell_state` s to ``trial`` lowers the increment's
     potential with the Coulomb caps frozen at s (:func:`~dolfinx_granular.laws.
     relaxed_friction.system.potential`) by at least ``armijo`` times its first-order
     decrease."""
-    kn, kt, mu, inv_area = springs
+    kn, kt, mu, inv_area, kr, mu_r = springs
     slope = (s[14] * dq).sum() / inv_area  # (d Pi along the step)
     if not slope < 0.0:
         return False
     caps = mu * kn * np.maximum(s[5], 0.0)
-    return potential_change(s[5], s[7], trial[5], trial[7], caps, kn, kt) <= armijo * slope
+    rcaps, krs = rolling_springs(cell[0], cell[1], cell[5], s[5], kn, kr, mu_r)
+    change = potential_change(s[5], s[7], trial[5], trial[7], caps, kn, kt, s[16], trial[16],
+                              rcaps, krs)  # fmt: skip
+    return change <= armijo * slope
 
 
 @njit(cache=True)
@@ -118,7 +122,7 @@ def transient(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, fo
             continue
         lower = merit(trial, held, mean_radius) <= (1.0 - 2.0 * ARMIJO) * merit(
             s, held, mean_radius
-        ) or potential_falls(s, trial, alpha * dq, springs, ARMIJO)
+        ) or potential_falls(s, trial, alpha * dq, cell, springs, ARMIJO)
         if not lower:
             continue
         # (a step cut short by the step limit: the shift is too small for the softest mode)

@@ -19,7 +19,9 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
 _KEYS = ("w", "theta", "F", "sensitivity", "dissipation", "fluctuation", "offsets", "keys",
-         "force", "sliding")  # fmt: skip
+         "force", "sliding", "rolling")  # fmt: skip
+#: per-contact arrays, (k,) each
+_CONTACT_KEYS = ("keys", "force", "sliding", "rolling")
 
 
 def _offsets(lengths):
@@ -45,6 +47,8 @@ class FrictionalRelaxedState:
         force: (k,) their committed tangential forces f_t (N per unit thickness; the force on
             the second disk along t is -f_t, :mod:`.contact_law`).
         sliding: (k,) bool, True where the contact slipped in the increment to this state.
+        rolling: (k,) their committed rolling moments m_r (N m per unit thickness; the couple
+            on the second disk, :mod:`.rolling`; zero without rolling resistance).
     """
 
     w: np.ndarray
@@ -57,15 +61,16 @@ class FrictionalRelaxedState:
     keys: np.ndarray
     force: np.ndarray
     sliding: np.ndarray
+    rolling: np.ndarray
 
     @property
     def n_points(self) -> int:
         return self.w.shape[0]
 
-    def contacts(self, q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(keys, forces, sliding)`` of point q's committed contacts."""
+    def contacts(self, q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(keys, forces, sliding, rolling moments)`` of point q's committed contacts."""
         a, b = self.offsets[q], self.offsets[q + 1]
-        return self.keys[a:b], self.force[a:b], self.sliding[a:b]
+        return self.keys[a:b], self.force[a:b], self.sliding[a:b], self.rolling[a:b]
 
     def take(self, indices: ArrayLike) -> FrictionalRelaxedState:
         idx = np.asarray(indices, dtype=np.int64)
@@ -73,29 +78,29 @@ class FrictionalRelaxedState:
         off = _offsets(lengths)
         gather = np.repeat(start - off[:-1], lengths) + np.arange(off[-1])
         per_point = (getattr(self, k)[idx] for k in _KEYS[:6])
-        return FrictionalRelaxedState(
-            *per_point, off, self.keys[gather], self.force[gather], self.sliding[gather]
-        )
+        per_contact = (getattr(self, k)[gather] for k in _CONTACT_KEYS)
+        return FrictionalRelaxedState(*per_point, off, *per_contact)
 
     @classmethod
     def concatenate(cls, states: Iterable[FrictionalRelaxedState]) -> FrictionalRelaxedState:
         states = list(states)
         per_point = (np.concatenate([getattr(s, k) for s in states]) for k in _KEYS[:6])
         off = _offsets(np.concatenate([np.diff(s.offsets) for s in states]))
-        keys = np.concatenate([s.keys for s in states])
-        force = np.concatenate([s.force for s in states])
-        return cls(*per_point, off, keys, force, np.concatenate([s.sliding for s in states]))
+        per_contact = (np.concatenate([getattr(s, k) for s in states]) for k in _CONTACT_KEYS)
+        return cls(*per_point, off, *per_contact)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {k: np.array(getattr(self, k)) for k in _KEYS}
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, ArrayLike]) -> FrictionalRelaxedState:
-        """The state of :meth:`to_arrays`, checked (a damaged file raises ValueError)."""
-        missing = [k for k in _KEYS if k not in arrays]
+        """The state of :meth:`to_arrays`, checked (a damaged file raises ValueError; one
+        written before rolling resistance existed, without ``rolling``, has none)."""
+        missing = [k for k in _KEYS if k not in arrays and k != "rolling"]
         if missing:
             raise ValueError(f"FrictionalRelaxedState arrays lack {', '.join(missing)}")
-        a = {k: np.asarray(arrays[k]) for k in _KEYS}
+        a = {k: np.asarray(arrays[k]) for k in _KEYS if k in arrays}
+        a.setdefault("rolling", np.zeros(a["force"].shape))
         w = a["w"]
         if w.ndim != 3 or w.shape[2] != 2:
             raise ValueError(f"FrictionalRelaxedState: w must be (n, N, 2), got {w.shape}")
@@ -108,9 +113,11 @@ class FrictionalRelaxedState:
         off = a["offsets"]
         if off[0] != 0 or np.any(np.diff(off) < 0) or off[-1] != a["keys"].size:
             raise ValueError("FrictionalRelaxedState: offsets do not match the keys")
-        if a["keys"].ndim != 1 or not a["keys"].shape == a["force"].shape == a["sliding"].shape:
-            raise ValueError("FrictionalRelaxedState: keys, force and sliding must be (k,) each")
-        if not all(np.isfinite(a[k]).all() for k in ("w", "theta", "F", "force")):
+        if a["keys"].ndim != 1 or len({a[k].shape for k in _CONTACT_KEYS}) != 1:
+            raise ValueError(
+                "FrictionalRelaxedState: keys, force, sliding and rolling must be (k,) each"
+            )
+        if not all(np.isfinite(a[k]).all() for k in ("w", "theta", "F", "force", "rolling")):
             raise ValueError("FrictionalRelaxedState has NaN or inf entries")
         return cls(
             *(np.asarray(a[k], dtype=np.float64) for k in _KEYS[:6]),
@@ -118,6 +125,7 @@ class FrictionalRelaxedState:
             a["keys"].astype(np.int64),
             a["force"].astype(np.float64),
             a["sliding"].astype(bool),
+            a["rolling"].astype(np.float64),
         )
 
     def equals(self, other: object) -> bool:

@@ -13,17 +13,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .contact_law import OPEN, STICK, local, scratch
+from .contact_law import OPEN, SLIP, STICK, local, scratch
+from .rolling import add_rolling, radius, stiffness
 
 #: how a contact enters the Jacobian (:func:`equations`)
 SKIPPED, EXACT = 0, 2
 
 
 @njit(cache=True)
-def balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, n_disks):
+def balance(pi, pj, lx, ly, d, e, ft, mr, R, radii, kn, n_disks):
     """The net force (N, 2) and moment (N,) on every disk in the current frame (N, N m per
-    unit thickness), the mean normal force over the contacts (N; 0 without one) and their
-    number."""
+    unit thickness), with the rolling moments mr (m,) (:mod:`.rolling`), the mean normal force
+    over the contacts (N; 0 without one) and their number."""
     f = np.zeros((n_disks, 2))
     M = np.zeros(n_disks)
     total, count = 0.0, 0
@@ -40,18 +41,20 @@ def balance(pi, pj, lx, ly, d, e, ft, R, radii, kn, n_disks):
         f[j, 1] += fy
         f[i, 0] -= fx
         f[i, 1] -= fy
-        M[i] += radii[i] * ft[c]
-        M[j] += radii[j] * ft[c]
+        M[i] += radii[i] * ft[c] - mr[c]
+        M[j] += radii[j] * ft[c] + mr[c]
         total += fn
         count += 1
     return f, M, (total / count if count else 0.0), count
 
 
 @njit(cache=True)
-def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu,
-              inv_area, n_disks, mode, jacobian, rows, cols, vals):  # fmt: skip
+def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj, R, radii,
+              kn, kt, mu, kr, mu_r, inv_area, n_disks, mode, jacobian, rows, cols,
+              vals):  # fmt: skip
     """The gradient r (N, 3) of the incremental potential in (w, theta) (Pa per length; the
-    moments' rows in Pa), and the stress P (2, 2), over the contacts (e > 0).
+    moments' rows in Pa), and the stress P (2, 2), over the contacts (e > 0), with their
+    rolling moments (:mod:`.rolling`).
 
     With ``jacobian``, writes dr/dq as 36 coordinates per contact into ``rows``, ``cols``,
     ``vals`` (>= 36 m,) and returns their number, by ``mode`` (m,) int8: EXACT contacts with
@@ -67,6 +70,8 @@ def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, 
         exact = 1 if jacobian and mode[c] == EXACT else 0  # (the Jacobian alone)
         local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
               radii[i], radii[j], kn, kt, mu, exact, out)  # fmt: skip
+        add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
+                    out[8][3][:4], exact, out)  # fmt: skip
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for u in range(6):
             r[idx[u] // 3, idx[u] % 3] += inv_area * out[0][u]
@@ -83,8 +88,8 @@ def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, 
 
 
 @njit(cache=True)
-def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, mu, inv_area,
-          n_disks, use):  # fmt: skip
+def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj, R, radii, kn,
+          kt, mu, kr, mu_r, inv_area, n_disks, use):  # fmt: skip
     """``(K_FF (4, 4), K_Fq (4, 3N), K_qF (3N, 4))`` over the contacts ``use`` (m,) bool: dP/dF
     at fixed (w, theta), dP/dq and dr/dF (F flattened row-major), per area."""
     KFF = np.zeros((4, 4))
@@ -97,6 +102,8 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, 
         i, j = pi[c], pj[c]
         local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
               radii[i], radii[j], kn, kt, mu, 2, out)  # fmt: skip
+        add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
+                    out[8][3][:4], 2, out)  # fmt: skip
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for a in range(4):
             for b in range(4):
@@ -108,38 +115,66 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, pi, pj, R, radii, kn, kt, 
 
 
 @njit(cache=True)
-def potential(e, fstar, caps, kn, kt):
-    """The increment's potential (N m) at the overlaps e (m,) and trial forces f* (m,) with
-    the Coulomb caps frozen at ``caps`` (N; beyond its length zero): k_n e^2 / 2 + H_c(f*) /
-    k_t over the contacts, H_c the Huber function (x^2 / 2 inside the cap, c |x| - c^2 / 2
-    beyond). With the caps mu k_n e of a state, the residual there is its gradient (times
-    1 / V)."""
-    return potential_change(np.zeros(0), np.zeros(0), e, fstar, caps, kn, kt)
+def rolling_springs(pi, pj, radii, e, kn, kr, mu_r):
+    """``(caps (m,), stiffnesses (m,))`` of the rolling springs of the contacts with overlaps e
+    (:mod:`.rolling`; empty without rolling resistance): the caps frozen at e."""
+    if mu_r == 0.0:
+        return np.zeros(0), np.zeros(0)
+    m = e.shape[0]
+    caps, k = np.empty(m), np.empty(m)
+    for c in range(m):
+        ri, rj = radii[pi[c]], radii[pj[c]]
+        caps[c] = mu_r * radius(ri, rj) * kn * max(e[c], 0.0)
+        k[c] = stiffness(ri, rj, kr)
+    return caps, k
 
 
 @njit(cache=True)
-def potential_change(e0, f0, e1, f1, caps, kn, kt):
-    """:func:`potential` at (e1, f1) minus at (e0, f0) (candidates beyond an array's length:
-    open), summed contact by contact: a disk that barely touches changes it by less than the
-    round-off of the whole sum."""
+def potential(e, fstar, caps, kn, kt, mstar, rcaps, kr):
+    """The increment's potential (N m) at the overlaps e (m,) and trial forces f* (m,) with
+    the Coulomb caps frozen at ``caps`` (N; beyond its length zero): k_n e^2 / 2 + H_c(f*) /
+    k_t over the contacts, H_c the Huber function (x^2 / 2 inside the cap, c |x| - c^2 / 2
+    beyond), and H_c(m*) / k_r of the trial rolling moments m* with their caps ``rcaps`` and
+    stiffnesses ``kr`` (:func:`rolling_springs`; none where empty). With the caps of a state,
+    the residual there is its gradient (times 1 / V)."""
+    z = np.zeros(0)
+    return potential_change(z, z, e, fstar, caps, kn, kt, z, mstar, rcaps, kr)
+
+
+@njit(cache=True)
+def potential_change(e0, f0, e1, f1, caps, kn, kt, m0, m1, rcaps, kr):
+    """:func:`potential` at (e1, f1, m1) minus at (e0, f0, m0) (candidates beyond an array's
+    length: open), summed contact by contact: a disk that barely touches changes it by less
+    than the round-off of the whole sum."""
     total = 0.0
+    rolling = rcaps.shape[0] > 0
     for c in range(max(e0.shape[0], e1.shape[0])):
         a = e0[c] if c < e0.shape[0] else 0.0
         b = e1[c] if c < e1.shape[0] else 0.0
         if a <= 0.0 and b <= 0.0:
             continue
-        cap = caps[c] if c < caps.shape[0] else 0.0
-        x = abs(f0[c]) if a > 0.0 else 0.0
-        y = abs(f1[c]) if b > 0.0 else 0.0
+        on0, on1 = a > 0.0, b > 0.0
         a, b = max(a, 0.0), max(b, 0.0)
         total += 0.5 * kn * (b - a) * (b + a)
-        if x <= cap and y <= cap:
-            total += 0.5 * (y - x) * (y + x) / kt
-        elif x > cap and y > cap:
-            total += cap * (y - x) / kt
-        else:
-            total += (_huber(y, cap) - _huber(x, cap)) / kt
+        cap = caps[c] if c < caps.shape[0] else 0.0
+        total += _spring_change(f0, f1, c, on0, on1, cap) / kt
+        if rolling:
+            cap = rcaps[c] if c < rcaps.shape[0] else 0.0
+            total += _spring_change(m0, m1, c, on0, on1, cap) / kr[c]
     return total
+
+
+@njit(cache=True, inline="always")
+def _spring_change(f0, f1, c, on0, on1, cap):
+    """k H_cap(f1) - k H_cap(f0) of one capped spring times its stiffness k (f0, f1: trial
+    forces or moments; a side that is open: zero)."""
+    x = abs(f0[c]) if on0 else 0.0
+    y = abs(f1[c]) if on1 else 0.0
+    if x <= cap and y <= cap:
+        return 0.5 * (y - x) * (y + x)
+    if x > cap and y > cap:
+        return cap * (y - x)
+    return _huber(y, cap) - _huber(x, cap)
 
 
 @njit(cache=True, inline="always")
@@ -148,26 +183,31 @@ def _huber(x, cap):
 
 
 @njit(cache=True)
-def energy(e, ft, status, kn, kt, inv_area):
-    """The stored energy sum [k_n e^2 / 2 + f_t^2 / (2 k_t)] / V (Pa) over the contacts."""
+def energy(e, ft, status, kn, kt, inv_area, mr, rstatus, kr):
+    """The stored energy sum [k_n e^2 / 2 + f_t^2 / (2 k_t) + m_r^2 / (2 k_r)] / V (Pa) over
+    the contacts (the rolling moments mr with their stiffnesses kr, :func:`rolling_springs`;
+    none where empty)."""
     s = 0.0
     for c in range(e.shape[0]):
         if status[c] != OPEN:
             s += 0.5 * kn * e[c] * e[c]
             if kt > 0.0:
                 s += 0.5 * ft[c] * ft[c] / kt
+            if c < rstatus.shape[0] and rstatus[c] != OPEN:
+                s += 0.5 * mr[c] * mr[c] / kr[c]
     return s * inv_area
 
 
 @njit(cache=True)
-def dissipation(ft, fstar, status, kt, inv_area):
-    """The energy dissipated by sliding over the increment, sum f_t (f* - f_t) / k_t / V (Pa):
-    the force times the slip (f* - f_t) / k_t; >= 0 where every slipping contact's trial force
-    lies outside the cone (the return map's)."""
+def dissipation(ft, fstar, status, kt, inv_area, mr, mstar, rstatus, kr):
+    """The energy dissipated by sliding and rolling over the increment, sum [f_t (f* - f_t) /
+    k_t + m_r (m* - m_r) / k_r] / V (Pa): the force times the slip (f* - f_t) / k_t, the moment
+    times the plastic rolling angle; >= 0 where every slipping contact's trial force (moment)
+    lies outside its cap (the return map's)."""
     s = 0.0
-    if kt == 0.0:
-        return s
     for c in range(ft.shape[0]):
-        if status[c] != OPEN and status[c] != STICK:
+        if kt > 0.0 and status[c] != OPEN and status[c] != STICK:
             s += ft[c] * (fstar[c] - ft[c]) / kt
+        if c < rstatus.shape[0] and rstatus[c] == SLIP:
+            s += mr[c] * (mstar[c] - mr[c]) / kr[c]
     return s * inv_area

@@ -45,20 +45,23 @@ def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increm
     solution's :class:`Chain`)``."""
     KFF, KFq, KqF, lu, held = _parts(cell, springs, G, s, 1.0)
     sp, m, N = springs, s.m, cell.n_disks
-    arrays = (s.qx, s.qy, s.lx, s.ly, s.d, s.e, s.ft, s.fstar, s.status, cell.pi, cell.pj)
-    Rh, Ph, dfh = history_terms(
-        G, *arrays, cell.X, cell.Y, cell.R, cell.radii, inc.F0, inc.w0, sp.kn, sp.kt, sp.mu,
-        sp.inv_area, s.network, chain.Dw, chain.Dth, chain.forces(cell.pi.shape[0]), chain.DF0,
+    arrays = (s.qx, s.qy, s.lx, s.ly, s.d, s.e, s.ft, s.fstar, s.status)
+    Dft0, Dmr0 = chain.forces(cell.pi.shape[0])
+    Rh, Ph, dfh, dmh = history_terms(
+        G, *arrays, s.rstatus, cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii, inc.F0,
+        inc.w0, sp.kn, sp.kt, sp.mu, sp.kr, sp.inv_area, s.network, chain.Dw, chain.Dth, Dft0,
+        chain.DF0, Dmr0,
     )  # fmt: skip
     X = _solve(lu, held, np.hstack([KqF, KqF @ DG + Rh]))
     total = -X[:, 4:].reshape(N, 3, 4)
     total[~s.held_rotations(cell), 2] = 0.0  # (as the predictor's: not set by F)
     A = (KFF @ DG + KFq @ total.reshape(3 * N, 4) + Ph).reshape(2, 2, 2, 2)
-    Dft = np.zeros((cell.pi.shape[0], 4))
-    Dft[:m] = force_derivatives(
-        G, *arrays, cell.R, cell.radii, sp.kn, sp.kt, sp.mu, s.network, total, DG, dfh
-    )
-    return A, _predictor(cell, s, -X[:, :4]), Chain(total[:, :2], total[:, 2], Dft, DG)
+    Dft, Dmr = np.zeros((cell.pi.shape[0], 4)), np.zeros((cell.pi.shape[0], 4))
+    Dft[:m], Dmr[:m] = force_derivatives(
+        G, *arrays, s.mr, s.rstatus, cell.pi, cell.pj, cell.R, cell.radii, sp.kn, sp.kt, sp.mu,
+        sp.kr, sp.mu_r, s.network, total, DG, dfh, dmh,
+    )  # fmt: skip
+    return A, _predictor(cell, s, -X[:, :4]), Chain(total[:, :2], total[:, 2], Dft, DG, Dmr)
 
 
 def _parts(cell, springs, F, s, free_rotation):
@@ -67,8 +70,8 @@ def _parts(cell, springs, F, s, free_rotation):
         raise RigidityLostError("no disk has 2 contacts or more (all are rattlers)")
     sp = springs
     KFF, KFq, KqF = mixed(
-        F, s.qx, s.qy, s.lx, s.ly, s.d, s.e, s.ft, s.fstar, s.status, cell.pi, cell.pj,
-        cell.R, cell.radii, sp.kn, sp.kt, sp.mu, sp.inv_area, cell.n_disks, s.network,
+        F, *s.contact_arrays(), cell.pi, cell.pj, cell.R, cell.radii, sp.kn, sp.kt, sp.mu,
+        sp.kr, sp.mu_r, sp.inv_area, cell.n_disks, s.network,
     )  # fmt: skip
     try:
         lu, held = factorise(cell, springs, F, s, True, free_rotation=free_rotation)
