@@ -159,6 +159,33 @@ def test_newtons_step_turns_an_all_slipping_disk_back_into_the_cone():
     assert fstar[1] - kt * radii[0] * turn == pytest.approx((1 - cell_state.DEPTH) * 3.0)
 
 
+def test_newtons_step_turns_a_rolling_disk_back_inside_its_cap():
+    """As above with rolling springs: disk 0's sliding contacts do not bound its turn (the turn
+    raises their trial forces), its first rolling spring does (d m*/d theta_i = k_r): the step
+    puts that moment DEPTH inside its cap mu_r r_eff k_n e."""
+    kn, kt, mu, inv_area, mu_r = 1e8, 5e7, 0.5, 2.0, 0.1
+    radii = np.array([0.3, 0.2, 0.25])
+    pi, pj = np.array([0, 0]), np.array([1, 2])
+    slip = np.array([cell_state.SLIP, cell_state.SLIP], np.int8)
+    e = np.array([4e-8, 6e-8])
+    fstar = np.array([10.0, 8.0])
+    reff = radii[0] * radii[1:] / (radii[0] + radii[1:])
+    rcap = mu_r * reff * kn * e
+    mstar = np.array([5.0 * rcap[0], -5.0 * rcap[1]])
+    r = np.zeros((3, 3))
+    r[0, 2] = 0.5  # (the turn d theta < 0 raises both trial forces: r f* > 0)
+    args = (slip, slip, np.ones(2, bool), np.ones(3, bool), pi, pj, radii, r, fstar, mstar, e,
+            kn, kt, mu, kt, mu_r, inv_area, 1, 1.0, cell_state.RATTLER_SHIFT)  # fmt: skip
+    turn = -r[0, 2] / cell_state.diagonal(*args, False, 1.0)[2]
+    assert turn < 0.0
+    k_r = kt * reff[0] ** 2
+    assert mstar[0] + k_r * turn == pytest.approx((1 - cell_state.DEPTH) * rcap[0])
+    r[0, 2] = -0.5  # (the other way: the second spring's moment, before the trial forces')
+    turn = -r[0, 2] / cell_state.diagonal(*args, False, 1.0)[2]
+    k_r = kt * reff[1] ** 2
+    assert mstar[1] + k_r * turn == pytest.approx(-(1 - cell_state.DEPTH) * rcap[1])
+
+
 def test_a_disk_that_barely_touches_is_a_rattler():
     """Disks 0-3 hold each other on overlaps near 1e-3; disk 4 touches 0 and 1 with overlaps a
     millionth of the mean and less: it counts as loose (as Newton then treats it: pushed off)."""

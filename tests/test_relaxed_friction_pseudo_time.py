@@ -45,12 +45,27 @@ def _state(rve, inc, F, w, th):
                          cell.visited(F, w))  # fmt: skip
 
 
-def test_the_residual_is_the_gradient_of_the_potential_with_frozen_caps(committed):
+@pytest.fixture(scope="module")
+def rolling():
+    """As ``committed``, with rolling resistance (mu_r = 0.1)."""
+    rve = FrictionalRelaxedRVE(generate_packing(70, seed=1), 1e8, 1e8, friction=0.3,
+                               rolling_friction=0.1)  # fmt: skip
+    state = rve.evaluate(F1, rve.initial_state(1))[3]
+    return rve, state, rve.increment(state, 0)
+
+
+@pytest.mark.parametrize("case", ["committed", "rolling"])
+def test_the_residual_is_the_gradient_of_the_potential_with_frozen_caps(case, request):
+    """Central differences of the frozen-cap potential (sliding and, with rolling resistance,
+    rolling springs) along a random direction: the residual's slope, slipping springs in the
+    sum."""
+    committed = request.getfixturevalue(case)
     rve, _, inc = committed
     w, th = _start(committed, HARD)
     s = _state(rve, inc, HARD, w, th)
-    sp = rve.springs
+    sp, cell = rve.springs, rve.cell
     caps = sp.mu * sp.kn * np.maximum(s[5], 0.0)
+    rcaps, kr = system.rolling_springs(cell.pi, cell.pj, cell.radii, s[5], sp.kn, sp.kr, sp.mu_r)
     d = np.random.default_rng(3).normal(size=(rve.cell.n_disks, 3))
     d[:, :2] *= 1e-3 * rve.cell.R.min()
     d[:, 2] *= 1e-3
@@ -58,12 +73,12 @@ def test_the_residual_is_the_gradient_of_the_potential_with_frozen_caps(committe
 
     def potential(t):
         k = _state(rve, inc, HARD, w + t * d[:, :2], th + t * d[:, 2])
-        z = np.zeros(0)
-        return system.potential(k[5], k[7], caps, sp.kn, sp.kt, z, z, z)
+        return system.potential(k[5], k[7], caps, sp.kn, sp.kt, k[16], rcaps, kr)
 
     slope = (potential(h) - potential(-h)) / (2 * h)
     assert slope == pytest.approx((s[14] * d).sum() / sp.inv_area, rel=1e-6)
     assert (s[8] == SLIP).any()  # (the Huber branch beyond the cap is in the sum)
+    assert (s[17] == SLIP).any() == (sp.mu_r > 0.0)
 
 
 def test_the_shift_adds_k_n_per_translation_and_k_n_r2_per_rotation(committed):
