@@ -163,6 +163,10 @@ def _add_strength(sub):
     add("--seeds", type=seeds, default=(0, 1, 2), help="packing seeds (default 0,1,2)")
     add("--mus", type=mus, default=(0.0, 0.1, 0.3, 0.5, 1.0),
         help="contact friction coefficients (default 0,0.1,0.3,0.5,1)")  # fmt: skip
+    rolling = checked_values(float, lambda v: v >= 0.0, "comma-separated mu_r >= 0", "0,0.1", True)
+    add("--rolling", type=rolling, default=(0.0,),
+        help="rolling friction coefficients mu_r of the relaxed RVE, each with every mu: the "
+        "rolling moment's cap mu_r r_eff f_n (default 0: none)")  # fmt: skip
     add("--pressures", type=pressures, default=(1e-2, 1e-3),
         help="confining pressures p / k_n (default 1e-2,1e-3)")  # fmt: skip
     add("--max-strain", type=strain, default=0.3, help="the last axial strain (default 0.3)")
@@ -269,6 +273,8 @@ def _cmd_strength(args) -> int:
         raise ValueError(f"the folder of {args.output!r} does not exist: create it, or choose -o")
     if args.substep is not None and args.law != "relaxed":
         raise ValueError("--substep is a setting of the relaxed RVE: leave it out for --law taylor")
+    if any(args.rolling) and args.law != "relaxed":
+        raise ValueError("--rolling is a setting of the relaxed RVE: leave it out for --law taylor")
     if world_rank() != 0:  # (a serial command: under mpirun rank 0 runs it, the others rest)
         return 0
     cache = args.cache or os.path.join(os.path.dirname(args.output), "strength_cache")
@@ -278,6 +284,7 @@ def _cmd_strength(args) -> int:
         particles=args.particles, seeds=args.seeds, mus=args.mus, pressures=args.pressures,
         max_strain=args.max_strain, steps=args.steps, k_n=args.kn, k_t=args.kt, law=args.law,
         substep=args.substep, budget=args.budget or None, cache=cache, say=say,
+        rolling=args.rolling,
     )  # fmt: skip
     curve = curve_rows(tests)
     write_curve(args.output, curve)

@@ -35,8 +35,9 @@ def packing():
     return generate_packing(70, seed=0, pressure=P)
 
 
-def run(cache, packing, mu=0.5, targets=TARGETS, budget=None, k_t=et.K_T, substep=None):
-    law = et.make_law("relaxed", packing, mu, k_t=k_t)
+def run(cache, packing, mu=0.5, targets=TARGETS, budget=None, k_t=et.K_T, substep=None,
+        mu_r=0.0):  # fmt: skip
+    law = et.make_law("relaxed", packing, mu, k_t=k_t, mu_r=mu_r)
     if substep is not None:
         law.settings.substep = substep
     return cache.run(et.BIAXIAL, law, packing, 0, P, targets, budget)
@@ -70,9 +71,10 @@ def test_the_rows_are_load_tests(tmp_path, packing):
 
 @pytest.mark.parametrize(
     "change",
-    [dict(mu=0.0), dict(targets=(0.005, 0.0075)), dict(k_t=0.5 * et.K_T), dict(substep=5e-4)],
-    ids=["mu", "targets", "k_t", "substep"],
-)
+    [dict(mu=0.0), dict(targets=(0.005, 0.0075)), dict(k_t=0.5 * et.K_T), dict(substep=5e-4),
+     dict(mu_r=0.1)],
+    ids=["mu", "targets", "k_t", "substep", "mu_r"],
+)  # fmt: skip
 def test_a_changed_parameter_misses_the_cache(tmp_path, packing, change):
     cache = ElementTestCache(tmp_path)
     run(cache, packing)
@@ -181,6 +183,8 @@ def test_an_existing_output_is_refused_without_force(command, capsys):
         (["--kn", "-1"], "stiffness > 0"),
         (["--law", "dem"], "invalid choice"),
         (["--law", "taylor", "--substep", "1e-3"], "--substep"),
+        (["--law", "taylor", "--rolling", "0.1"], "--rolling is a setting of the relaxed RVE"),
+        (["--rolling", "-0.1"], "mu_r >= 0"),
         (["-o", "strength.txt"], ".csv"),
         (["-o", "no/such/folder/s.csv"], "does not exist"),
     ],
@@ -250,3 +254,55 @@ def test_friction_angle_of_the_commands_csv(command):
     curve = read_curve(out)
     mid = friction_angle(curve, 0.25, P)
     assert mid == pytest.approx(np.mean([r["phi_cs_deg_mean"] for r in curve]), rel=1e-14)
+
+
+def test_rolling_friction_is_a_column_and_a_line_of_the_curve(tmp_path):
+    """Rows at mu_r 0 and 0.2 mu: friction_angle follows the line mu_r = ratio mu (through
+    mu = 0, a point of every line); the Taylor RVE has no rolling resistance."""
+    rows = [dict(r, mu_r=0.0) for r in CURVE] + [
+        dict(
+            law="relaxed",
+            mu=mu,
+            mu_r=0.2 * mu,
+            p_over_kn=P,
+            phi_cs_deg_mean=phi,
+            phi_peak_deg_mean=phi + 1.0,
+        )
+        for mu, phi in ((0.5, 40.0),)
+    ]  # fmt: skip (mu = 0: mu_r = 0 on every line, the row without rolling)
+    assert friction_angle(rows, 0.25, P) == pytest.approx(20.0, rel=1e-14)
+    assert friction_angle(rows, 0.25, P, rolling_ratio=0.2) == pytest.approx(25.0, rel=1e-14)
+    with pytest.raises(ValueError, match="outside"):
+        friction_angle(rows, 0.25, P, rolling_ratio=0.1)  # (no row on that line but mu = 0)
+    with pytest.raises(ValueError, match="rolling friction is a setting of the relaxed RVE"):
+        strength_curve(law="taylor", rolling=(0.1,), cache=tmp_path)
+    with pytest.raises(ValueError, match="rolling friction is a setting of the relaxed RVE"):
+        et.make_law("taylor", generate_packing(20, seed=0), 0.5, mu_r=0.1)
+
+
+def test_a_curve_without_the_rolling_column_reads_as_without_rolling(command, tmp_path):
+    _, out, _ = command
+    with open(out, newline="") as f:
+        rows = list(csv.DictReader(f))
+    old = tmp_path / "old.csv"
+    with open(old, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=[c for c in COLUMNS if c != "mu_r"], extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    assert [r["mu_r"] for r in read_curve(old)] == [0.0, 0.0]
+    assert friction_angle(read_curve(old), 0.25, P) == friction_angle(read_curve(out), 0.25, P)
+
+
+def test_the_command_measures_rolling_resistance(tmp_path):
+    """``--rolling 0,0.2`` at mu = 0.5: one row per mu_r; the rolling springs raise the peak
+    strength (eps1 to 1 %, 70 disks)."""
+    out = tmp_path / "s.csv"
+    argv = ["strength", "--particles", "70", "--seeds", "0", "--mus", "0.5", "--rolling",
+            "0,0.2", "--pressures", "1e-2", "--max-strain", "0.01", "--steps", "2", "-o",
+            str(out)]  # fmt: skip
+    code, printed = _main(argv)
+    assert code == 0, printed
+    rows = read_curve(out)
+    assert [(r["mu"], r["mu_r"]) for r in rows] == [(0.5, 0.0), (0.5, 0.2)]
+    assert rows[1]["sin_phi_peak_mean"] > rows[0]["sin_phi_peak_mean"]
+    assert "mur0.2" in " ".join(p.name for p in (tmp_path / "strength_cache" / "tests").iterdir())

@@ -1,14 +1,15 @@
-"""Element tests kept on disk, so that a long study interrupted and started again goes on where
-it stopped.
+"""Element tests kept on disk, so that a long study interrupted and started again goes on where it
+stopped.
 
 :class:`ElementTestCache` runs :func:`~.element_tests.load_test` once per key and stores its
-step rows and stop message as ``DIR/<law>_<test>_n<N>_s<seed>_p<p>_mu<mu>_<digest>.json``; a
-later call with the same key (in this process or another) reads them back instead. The key
-(:meth:`ElementTestCache.key`) holds everything that changes the answer: the law and its
-settings (e.g. the frictional relaxed RVE's substep), k_n, k_t, mu, min_stretch, the packing
-(particles, seed and a digest of its disks), p / k_n, the loading and its target strains, the
-halvings of a failed step, and a digest of the sources that compute it (the laws and the
-material-point drivers), so that a changed solver runs its tests afresh.
+step rows and stop message as ``DIR/<law>_<test>_n<N>_s<seed>_p<p>_mu<mu>_<digest>.json``
+(``..._mu<mu>_mur<mu_r>_...`` with rolling resistance); a later call with the same key (in this
+process or another) reads them back instead. The key (:meth:`ElementTestCache.key`) holds
+everything that changes the answer: the law and its settings (e.g. the frictional relaxed RVE's
+substep), k_n, k_t, mu, the rolling friction and stiffness, min_stretch, the packing (particles,
+seed and a digest of its disks), p / k_n, the loading and its target strains, the halvings of a
+failed step, and a digest of the sources that compute it (the laws and the material-point
+drivers), so that a changed solver runs its tests afresh.
 """
 
 from __future__ import annotations
@@ -102,6 +103,8 @@ class ElementTestCache:
             "k_n": float(law.normal_stiffness),
             "k_t": float(law.tangential_stiffness),
             "mu": float(law.friction),
+            "mu_r": float(getattr(law, "rolling_friction", 0.0)),
+            "rolling_stiffness": float(getattr(law, "rolling_stiffness", 0.0)),
             "min_stretch": float(law.min_stretch),
             "particles": int(packing.n_particles),
             "seed": int(seed),
@@ -116,8 +119,9 @@ class ElementTestCache:
     def path(self, key: dict) -> str:
         """The file of ``key``: readable names, and a digest of the whole key."""
         digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+        rolling = f"_mur{key['mu_r']:g}" if key["mu_r"] else ""
         name = (f"{key['law']}_{key['loading']}_n{key['particles']}_s{key['seed']}_"
-                f"p{key['p_over_kn']:g}_mu{key['mu']:g}_{digest}.json")  # fmt: skip
+                f"p{key['p_over_kn']:g}_mu{key['mu']:g}{rolling}_{digest}.json")  # fmt: skip
         return os.path.join(self.directory, name)
 
     def lookup(self, key: dict, budget: float | None = None) -> ElementTestRun | None:

@@ -45,12 +45,19 @@ CRITICAL = 0.75  # the "critical state": the steps past this fraction of the str
 BUDGET_STOP = "time budget"
 
 
-def make_law(name: str, packing: Packing, mu: float, k_n: float = K_N, k_t: float = K_T):
+def make_law(name: str, packing: Packing, mu: float, k_n: float = K_N, k_t: float = K_T,
+             mu_r: float = 0.0):  # fmt: skip
     """The frictional relaxed (``"relaxed"``) or Taylor (``"taylor"``) RVE of ``packing`` with
-    friction ``mu`` and contact stiffnesses ``k_n``, ``k_t`` (N/m²)."""
+    friction ``mu``, contact stiffnesses ``k_n``, ``k_t`` (N/m²) and, for the relaxed RVE,
+    rolling friction ``mu_r``."""
     if name not in LAWS:
         raise ValueError(f"unknown law {name!r}: give one of {', '.join(LAWS)}")
-    return LAWS[name](packing, k_n, k_t, mu)
+    if mu_r == 0.0:
+        return LAWS[name](packing, k_n, k_t, mu)
+    if name != "relaxed":
+        raise ValueError("rolling friction is a setting of the relaxed RVE: leave it out (0) "
+                         f"with law {name!r}")  # fmt: skip
+    return LAWS[name](packing, k_n, k_t, mu, rolling_friction=mu_r)
 
 
 @dataclass(frozen=True)

@@ -2,17 +2,18 @@
 
 :func:`strength_tests` runs the biaxial test (:data:`~.element_tests.BIAXIAL`: sigma_11 = -p
 held, the axial strain eps1 prescribed) of the frictional relaxed RVE (or the frictional Taylor
-RVE) for every contact friction mu, confining pressure p / k_n and packing seed, each once
-(:class:`~.element_cache.ElementTestCache`); :func:`strength_curve` tabulates them per
-(mu, p / k_n): sin phi = q / p at the peak (the largest over the test) and at the critical
-state (the mean over the last quarter of the strain reached), phi in degrees and tan phi, as
-the mean and standard deviation over the seeds, with how far the tests got and why any stopped.
-:func:`friction_angle` reads phi off the curve, linear in mu (the factor of safety's
-tan phi(mu)).
+RVE) for every contact friction mu, rolling friction mu_r (the relaxed RVE's), confining
+pressure p / k_n and packing seed, each once (:class:`~.element_cache.ElementTestCache`);
+:func:`strength_curve` tabulates them per (mu, mu_r, p / k_n): sin phi = q / p at the peak (the
+largest over the test) and at the critical state (the mean over the last quarter of the strain
+reached), phi in degrees and tan phi, as the mean and standard deviation over the seeds, with
+how far the tests got and why any stopped. :func:`friction_angle` reads phi off the curve,
+linear in mu (the factor of safety's tan phi(mu)).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from typing import TYPE_CHECKING
@@ -28,23 +29,28 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
     from os import PathLike
 
-#: the strength of one test (one packing): its columns besides law, mu, p_over_kn and seed
+#: the strength of one test (one packing): its columns besides law, mu, mu_r, p_over_kn and seed
 MEASURES = ("sin_phi_peak", "sin_phi_cs", "phi_peak_deg", "phi_cs_deg", "tan_phi_peak",
             "tan_phi_cs")  # fmt: skip
 #: the columns of the curve (one row per law, mu and p / k_n), in order
-COLUMNS = ("law", "mu", "p_over_kn", "kappa", "particles", "seeds", "k_n", "k_t",
+COLUMNS = ("law", "mu", "mu_r", "p_over_kn", "kappa", "particles", "seeds", "k_n", "k_t",
            *(f"{m}_{s}" for m in MEASURES for s in ("mean", "std")), "eps1_target",
            "eps1_reached_mean", "eps1_reached_min", "stopped", "stop_reasons")  # fmt: skip
 #: which angle :func:`friction_angle` reads: peak or critical state
 WHICH = {"peak": "phi_peak_deg_mean", "cs": "phi_cs_deg_mean"}
 
 
-def check_parameters(mus, pressures, particles, seeds, max_strain, steps, k_n, k_t, law):
+def check_parameters(mus, pressures, particles, seeds, max_strain, steps, k_n, k_t, law,
+                     rolling=(0.0,)):  # fmt: skip
     """Raise ValueError naming the first bad value of :func:`strength_tests` and its fix."""
     if law not in LAWS:
         raise ValueError(f"unknown law {law!r}: give one of {', '.join(LAWS)}")
+    if law != "relaxed" and any(rolling):
+        raise ValueError("rolling friction is a setting of the relaxed RVE: give mu_r = 0 alone "
+                         f"with law {law!r}")  # fmt: skip
     checks = (
         ("mu", mus, lambda v: v >= 0.0, "contact friction mu >= 0"),
+        ("mu_r", rolling, lambda v: v >= 0.0, "rolling friction mu_r >= 0"),
         ("p_over_kn", pressures, lambda v: 0.0 < v <= MAX_PRESSURE,
          f"p / k_n in (0, {MAX_PRESSURE:g}]"),
         ("seed", seeds, lambda v: v >= 0 and v == int(v), "whole numbers >= 0"),
@@ -78,8 +84,9 @@ def strength_tests(
     budget: float | None = None,
     cache: str | PathLike[str] = "strength_cache",
     say: Callable[[str], None] | None = None,
+    rolling: Sequence[float] = (0.0,),
 ) -> list[dict]:
-    """One row per biaxial test (law, mu, p_over_kn, seed, particles, k_n, k_t):
+    """One row per biaxial test (law, mu, mu_r, p_over_kn, seed, particles, k_n, k_t):
     :data:`MEASURES`, ``eps1_target``, ``eps1_reached``, ``stopped``, ``message``, ``seconds``
     (of the run that computed it) and ``cached``.
 
@@ -94,27 +101,27 @@ def strength_tests(
         budget: wall seconds per test (None: no limit); a test stopped by it says so.
         cache: folder of the packings (``packings/``) and the tests (``tests/``), reused.
         say: called with a line per test (None: silent).
+        rolling: rolling friction mu_r of the relaxed RVE (its cap mu_r r_eff f_n), each with
+            every mu.
     """
-    check_parameters(mus, pressures, particles, seeds, max_strain, steps, k_n, k_t, law)
+    check_parameters(mus, pressures, particles, seeds, max_strain, steps, k_n, k_t, law, rolling)
     if substep is not None and law != "relaxed":
         raise ValueError("substep is a setting of the relaxed RVE: leave it out with law='taylor'")
     packings = PackingCache(os.path.join(cache, "packings"))
     stored = ElementTestCache(os.path.join(cache, "tests"))
     targets = np.linspace(0.0, max_strain, steps + 1)[1:]
     rows = []
-    for p in pressures:
-        for mu in mus:
-            for seed in seeds:
-                rve = make_law(law, packings.get(particles, seed, p), mu, k_n, k_t)
-                if substep is not None:
-                    rve.settings.substep = float(substep)
-                run = stored.run(BIAXIAL, rve, rve.packing, seed, p, targets, budget)
-                row = dict(law=law, mu=float(mu), p_over_kn=float(p), seed=int(seed),
-                           particles=int(particles), k_n=float(k_n), k_t=float(k_t))  # fmt: skip
-                row.update(strength_of(run.rows, run.stop, max_strain))
-                rows.append(dict(row, seconds=run.seconds, cached=run.cached))
-                if say is not None:
-                    say(progress_line(rows[-1]))
+    for p, mu, mu_r, seed in itertools.product(pressures, mus, rolling, seeds):
+        rve = make_law(law, packings.get(particles, seed, p), mu, k_n, k_t, mu_r)
+        if substep is not None:
+            rve.settings.substep = float(substep)
+        run = stored.run(BIAXIAL, rve, rve.packing, seed, p, targets, budget)
+        row = dict(law=law, mu=float(mu), mu_r=float(mu_r), p_over_kn=float(p), seed=int(seed),
+                   particles=int(particles), k_n=float(k_n), k_t=float(k_t))  # fmt: skip
+        row.update(strength_of(run.rows, run.stop, max_strain))
+        rows.append(dict(row, seconds=run.seconds, cached=run.cached))
+        if say is not None:
+            say(progress_line(rows[-1]))
     return rows
 
 
@@ -137,22 +144,26 @@ def progress_line(t):
     """One test's progress line."""
     where = f"eps1 {100 * t['eps1_reached']:.2f} %"
     why = f" ({t['message'][:100]})" if t["stopped"] else ""
-    return (f"{t['law']} mu {t['mu']:g} p/kn {t['p_over_kn']:g} seed {t['seed']}: {where}, "
+    rolling = f" mu_r {t['mu_r']:g}" if t["mu_r"] else ""
+    return (f"{t['law']} mu {t['mu']:g}{rolling} p/kn {t['p_over_kn']:g} seed {t['seed']}: "
+            f"{where}, "
             f"sin phi peak {t['sin_phi_peak']:.3f}, cs {t['sin_phi_cs']:.3f} in "
             f"{t['seconds']:.1f} s{' (cached)' if t['cached'] else ''}{why}")  # fmt: skip
 
 
 def curve_rows(tests):
     """The strength curve of ``tests`` (rows of :func:`strength_tests`): one row per (law, mu,
-    p / k_n) with :data:`COLUMNS`; the std over the seeds with ddof = 1 (0 for one seed)."""
+    mu_r, p / k_n) with :data:`COLUMNS`; the std over the seeds with ddof = 1 (0 for one
+    seed)."""
     groups = {}
     for t in tests:
-        groups.setdefault((t["law"], t["mu"], t["p_over_kn"]), []).append(t)
+        groups.setdefault((t["law"], t["mu"], t.get("mu_r", 0.0), t["p_over_kn"]), []).append(t)
     curve = []
-    for (law, mu, p), ts in groups.items():
+    for (law, mu, mu_r, p), ts in groups.items():
         first = ts[0]
-        row = dict(law=law, mu=mu, p_over_kn=p, kappa=1.0 / p, particles=first["particles"],
-                   seeds=len(ts), k_n=first["k_n"], k_t=first["k_t"])  # fmt: skip
+        row = dict(law=law, mu=mu, mu_r=mu_r, p_over_kn=p, kappa=1.0 / p,
+                   particles=first["particles"], seeds=len(ts), k_n=first["k_n"],
+                   k_t=first["k_t"])  # fmt: skip
         for key in MEASURES:
             v = np.array([t[key] for t in ts], dtype=float)
             ok = v[np.isfinite(v)]
@@ -170,16 +181,25 @@ def curve_rows(tests):
 
 
 def strength_curve(**options) -> list[dict]:
-    """The strength curve, one row per (law, mu, p / k_n) with :data:`COLUMNS`:
+    """The strength curve, one row per (law, mu, mu_r, p / k_n) with :data:`COLUMNS`:
     :func:`curve_rows` of :func:`strength_tests` (``options``: its keyword arguments)."""
     return curve_rows(strength_tests(**options))
 
 
-def friction_angle(curve, mu: float, p_over_kn: float, which: str = "cs", law=None) -> float:
+def on_line(row, rolling_ratio: float) -> bool:
+    """The curve's ``row`` has mu_r = ``rolling_ratio`` mu (a row without mu_r: 0)."""
+    mu_r = float(row.get("mu_r", 0.0))
+    return math.isclose(mu_r, rolling_ratio * float(row["mu"]), rel_tol=1e-9, abs_tol=1e-12)
+
+
+def friction_angle(curve, mu: float, p_over_kn: float, which: str = "cs", law=None,
+                   rolling_ratio: float = 0.0) -> float:  # fmt: skip
     """The friction angle phi (degrees) of ``curve`` (rows of :func:`strength_curve`, or of
     its CSV) at contact friction ``mu``, linear in mu between the tabulated values, at the
     tabulated confining pressure ``p_over_kn``; ``which``: ``"cs"`` (critical state, mean over
-    the seeds) or ``"peak"``; ``law``: the curve's law where it holds several.
+    the seeds) or ``"peak"``; ``law``: the curve's law where it holds several;
+    ``rolling_ratio``: the rows with mu_r = rolling_ratio mu (the line the strength reduction
+    follows, both frictions reduced alike; 0: without rolling resistance).
 
     Raises:
         ValueError: ``which`` unknown, ``p_over_kn`` not tabulated, ``mu`` outside the
@@ -191,6 +211,7 @@ def friction_angle(curve, mu: float, p_over_kn: float, which: str = "cs", law=No
     if law is None and len(laws) > 1:
         raise ValueError(f"the curve holds the laws {', '.join(laws)}: pass law= one of them")
     rows = [r for r in curve if law is None or r["law"] == law]
+    rows = [r for r in rows if on_line(r, rolling_ratio)]
     here = [r for r in rows if math.isclose(float(r["p_over_kn"]), p_over_kn, rel_tol=1e-9)]
     if not here:
         tabulated = ", ".join(f"{p:g}" for p in sorted({float(r["p_over_kn"]) for r in rows}))

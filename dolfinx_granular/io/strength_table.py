@@ -22,6 +22,8 @@ if TYPE_CHECKING:
 
 #: the columns read back as text (the others are numbers)
 TEXT = ("law", "stop_reasons")
+#: columns a curve written by an older version may lack, with their value there
+OPTIONAL = {"mu_r": 0.0}
 
 
 def _cell(v):
@@ -45,11 +47,13 @@ def read_curve(path: str | PathLike[str]) -> list[dict]:
     (an empty cell as NaN)."""
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
-    missing = sorted(set(COLUMNS) - set(rows[0] if rows else COLUMNS))
+    missing = sorted(set(COLUMNS) - set(rows[0] if rows else COLUMNS) - set(OPTIONAL))
     if missing:
         raise ValueError(f"{path} is no strength curve (no column {', '.join(missing)}): give "
                          "the CSV that 'python -m dolfinx_granular strength' wrote")  # fmt: skip
     for r in rows:
+        for k, v in OPTIONAL.items():
+            r.setdefault(k, repr(v))
         for k in COLUMNS:
             if k not in TEXT:
                 v = r[k]
@@ -58,17 +62,18 @@ def read_curve(path: str | PathLike[str]) -> list[dict]:
 
 
 def curve_lines(curve: list[dict]) -> list[str]:
-    """The printed table: per (law, mu, p / k_n) sin phi, phi and tan phi at the peak and the
-    critical state (mean ± std over the seeds), the strain reached and the tests stopped."""
+    """The printed table: per (law, mu, mu_r, p / k_n) sin phi, phi and tan phi at the peak
+    and the critical state (mean ± std over the seeds), the strain reached and the tests
+    stopped."""
     lines = [
         "strength: mean ± std over the seeds; peak: the largest q/p = sin phi of a test; cs: the "
         "mean over the last quarter of the strain it reached",
-        "  law      mu     p/kn    sin phi_p     sin phi_cs    phi_p [deg]  phi_cs [deg]  "
+        "  law      mu     mu_r    p/kn    sin phi_p     sin phi_cs    phi_p [deg]  phi_cs [deg]  "
         "tan phi_p  tan phi_cs  eps1 reached (min)  stopped",
     ]
     for r in curve:
         lines.append(
-            f"  {r['law']:7s} {r['mu']:5g}  {r['p_over_kn']:7.1e}  "
+            f"  {r['law']:7s} {r['mu']:5g}  {r['mu_r']:6g}  {r['p_over_kn']:7.1e}  "
             f"{r['sin_phi_peak_mean']:.3f}±{r['sin_phi_peak_std']:.3f}  "
             f"{r['sin_phi_cs_mean']:.3f}±{r['sin_phi_cs_std']:.3f}  "
             f"{r['phi_peak_deg_mean']:5.1f}±{r['phi_peak_deg_std']:4.1f}   "
@@ -77,6 +82,6 @@ def curve_lines(curve: list[dict]) -> list[str]:
             f"{100 * r['eps1_reached_mean']:6.2f} % ({100 * r['eps1_reached_min']:5.2f} %)  "
             f"{r['stopped']} of {r['seeds']}"
         )
-    lines += [f"  stopped: {r['law']} mu {r['mu']:g} p/kn {r['p_over_kn']:g}: "
+    lines += [f"  stopped: {r['law']} mu {r['mu']:g} mu_r {r['mu_r']:g} p/kn {r['p_over_kn']:g}: "
               f"{r['stop_reasons'][:300]}" for r in curve if r["stopped"]]  # fmt: skip
     return lines
