@@ -40,9 +40,9 @@ def packing():
     return confined()
 
 
-def frictional(packing):
-    """The law under test: k_t = k_n, mu = MU."""
-    return FrictionalRelaxedRVE(packing, K_N, K_N, MU)
+def frictional(packing, rolling=0.0):
+    """The law under test: k_t = k_n, mu = MU, rolling friction ``rolling``."""
+    return FrictionalRelaxedRVE(packing, K_N, K_N, MU, rolling_friction=rolling)
 
 
 def press(rve, prefix, loads=LOADS, **solver_kwargs):
@@ -142,14 +142,33 @@ def test_a_failed_solve_keeps_the_committed_state(packing):
 
 
 @pytest.mark.mpi
-def test_the_state_round_trips_through_arrays_and_the_restart_order(packing):
+def test_rolling_resistance_in_the_column(packing):
+    """With rolling friction the column converges superlinearly too, its points carry rolling
+    moments (some on their caps), and it settles less than without them."""
+    answers = []
+    for rolling in (0.0, 0.1):
+        (solver, material, u, _), results = press(frictional(packing, rolling), f"frx_r{rolling}_")
+        assert all(r.converged for r in results), [r.reason_name for r in results]
+        e = [h[2] for h in results[-1].history]
+        rates = [np.log(b) / np.log(a) for a, b in zip(e[:-1], e[1:]) if 1e-25 < a < 1e-2]
+        assert rates and max(rates) > 1.5, rates
+        answers.append(settlement(u))
+        moments = MPI.COMM_WORLD.allreduce(float(np.abs(material.state.rolling).sum()))
+        assert (moments > 0.0) == (rolling > 0.0)
+        solver.destroy()
+    assert 0.0 > answers[1] > answers[0]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("rolling", [0.0, 0.1])
+def test_the_state_round_trips_through_arrays_and_the_restart_order(packing, rolling):
     """export_state -> to_arrays -> from_arrays -> restore_state gives the very same P and A at
-    the same u; PointOrder (the slope's restart files) moves it to a fresh material; a state of
-    another law or size is refused."""
+    the same u (the rolling moments too); PointOrder (the slope's restart files) moves it to a
+    fresh material; a state of another law or size is refused."""
     from dolfinx_granular.io.runwriter import PointOrder
 
-    rve = frictional(packing)
-    (solver, material, u, _), _ = press(rve, "frx_state_")
+    rve = frictional(packing, rolling)
+    (solver, material, u, _), _ = press(rve, f"frx_state{rolling}_")
     u_done = u.x.array.copy()
     material.update()  # at the converged u, from the committed state
     P, A = material.P.x.array.copy(), material.A.x.array.copy()
@@ -166,7 +185,7 @@ def test_the_state_round_trips_through_arrays_and_the_restart_order(packing):
     gathered = order.gather_material(material)
     arrays = MPI.COMM_WORLD.bcast(None if gathered is None else gathered.to_arrays(), root=0)
     X = MPI.COMM_WORLD.bcast(order.X, root=0)
-    _, fresh, *_ = granular_column(rve, "frx_state_fresh_", n=2, hold=True)
+    _, fresh, *_ = granular_column(rve, f"frx_state_fresh{rolling}_", n=2, hold=True)
     order.restore_material(fresh, arrays, X)
     assert fresh.export_state().equals(material.export_state())
     with pytest.raises(ValueError, match="restore_state needs a FrictionalRelaxedState of"):
@@ -268,7 +287,7 @@ PRESS = """
 import json
 from mpi4py import MPI
 from test_relaxed_friction_dolfinx import confined, frictional, press, settlement
-(solver, material, u, _), results = press(frictional(confined()), "np_")
+(solver, material, u, _), results = press(frictional(confined(), ROLLING), "np_")
 answer = dict(
     converged=[r.converged for r in results],
     iterations=[r.iterations for r in results],
@@ -281,11 +300,12 @@ if MPI.COMM_WORLD.rank == 0:
 """
 
 
-def _press(ranks):
-    """The column's answer (a dict), pressed on ``ranks`` processes."""
+def _press(ranks, rolling=0.0):
+    """The column's answer (a dict), pressed on ``ranks`` processes (rolling friction
+    ``rolling``)."""
     from dolfinx_granular.fem.compat import mpi_command
 
-    cmd = [sys.executable, "-c", PRESS]
+    cmd = [sys.executable, "-c", f"ROLLING = {rolling!r}" + PRESS]
     if ranks > 1:
         cmd = [*mpi_command(ranks), *cmd]
     env = dict(MPI_ENV, PYTHONPATH=os.path.join(ROOT, "tests"))
@@ -295,9 +315,11 @@ def _press(ranks):
 
 
 @pytest.mark.slow
-def test_serial_and_two_ranks_agree():
-    """Every point relaxes on its own rank: the partition changes only the summation order."""
-    one, two = _press(1), _press(2)
+@pytest.mark.parametrize("rolling", [0.0, 0.1])
+def test_serial_and_two_ranks_agree(rolling):
+    """Every point relaxes on its own rank: the partition changes only the summation order
+    (with rolling resistance too)."""
+    one, two = _press(1, rolling), _press(2, rolling)
     assert one["converged"] == two["converged"] == [True, True]
     assert one["iterations"] == two["iterations"]
     for key in ("settlement", "energy", "dissipated"):

@@ -245,3 +245,23 @@ def test_strength_reads_phi_linear_in_mu():
 def test_strength_names_what_the_curve_lacks(rows, mu, words):
     with pytest.raises(ValueError, match=words):
         Strength(rows, P, mu)
+
+
+def test_with_rolling_friction_strength_follows_its_line():
+    """mu_r = 0.2 mu: phi is read on the curve's rows with mu_r = 0.2 mu (others ignored), and
+    measured there (each mu with its own mu_r)."""
+    on_line = [dict(r, mu_r=0.2 * r["mu"], phi_cs_deg_mean=r["phi_cs_deg_mean"] + 5.0)
+               for r in curve([0.25, 0.5])]  # fmt: skip
+    rows = [dict(r, mu_r=0.0) for r in curve([0.25, 0.5])] + on_line
+    s = Strength(rows, P, 0.5, rolling_ratio=0.2)
+    assert s.phi(0.5) == phi_of(0.5) + 5.0 and s.mu_range == (0.25, 0.5)
+    assert Strength(rows, P, 0.5).phi(0.5) == phi_of(0.5)
+    asked = []
+
+    def measure(mus):
+        asked.extend(mus)
+        return [dict(r, mu_r=0.2 * r["mu"]) for r in curve(mus)]
+
+    s = Strength([], P, 0.5, measure, rolling_ratio=0.2)
+    s.cover([0.3])
+    assert asked == [0.5, 0.3] and s.phi(0.3) == pytest.approx(phi_of(0.3), rel=1e-14)

@@ -56,6 +56,8 @@ def test_out_that_holds_a_run_is_refused(old_run):
         (["--rve", "relaxed"], ["confining pressure", "--confinement"]),
         (["--rve", "relaxed", "--friction", "0.5"], ["confining pressure", "--confinement"]),
         (["--confinement", "1e6"], ["confinement", "280000"]),
+        (["--rolling-friction", "0.1"], ["rolling resistance", "--rve relaxed"]),
+        (["--rolling-friction", "-0.1"], ["--rolling-friction", ">= 0"]),
     ],
 )
 def test_options_that_would_be_ignored_are_refused(args, words):

@@ -40,6 +40,7 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
             rve=a.rve,
             linear_solver=a.linear_solver,
             confinement=a.confinement,
+            rolling_friction=a.rolling_friction,
         )
     except ValueError as err:
         raise UserError(str(err)) from None

@@ -185,6 +185,14 @@ def _add_model(p: argparse.ArgumentParser) -> None:
         "the paper's model)",
     )
     p.add_argument(
+        "--rolling-friction",
+        type=_finite(0.0),
+        default=0.0,
+        metavar="MU_R",
+        help="rolling friction of the contacts, with --rve relaxed: a rolling moment capped "
+        "at MU_R r_eff f_n, r_eff = r_i r_j / (r_i + r_j) (default 0: none)",
+    )
+    p.add_argument(
         "--tangential-stiffness",
         type=_finite(0.0),
         metavar="KT",

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from typing import TYPE_CHECKING, Any
 
@@ -58,6 +59,9 @@ class SlopeOptions:
         linear_solver: ``"direct"`` (MUMPS) or ``"iterative"`` (GMRES + GAMG;
             :mod:`~dolfinx_granular.drivers.linear_solver`); path following needs the direct
             one.
+        rolling_friction: rolling friction mu_r of the relaxed RVE's contacts (0: none): a
+            rolling moment capped at mu_r r_eff f_n (``rolling_friction`` of
+            :class:`~dolfinx_granular.FrictionalRelaxedRVE`).
         confinement: confining pressure in Pa (0: none). The packing is compressed to it and
             relaxed (:func:`~dolfinx_granular.drivers.confinement.confined_packing`), and the
             slope's boundaries other than the fixed base carry the traction P(I) n that holds
@@ -82,6 +86,7 @@ class SlopeOptions:
     rve: str = "taylor"
     confinement: float = 0.0
     linear_solver: str = "direct"
+    rolling_friction: float = 0.0
 
     def __post_init__(self):
         self._check_rve()
@@ -117,6 +122,16 @@ class SlopeOptions:
             raise ValueError(
                 f"confinement is a pressure in [0, {MAX_CONFINEMENT:g} k_n] = [0, "
                 f"{MAX_CONFINEMENT * self.normal_stiffness:g}] Pa, got {self.confinement!r}"
+            )
+        if not (math.isfinite(self.rolling_friction) and self.rolling_friction >= 0.0):
+            raise ValueError(
+                f"rolling_friction must be a finite number >= 0, got {self.rolling_friction!r}"
+            )
+        if self.rolling_friction > 0.0 and self.rve != "relaxed":
+            raise ValueError(
+                "rolling resistance is a setting of the relaxed RVE (the Taylor RVE's disks "
+                "turn with F alike, so no rolling spring is loaded): give --rve relaxed (with "
+                "--confinement), or drop --rolling-friction"
             )
         if self.rve == "relaxed" and self.confinement == 0.0:
             raise ValueError(
@@ -168,10 +183,13 @@ class SlopeOptions:
         return self.tangential_stiffness
 
     def _relaxed_law(self, packing: Packing) -> RelaxedRVE | FrictionalRelaxedRVE:
-        if self.friction > 0.0:
+        if self.friction > 0.0 or self.rolling_friction > 0.0:
             from ..laws.relaxed_friction import FrictionalRelaxedRVE
 
-            return FrictionalRelaxedRVE(packing, self.normal_stiffness, self._kt, self.friction)
+            return FrictionalRelaxedRVE(
+                packing, self.normal_stiffness, self._kt, self.friction,
+                rolling_friction=self.rolling_friction,
+            )  # fmt: skip
         from ..laws.relaxed import RelaxedRVE
 
         return RelaxedRVE(packing, self.normal_stiffness)

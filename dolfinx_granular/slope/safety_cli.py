@@ -126,7 +126,8 @@ def _new(a, comm, stop, say, started):
     a.load_factor = a.footing_scale if a.footing_scale > 0.0 else 1.0
     options = options_of(a)
     p_over_kn = options.confinement / options.normal_stiffness
-    curve = _read(a.strength, p_over_kn, a.friction) if a.strength else None
+    ratio = options.rolling_friction / options.friction  # (mu_r / mu: divided alike)
+    curve = _read(a.strength, p_over_kn, a.friction, ratio) if a.strength else None
     try:
         claim_out(a.out, SAFETY_FILES, a.force, "factor-of-safety", comm)
     except OutFolderError as err:
@@ -143,7 +144,7 @@ def _new(a, comm, stop, say, started):
             "cache": os.path.join(a.out, "strength_cache"),
         }
         measure = _measurer(source, options, comm, stop, say)
-    strength = Strength(curve or [], p_over_kn, a.friction, measure)
+    strength = Strength(curve or [], p_over_kn, a.friction, measure, ratio)
     run = SafetyRun(
         packing,
         options,
@@ -167,6 +168,7 @@ def _measurer(source, options, comm, stop, say):
     k_n = options.normal_stiffness
     k_t = options.tangential_stiffness or k_n
     p_over_kn = options.confinement / k_n
+    ratio = options.rolling_friction / options.friction
 
     def measure(mus):
         def work():
@@ -180,6 +182,7 @@ def _measurer(source, options, comm, stop, say):
                 source["max_strain"],
                 source["cache"],
                 lambda line: say("strength: " + line),
+                ratio,
             )
 
         return _on_rank0(comm, stop, work)
@@ -187,11 +190,11 @@ def _measurer(source, options, comm, stop, say):
     return measure
 
 
-def _read(path, p_over_kn, mu):
+def _read(path, p_over_kn, mu, rolling_ratio):
     """The rows of the user's curve, checked against the slope (UserError naming the fix)."""
     try:
         curve = read_curve(path)
-        Strength(curve, p_over_kn, mu)
+        Strength(curve, p_over_kn, mu, rolling_ratio=rolling_ratio)
     except (OSError, ValueError) as err:
         raise UserError(f"--strength {path}: {err}") from None
     return curve
@@ -239,7 +242,8 @@ def _resumed(a, comm, stop, say, started):
     measure = None
     if source["source"] == "measured":
         measure = _measurer(source, state["options"], comm, stop, say)
-    strength = Strength(state["curve"], record["p_over_kn"], record["mu"], measure)
+    ratio = state["options"].rolling_friction / record["mu"]
+    strength = Strength(state["curve"], record["p_over_kn"], record["mu"], measure, ratio)
     run = SafetyRun(
         state["packing"],
         state["options"],

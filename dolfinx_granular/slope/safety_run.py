@@ -156,8 +156,11 @@ class SafetyRun:
             if self.footing_scale
             else "the weight"
         )
+        what = f"{mu:g}"
+        if o.rolling_friction:
+            what += f" and the rolling friction mu_r = {o.rolling_friction:g} alike"
         return (
-            f"safety: strength reduction of the contact friction mu = {mu:g} ({load}; FS to "
+            f"safety: strength reduction of the contact friction mu = {what} ({load}; FS to "
             f"{100 * self.tolerance:g} %): phi_cs {self.phi['cs']:.2f}°, phi_peak "
             f"{self.phi['peak']:.2f}° at p/k_n = {self.strength.p_over_kn:g}; Bishop "
             f"{self.limit['bishop_cs']:.4g} (cs), {self.limit['bishop_peak']:.4g} (peak), "
@@ -173,7 +176,9 @@ class SafetyRun:
         path = os.path.join(self.out, folder)
         summary, restart = self._stored(path)
         self.strength.cover([mu_f])  # (phi at mu_f, before the trial's lines say its FS)
-        options = dataclasses.replace(self.options, friction=mu_f)
+        options = dataclasses.replace(
+            self.options, friction=mu_f, rolling_friction=self.strength.rolling_ratio * mu_f
+        )
         if summary is None:
             more = " (continued from its restart file)" if restart else ""
             self.say(f"safety: trial at mu_f = {mu_f:.6g} in {path}{more}")
@@ -240,6 +245,7 @@ class SafetyRun:
             **answer,
             "tolerance": self.tolerance,
             "mu": self.strength.mu,
+            "rolling_friction": self.options.rolling_friction,
             "phi_cs": self.phi["cs"],
             "phi_peak": self.phi["peak"],
             "phi_f_cs": phi_f["cs"],

@@ -141,6 +141,7 @@ def summarise(
         "footing_settlement": m.settlement(),
         "footing_settlement_point": m.edge.tolist(),
         "friction": run.options.friction,
+        "rolling_friction": run.options.rolling_friction,
         "rve": run.options.rve,
         # Pa: the packing compressed and relaxed to it, held by the boundaries (0: none)
         "confinement": run.options.confinement,
@@ -299,6 +300,8 @@ def draw_load_settlement(run: Any, path: str | PathLike[str]) -> None:
     taken by path following; rank 0."""
     o = run.options
     law = f"Coulomb friction mu = {o.friction:g}" if o.friction > 0 else "frictionless contacts"
+    if o.rolling_friction > 0:
+        law += f", rolling friction mu_r = {o.rolling_friction:g}"
     axis = {}
     if o.path_following == "gravity":
         settlement = [s["settlement"] for s in run.step_info]
