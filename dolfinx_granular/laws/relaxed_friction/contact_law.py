@@ -107,9 +107,10 @@ def return_map(F, w, th, F0, w0, th0, ft0, mr0, pi, pj, X, Y, R, radii, m, kn, k
             ft[c], status[c] = fs, STICK
         else:
             ft[c], status[c] = (cap if fs >= 0.0 else -cap), SLIP
-        mr[c], mstar[c], rstatus[c] = rolling_map(
-            th, th0, mr0[c], i, j, radii[i], radii[j], e[c], kn, kr, mu_r
-        )
+        if mu_r > 0.0:
+            mr[c], mstar[c], rstatus[c] = rolling_map(
+                th, th0, mr0[c], i, j, radii[i], radii[j], e[c], kn, kr, mu_r
+            )
     return qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus
 
 

@@ -70,8 +70,9 @@ def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi
         exact = 1 if jacobian and mode[c] == EXACT else 0  # (the Jacobian alone)
         local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
               radii[i], radii[j], kn, kt, mu, exact, out)  # fmt: skip
-        add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
-                    out[8][3][:4], exact, out)  # fmt: skip
+        if rstatus[c] != OPEN:  # (no call without rolling resistance: the loop is hot)
+            add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
+                        out[8][3][:4], exact, out)  # fmt: skip
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for u in range(6):
             r[idx[u] // 3, idx[u] % 3] += inv_area * out[0][u]
@@ -102,8 +103,9 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj
         i, j = pi[c], pj[c]
         local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
               radii[i], radii[j], kn, kt, mu, 2, out)  # fmt: skip
-        add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
-                    out[8][3][:4], 2, out)  # fmt: skip
+        if rstatus[c] != OPEN:
+            add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
+                        out[8][3][:4], 2, out)  # fmt: skip
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for a in range(4):
             for b in range(4):
