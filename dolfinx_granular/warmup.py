@@ -16,9 +16,12 @@
 
 Two caches keep what it compiles. Numba's (``cache=True``) lives in the ``__pycache__`` folder
 beside each kernel's source (or in ``$NUMBA_CACHE_DIR``) and is keyed to each source file's
-modification time and to the CPU: a source edited later recompiles on its first use (correct, just
-slower; the next set-up warms it again). FFCx's lives in ``~/.cache/fenics``
-(``$XDG_CACHE_HOME/fenics``) and is keyed to the form.
+modification time and to the CPU. A kernel's cache holds the kernels it calls compiled into it,
+and Numba does not see those change when they live in another file: after an edit (a ``git
+pull`` of an editable install) the old callee would still run, inside a caller whose own file did
+not change. So a warm-up that finds the sources changed since the last one first removes every
+cached kernel of the package (:func:`clear_numba_cache`), then compiles afresh. FFCx's cache
+lives in ``~/.cache/fenics`` (``$XDG_CACHE_HOME/fenics``) and is keyed to the form.
 
 A run whose inputs have not changed since the last one (the package's sources, the interpreter,
 Numba, the cache locations: :func:`fingerprint`) does nothing, so that a repeated set-up stays
@@ -27,6 +30,7 @@ quick; the record is ``warmup.<python tag>.json`` next to Numba's cache, and goe
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import sys
@@ -159,6 +163,38 @@ def fingerprint() -> dict:
     }
 
 
+def sources_changed(path: Path | None = None) -> bool:
+    """True where the last warm-up's record (at ``path``, default :func:`stamp_path`) lists
+    other sources than now (False without a record)."""
+    path = stamp_path() if path is None else path
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return record.get("sources") != fingerprint()["sources"]
+
+
+def numba_cache_files() -> list[Path]:
+    """The package's compiled Numba kernels on disk (``*.nbi`` indexes, ``*.nbc`` data): in the
+    ``__pycache__`` folders beside its sources, or in ``$NUMBA_CACHE_DIR`` (one folder per source
+    folder, named as Numba names it: the folder's name and the SHA-1 of its path)."""
+    folders = sorted({p.parent for p in _PACKAGE.rglob("*.py") if "__pycache__" not in p.parts})
+    roots = [d / "__pycache__" for d in folders]
+    if os.getenv("NUMBA_CACHE_DIR"):
+        base = Path(os.environ["NUMBA_CACHE_DIR"])
+        roots += [base / f"{d.name}_{hashlib.sha1(str(d).encode()).hexdigest()}" for d in folders]
+    return [p for root in roots if root.is_dir() for p in root.iterdir()
+            if p.suffix in (".nbi", ".nbc")]  # fmt: skip
+
+
+def clear_numba_cache() -> int:
+    """Remove the package's compiled Numba kernels (:func:`numba_cache_files`); their number."""
+    files = numba_cache_files()
+    for p in files:
+        p.unlink(missing_ok=True)
+    return len(files)
+
+
 def is_current(path: Path | None = None) -> bool:
     """True if the last warm-up's record matches :func:`fingerprint` now."""
     path = stamp_path() if path is None else path
@@ -176,6 +212,12 @@ def warm_up(force: bool = False, stamp: Path | None = None, say=print) -> bool:
     if not force and is_current(path):
         say("warmup: the JIT caches are current (nothing to compile)")
         return False
+    if sources_changed(path):
+        removed = clear_numba_cache()
+        say(
+            f"warmup: the sources changed since the last warm-up: {removed} cached Numba files "
+            "removed (a kernel's cache holds its callees, and Numba does not see those change)"
+        )
     say(
         "warmup: compiling the Numba kernels and the slope's forms into their caches (about a "
         "minute, once per change of the sources)"

@@ -254,3 +254,23 @@ def test_a_resume_takes_the_finished_trials_from_their_folders(small, tmp_path):
     for key in ("factor_of_safety", "factor_of_safety_bracket", "mu_f_bracket", "bishop_cs"):
         assert again[key] == s[key], key
     assert is_png(copy / "mechanism.png")
+
+
+@pytest.mark.slow
+def test_with_rolling_friction_the_trials_divide_both_frictions(tmp_path):
+    """--rolling-friction 0.1 (mu 0.5): every trial runs at mu_f and 0.2 mu_f, the strength is
+    measured on that line, and phi at mu is read there (a coarse bracket: few trials)."""
+    out = tmp_path / "rolling"
+    run_slope_demo(out, "--factor-of-safety", "--small", "--rolling-friction", "0.1",
+                   "--fs-tolerance", "0.5", ranks=2, timeout=1500)  # fmt: skip
+    with open(out / "safety.json") as f:
+        s = json.load(f)
+    assert s["status"] == "done" and s["rolling_friction"] == 0.1 and len(s["trials"]) >= 2
+    for t in s["trials"]:
+        with open(out / t["folder"] / "summary.json") as f:
+            run = json.load(f)
+        assert run["friction"] == t["mu_f"]
+        assert run["rolling_friction"] == pytest.approx(0.2 * t["mu_f"], rel=1e-14)
+    curve = read_curve(out / "strength.csv")
+    assert all(r["mu_r"] == pytest.approx(0.2 * r["mu"], rel=1e-12) for r in curve)
+    assert s["phi_cs"] == Strength(curve, 1e-2, 0.5, rolling_ratio=0.2).phi(0.5)

@@ -206,3 +206,39 @@ def test_the_first_run_section_is_a_marked_table_of_runs_and_phases():
     assert "| S | 30.0/0.5 | 2.5 / 9.0 | 2.5 / 9.0 | 1.0 .. 2.0 |" in text
     assert "| a | 3.0 / 1.0 |" in text
     assert "| sum | 4.5 / 1.5 |" in text  # the set-up's phases add up
+
+
+def test_changed_sources_are_told_from_the_record(tmp_path):
+    stamp = tmp_path / "warmup.json"
+    assert not warmup.sources_changed(stamp)  # no record: nothing to clear
+    record = warmup.fingerprint()
+    stamp.write_text(json.dumps(record))
+    assert not warmup.sources_changed(stamp)
+    record["sources"]["warmup.py"][1] += 1  # another size of one source
+    stamp.write_text(json.dumps(record))
+    assert warmup.sources_changed(stamp)
+
+
+CACHED = """
+import json
+from dolfinx_granular import warmup
+from dolfinx_granular.laws.relaxed_friction.rolling import stiffness
+stiffness(1.0, 2.0, 3.0)  # (compiled, and cached under $NUMBA_CACHE_DIR)
+before = [str(p) for p in warmup.numba_cache_files()]
+removed = warmup.clear_numba_cache()
+print(json.dumps(dict(before=before, removed=removed, after=len(warmup.numba_cache_files()))))
+"""
+
+
+def test_the_numba_cache_files_are_found_and_cleared(tmp_path):
+    """A kernel compiled with $NUMBA_CACHE_DIR set lands where numba_cache_files looks, and
+    clear_numba_cache removes it (the warm-up does so where the sources changed: a cached
+    caller keeps its callees as they were compiled)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    proc = subprocess.run([sys.executable, "-c", CACHED], env=env, capture_output=True,
+                          text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    rolling = [p for p in report["before"] if "rolling.stiffness" in p]
+    assert rolling and all(p.startswith(str(tmp_path)) for p in rolling)
+    assert report["removed"] == len(report["before"]) and report["after"] == 0
