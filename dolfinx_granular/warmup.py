@@ -175,14 +175,15 @@ def sources_changed(path: Path | None = None) -> bool:
 
 
 def numba_cache_files() -> list[Path]:
-    """The package's compiled Numba kernels on disk (``*.nbi`` indexes, ``*.nbc`` data): in the
-    ``__pycache__`` folders beside its sources, or in ``$NUMBA_CACHE_DIR`` (one folder per source
-    folder, named as Numba names it: the folder's name and the SHA-1 of its path)."""
+    """The package's compiled Numba kernels on disk (``*.nbi`` indexes, ``*.nbc`` data), where
+    Numba keeps them: in ``$NUMBA_CACHE_DIR`` if set (one folder per source folder, named as
+    Numba names it: the folder's name and the SHA-1 of its path), else in the ``__pycache__``
+    folders beside the sources."""
     folders = sorted({p.parent for p in _PACKAGE.rglob("*.py") if "__pycache__" not in p.parts})
     roots = [d / "__pycache__" for d in folders]
     if os.getenv("NUMBA_CACHE_DIR"):
         base = Path(os.environ["NUMBA_CACHE_DIR"])
-        roots += [base / f"{d.name}_{hashlib.sha1(str(d).encode()).hexdigest()}" for d in folders]
+        roots = [base / f"{d.name}_{hashlib.sha1(str(d).encode()).hexdigest()}" for d in folders]
     return [p for root in roots if root.is_dir() for p in root.iterdir()
             if p.suffix in (".nbi", ".nbc")]  # fmt: skip
 
