@@ -36,10 +36,11 @@ def through(a, b, radius):
     return (0.5 * (xa + xb) - lift * (yb - ya), 0.5 * (ya + yb) + lift * (xb - xa))
 
 
-def hand_methods(g, phi, centre, radius, xa, xb, n, scale=0.0, sub=40):
+def hand_methods(g, phi, centre, radius, xa, xb, n, scale=0.0, sub=40, c=0.0):
     """Fellenius's and Bishop's FS of the slip mass over [xa, xb], one slice at a time: the
     slice's weight from the trapezoidal rule on ``sub`` intervals, the footing's surcharge
-    from the finite-element pressure (geometry.footing_pressure) integrated the same way."""
+    from the finite-element pressure (geometry.footing_pressure) integrated the same way;
+    cohesion ``c`` (Pa) on each slice's base, c b / cos α long."""
     xc, yc = centre
     tan_phi, gamma, b = math.tan(math.radians(phi)), g.density * g.gravity, (xb - xa) / n
     W, sin_a = [], []
@@ -51,9 +52,10 @@ def hand_methods(g, phi, centre, radius, xa, xb, n, scale=0.0, sub=40):
         sin_a.append((xc - (xa + (i + 0.5) * b)) / radius)
     W, sin_a = np.array(W), np.array(sin_a)
     cos_a, driving = np.sqrt(1.0 - sin_a**2), float(np.sum(W * sin_a))
-    fellenius = bishop = tan_phi * float(np.sum(W * cos_a)) / driving
+    fellenius = bishop = float(np.sum(c * b / cos_a + tan_phi * W * cos_a)) / driving
     for _ in range(200):
-        bishop = tan_phi * float(np.sum(W / (cos_a + sin_a * tan_phi / bishop))) / driving
+        m = cos_a + sin_a * tan_phi / bishop
+        bishop = float(np.sum((c * b + tan_phi * W) / m)) / driving
     return fellenius, bishop
 
 
@@ -82,6 +84,29 @@ def test_bishop_on_a_toe_circle_matches_the_slices_by_hand():
     # Bishop's normal forces (horizontal interslice forces) carry more than Fellenius's
     # (none): for this cohesionless circle Bishop's FS is the larger, by less than 15 %
     assert fellenius < bishop < 1.15 * fellenius
+
+
+def test_cohesion_on_a_toe_circle_matches_the_slices_by_hand():
+    """c = 50 kPa on the same circle: Bishop's FS as the slice loop's; it exceeds the
+    cohesionless one by about the cohesion's share of the resisting moment."""
+    centre = through(ENTRY, EXIT, RADIUS)
+    fs = circle_factor_of_safety(DEFAULT, 30, centre, RADIUS, cohesion=5e4)
+    _, bishop = hand_methods(DEFAULT, 30, centre, RADIUS, ENTRY[0], EXIT[0], 100, c=5e4)
+    assert fs == pytest.approx(bishop, rel=1e-3)
+    assert fs > 1.2 * circle_factor_of_safety(DEFAULT, 30, centre, RADIUS)
+
+
+def test_with_cohesion_fs_depends_on_c_over_the_unit_weight():
+    """c / (γ H) and φ set FS (Taylor's stability number): c and γ doubled together give the
+    same critical circle; c alone doubled raises FS, and the critical circle goes deeper than
+    the cohesionless slope's shallow slip."""
+    g = SlopeGeometry.with_slope_ratio(2)
+    base = bishop_factor_of_safety(g, 30, cohesion=2e4)
+    heavy = dataclasses.replace(g, density=2 * g.density)
+    twice = bishop_factor_of_safety(heavy, 30, cohesion=4e4)
+    assert twice.factor_of_safety == pytest.approx(base.factor_of_safety, rel=1e-12)
+    assert bishop_factor_of_safety(g, 30, cohesion=4e4).factor_of_safety > base.factor_of_safety
+    assert base.depth > 2 * bishop_factor_of_safety(g, 30).depth
 
 
 @pytest.mark.parametrize("eccentricity", [3.875, 0.0, -3.875])
@@ -213,6 +238,7 @@ def test_flat_ground_has_no_failing_circle():
         ({"min_depth": 100.0}, "min_depth"),
         ({"n_grid": 2}, "n_grid"),
         ({"tolerance": 0.0}, "tolerance"),
+        ({"cohesion": -1.0}, "cohesion must be a finite stress"),
     ],
 )
 def test_bad_input_raises(kwargs, match):

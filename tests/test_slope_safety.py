@@ -206,6 +206,11 @@ def test_limit_equilibrium_is_bishops_own(small):
         circle = bishop_factor_of_safety(g, s[f"phi_{which}"], s["footing_scale"])
         assert s[f"bishop_{which}"] == circle.factor_of_safety
         assert s[f"bishop_circle_{which}"]["radius"] == circle.radius
+        # the confinement (2.8e5 Pa, the default) as the cohesion p tan phi
+        c = s["options"]["confinement"] * math.tan(math.radians(s[f"phi_{which}"]))
+        confined = bishop_factor_of_safety(g, s[f"phi_{which}"], s["footing_scale"], cohesion=c)
+        assert s[f"bishop_{which}_confined"] == confined.factor_of_safety
+        assert confined.factor_of_safety > circle.factor_of_safety
     assert s["infinite_slope_cs"] == infinite_slope_factor_of_safety(g, s["phi_cs"])
 
 

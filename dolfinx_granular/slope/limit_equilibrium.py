@@ -1,8 +1,11 @@
 """Limit equilibrium of the slope benchmark: the infinite slope and Bishop's simplified method.
 
-Dry cohesionless soil (c = 0, no pore pressure) of unit weight γ = density x gravity, plane
-strain, per metre of width, on the ground of a :class:`~.geometry.SlopeGeometry`. Pure numpy:
-nothing here needs DOLFINx.
+Dry soil (no pore pressure) of unit weight γ = density x gravity, friction angle φ and
+cohesion c (0 by default: cohesionless), plane strain, per metre of width, on the ground of a
+:class:`~.geometry.SlopeGeometry`. Pure numpy: nothing here needs DOLFINx. A uniform
+confining pressure p held on the ground's boundary (the finite-element slope's
+``confinement``) adds p to the normal stress on every slip surface and nothing to the driving
+moment (an isotropic stress is in equilibrium by itself): it acts as a cohesion c = p tan φ.
 
 * :func:`infinite_slope_factor_of_safety`: FS = tan φ / tan β;
 * :func:`circle_factor_of_safety`: Bishop's simplified FS on one given circle;
@@ -80,13 +83,14 @@ def circle_factor_of_safety(
     radius: float,
     footing_scale: float = 0.0,
     n_slices: int = 100,
+    cohesion: float = 0.0,
 ) -> float:
     """Bishop's simplified FS of the slip mass above the circle of ``centre`` (x, y) (m) and
-    ``radius`` (m), with ``footing_scale`` x the footing load on it; ``n_slices`` slices of
-    equal width. ValueError if the circle's lower arc does not cut the ground exactly twice
-    within [0, width] or dips below the base y = 0. The m_α and depth checks of the search are
-    not applied; inf if the slip mass drives no slip."""
-    _check(geometry, phi_degrees, footing_scale, n_slices)
+    ``radius`` (m), with ``footing_scale`` x the footing load on it and ``cohesion`` c (Pa);
+    ``n_slices`` slices of equal width. ValueError if the circle's lower arc does not cut the
+    ground exactly twice within [0, width] or dips below the base y = 0. The m_α and depth
+    checks of the search are not applied; inf if the slip mass drives no slip."""
+    _check(geometry, phi_degrees, footing_scale, n_slices, cohesion)
     xc, yc = (float(v) for v in centre)
     if not (_number(radius) and radius > 0 and math.isfinite(xc) and math.isfinite(yc)):
         raise ValueError(
@@ -101,7 +105,8 @@ def circle_factor_of_safety(
     W, sin_a, cos_a, _ = _slices(
         geometry, footing_scale, *(np.array([v]) for v in (xa, xb, xc, yc, radius)), n_slices
     )
-    fs, _ = _bishop(W, sin_a, cos_a, math.tan(math.radians(phi_degrees)))
+    cb = np.array([cohesion * (xb - xa) / n_slices])
+    fs, _ = _bishop(W, sin_a, cos_a, math.tan(math.radians(phi_degrees)), cb)
     return float(fs[0])
 
 
@@ -114,10 +119,12 @@ def bishop_factor_of_safety(
     n_slices: int = 100,
     n_grid: int = 31,
     tolerance: float = 0.01,
+    cohesion: float = 0.0,
 ) -> SlipCircle:
     """The critical circle and its FS by Bishop's simplified method (module docstring).
 
-    ``phi_degrees``: friction angle in (0, 90) degrees; ``footing_scale`` >= 0: the share of
+    ``phi_degrees``: friction angle in (0, 90) degrees; ``cohesion``: c >= 0 (Pa; p tan φ
+    stands for a confining pressure p); ``footing_scale`` >= 0: the share of
     ``geometry.footing_load`` on the footing, with the finite-element model's linear pressure
     (:meth:`~.geometry.SlopeGeometry.footing_pressure`) as a surcharge on the slices beneath;
     ``min_depth`` (m): the shallowest admissible slip mass, by default 5 % of the slope's
@@ -132,13 +139,13 @@ def bishop_factor_of_safety(
     the footing) the FS agrees with an 81-point grid's to 0.1 %, and with 300 slices' to
     0.3 % (the footing's circles, which end on the m_α limit).
     """
-    _check(geometry, phi_degrees, footing_scale, n_slices)
+    _check(geometry, phi_degrees, footing_scale, n_slices, cohesion)
     depth = _min_depth(geometry, min_depth)
     if not (_integer(n_grid) and n_grid >= 3):
         raise ValueError(f"n_grid must be an integer >= 3 (31 by default), got {n_grid!r}")
     if not (_number(tolerance) and tolerance > 0):
         raise ValueError(f"tolerance must be a length > 0 m (0.01 by default), got {tolerance!r}")
-    coarse = _evaluator(geometry, phi_degrees, footing_scale, depth, min(n_slices, 40))
+    coarse = _evaluator(geometry, phi_degrees, footing_scale, depth, min(n_slices, 40), cohesion)
     xs = np.linspace(0.0, geometry.width, n_grid)
     xa, xb, u = (a.ravel() for a in np.meshgrid(xs, xs, np.log(U_GRID), indexing="ij"))
     p = np.stack([xa, xb, u], axis=1)[xa < xb]
@@ -146,7 +153,7 @@ def bishop_factor_of_safety(
     starts = np.argsort(fs, kind="stable")[:STARTS]
     if not np.isfinite(fs[starts[0]]):
         return SlipCircle(math.inf, *[math.nan] * 6)
-    evaluate = _evaluator(geometry, phi_degrees, footing_scale, depth, n_slices)
+    evaluate = _evaluator(geometry, phi_degrees, footing_scale, depth, n_slices, cohesion)
     step = np.array([xs[1], xs[1], np.log(U_GRID[1] / U_GRID[0])])
     tolerance = tolerance / np.array([1.0, 1.0, geometry.width])
     found = [_refine(evaluate, p[k], step, tolerance) for k in starts if np.isfinite(fs[k])]
@@ -176,7 +183,7 @@ def _refine(evaluate, p, step, tolerance) -> SlipCircle:
     return SlipCircle(float(fs), xc, yc, R, float(p[0]), float(p[1]), depth)
 
 
-def _evaluator(geometry, phi_degrees, footing_scale, min_depth, n_slices):
+def _evaluator(geometry, phi_degrees, footing_scale, min_depth, n_slices, cohesion=0.0):
     """``evaluate(p)``: FS (m,) of the circles of parameters p (m, 3) (x_a, x_b, ln u), inf
     where inadmissible, and their centre x, centre y, radius and depth (4, m)."""
     tan_phi = math.tan(math.radians(phi_degrees))
@@ -187,7 +194,7 @@ def _evaluator(geometry, phi_degrees, footing_scale, min_depth, n_slices):
         xa, xb, u = xa[ok], xb[ok], np.exp(log_u[ok])
         xc, yc, R = _circle(geometry, xa, xb, u)
         W, sin_a, cos_a, depth = _slices(geometry, footing_scale, xa, xb, xc, yc, R, n_slices)
-        fs, m_min = _bishop(W, sin_a, cos_a, tan_phi)
+        fs, m_min = _bishop(W, sin_a, cos_a, tan_phi, cohesion * (xb - xa) / n_slices)
         floor = np.where((xa <= xc) & (xc <= xb), yc - R, 0.0)
         admissible = (depth >= min_depth) & (floor >= 0.0) & (m_min >= M_ALPHA_MIN) & (fs > 0)
         out = np.full(len(p), np.inf)
@@ -231,21 +238,25 @@ def _slices(geometry, footing_scale, xa, xb, xc, yc, R, n):
     return W, sin_a, cos_a, depth
 
 
-def _bishop(W, sin_a, cos_a, tan_phi, rtol=1e-11, max_iter=500):
-    """Bishop's simplified FS (m,) of slices W, sin α, cos α (m, n), c = 0, from Fellenius's
-    by fixed-point iteration to ``rtol``, and the least m_α (m,) on a loaded slice. A slip
-    mass whose weight turns it towards -x is mirrored (α -> -α); inf where it drives no slip
-    or the iteration fails (FS <= 0 or no convergence)."""
+def _bishop(W, sin_a, cos_a, tan_phi, cb=0.0, rtol=1e-11, max_iter=500):
+    """Bishop's simplified FS (m,) of slices W, sin α, cos α (m, n) with cohesion times slice
+    width ``cb`` (m,) (N/m; 0: cohesionless), from Fellenius's by fixed-point iteration to
+    ``rtol``, and the least m_α (m,) on a loaded slice. A slip mass whose weight turns it
+    towards -x is mirrored (α -> -α); inf where it drives no slip or the iteration fails (FS <=
+    0 or no convergence)."""
     driving = np.sum(W * sin_a, axis=1)
     sin_a = sin_a * np.where(driving < 0.0, -1.0, 1.0)[:, None]
     driving = np.abs(driving)
+    cb = np.broadcast_to(np.asarray(cb, dtype=float), (len(W),))[:, None]
     fs = np.full(len(W), np.inf)
     live = np.flatnonzero(driving > 1e-12 * np.sum(W, axis=1))  # not a symmetric mass
-    fs[live] = tan_phi * np.sum(W[live] * cos_a[live], axis=1) / driving[live]
     with np.errstate(divide="ignore", invalid="ignore"):
+        # (Fellenius: c over the base's length b / cos α)
+        base = cb[live] / cos_a[live] + tan_phi * W[live] * cos_a[live]
+        fs[live] = np.sum(base, axis=1) / driving[live]
         for _ in range(max_iter):
             m = cos_a[live] + sin_a[live] * (tan_phi / fs[live, None])
-            new = tan_phi * np.sum(W[live] / m, axis=1) / driving[live]
+            new = np.sum((cb[live] + tan_phi * W[live]) / m, axis=1) / driving[live]
             done = np.abs(new - fs[live]) <= rtol * np.abs(new)
             fs[live] = np.where(np.isfinite(new) & (new > 0.0), new, np.inf)
             live = live[~done & np.isfinite(fs[live])]
@@ -298,9 +309,11 @@ def _check_phi(phi_degrees):
         )
 
 
-def _check(geometry, phi_degrees, footing_scale, n_slices):
+def _check(geometry, phi_degrees, footing_scale, n_slices, cohesion=0.0):
     """ValueError naming the bad argument and the fix."""
     _check_phi(phi_degrees)
+    if not (_number(cohesion) and cohesion >= 0.0):
+        raise ValueError(f"cohesion must be a finite stress >= 0 in Pa, got {cohesion!r}")
     if not (_number(footing_scale) and footing_scale >= 0.0):
         raise ValueError(
             "footing_scale must be a finite number >= 0 (the share of footing_load applied: "

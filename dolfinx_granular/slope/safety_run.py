@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import time
 from typing import TYPE_CHECKING, Any
@@ -54,16 +55,27 @@ def trial_folder(mu_f: float) -> str:
 
 
 def limit_equilibrium(
-    geometry: SlopeGeometry, phi_cs: float, phi_peak: float, footing_scale: float
+    geometry: SlopeGeometry,
+    phi_cs: float,
+    phi_peak: float,
+    footing_scale: float,
+    confinement: float = 0.0,
 ) -> dict:
     """Bishop's simplified method (critical circle) and the infinite slope with the
-    critical-state and the peak friction angles (degrees), for safety.json."""
+    critical-state and the peak friction angles (degrees), for safety.json; with a
+    ``confinement`` p > 0 (Pa) also Bishop's with the cohesion p tan φ that the confining
+    pressure on the slope's boundary amounts to (``bishop_cs_confined``, ``_peak_``)."""
     out = {}
     for which, phi in (("cs", phi_cs), ("peak", phi_peak)):
         circle = bishop_factor_of_safety(geometry, phi, footing_scale)
         out[f"bishop_{which}"] = circle.factor_of_safety
         out[f"bishop_circle_{which}"] = dataclasses.asdict(circle)
         out[f"infinite_slope_{which}"] = infinite_slope_factor_of_safety(geometry, phi)
+        if confinement > 0.0:
+            c = confinement * math.tan(math.radians(phi))
+            confined = bishop_factor_of_safety(geometry, phi, footing_scale, cohesion=c)
+            out[f"bishop_{which}_confined"] = confined.factor_of_safety
+            out[f"bishop_circle_{which}_confined"] = dataclasses.asdict(confined)
     return out
 
 
@@ -114,7 +126,9 @@ class SafetyRun:
         self.phi = {w: strength.phi(mu, w) for w in ("cs", "peak")}
         limit = None  # (a grid search of a few seconds: once, on rank 0)
         if comm.rank == 0:
-            limit = limit_equilibrium(g, self.phi["cs"], self.phi["peak"], footing_scale)
+            limit = limit_equilibrium(
+                g, self.phi["cs"], self.phi["peak"], footing_scale, options.confinement
+            )
         self.limit = comm.bcast(limit, root=0)
 
     def fs(self, mu_f: float) -> float:
@@ -163,8 +177,8 @@ class SafetyRun:
             f"safety: strength reduction of the contact friction mu = {what} ({load}; FS to "
             f"{100 * self.tolerance:g} %): phi_cs {self.phi['cs']:.2f}°, phi_peak "
             f"{self.phi['peak']:.2f}° at p/k_n = {self.strength.p_over_kn:g}; Bishop "
-            f"{self.limit['bishop_cs']:.4g} (cs), {self.limit['bishop_peak']:.4g} (peak), "
-            f"infinite slope {self.limit['infinite_slope_cs']:.4g} (cs); "
+            f"{self.limit['bishop_cs']:.4g} (cs), {self.limit['bishop_peak']:.4g} (peak)"
+            f"{_confined(self.limit)}, infinite slope {self.limit['infinite_slope_cs']:.4g} (cs); "
             f"1:{o.geometry.slope_ratio:g} slope, {o.geometry.n_cells} cells"
         )
 
@@ -315,10 +329,19 @@ class SafetyRun:
             f"safety: factor of safety {bound}{fs:.4g}{within} from phi_cs, {bound}"
             f"{record['factor_of_safety_peak']:.4g} from phi_peak; mu / mu_f = "
             f"{record['mu_ratio']:.4g} (mu_f = {record['mu_f']:.5g}); Bishop "
-            f"{record['bishop_cs']:.4g} (cs), {record['bishop_peak']:.4g} (peak), infinite slope "
-            f"{record['infinite_slope_cs']:.4g}; {len(record['trials'])} trials, "
+            f"{record['bishop_cs']:.4g} (cs), {record['bishop_peak']:.4g} (peak)"
+            f"{_confined(record)}, infinite slope {record['infinite_slope_cs']:.4g}; "
+            f"{len(record['trials'])} trials, "
             f"{record['wall_time']:.1f} s; results in {self.out}"
         )
+
+
+def _confined(limit):
+    """Bishop's FS with the confinement as cohesion, for a progress line ("" without one)."""
+    if "bishop_cs_confined" not in limit:
+        return ""
+    return (f" (with the confinement as cohesion p tan phi: {limit['bishop_cs_confined']:.4g} "
+            f"cs, {limit['bishop_peak_confined']:.4g} peak)")  # fmt: skip
 
 
 def _finished_summary(path):
