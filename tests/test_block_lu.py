@@ -71,11 +71,14 @@ def test_the_flop_count_grows_with_the_fill():
     assert 0 < block_lu.flops(p) < block_lu.flops(dense)
 
 
-@pytest.fixture(scope="module")
-def slipping():
+@pytest.fixture(scope="module", params=[0.0, 0.05], ids=["sliding", "rolling"])
+def slipping(request):
     """A frictional relaxed packing sheared from its compressed state: the cell, its springs
-    and the CellState at the solution (contacts slipping)."""
-    rve = FrictionalRelaxedRVE(generate_packing(70, seed=1), 1e8, 1e8, friction=0.3)
+    and the CellState at the solution (contacts slipping; with rolling resistance, some
+    rolling too)."""
+    rve = FrictionalRelaxedRVE(
+        generate_packing(70, seed=1), 1e8, 1e8, friction=0.3, rolling_friction=request.param
+    )
     F1, F2 = np.diag([0.99, 0.99]), np.array([[0.99, 0.004], [0.001, 0.992]])
     committed = rve.evaluate(F1, rve.initial_state(1))[3]
     eq, _ = rve.equilibrium(F2, committed, 0)
@@ -110,9 +113,9 @@ def _superlu_matrix(rve, F, s, tangent, held):
     reach = cell_state.RATTLER_REACH * s.e[s.on].mean()
     sp_ = rve.springs
     diag = cell_state.diagonal(
-        s.status, s.network, s.keep, cell.pi[: s.m], cell.pj[: s.m], cell.radii, s.r, s.fstar,
-        s.e, sp_.kn, sp_.kt, sp_.mu, sp_.inv_area, pinned, reach, cell_state.RATTLER_SHIFT,
-        tangent, 1.0,
+        s.status, s.rstatus, s.network, s.keep, cell.pi[: s.m], cell.pj[: s.m], cell.radii, s.r,
+        s.fstar, s.mstar, s.e, sp_.kn, sp_.kt, sp_.mu, sp_.kr, sp_.mu_r, sp_.inv_area, pinned,
+        reach, cell_state.RATTLER_SHIFT, tangent, 1.0,
     )  # fmt: skip
     idx = np.arange(3 * N)
     return sp.coo_matrix(
