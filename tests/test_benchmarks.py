@@ -78,6 +78,12 @@ def test_relaxed_bvp_benchmark_cases_run_and_make_a_section():
     text = relaxed_bvp.markdown(res, "python benchmarks/relaxed_bvp.py", 0.1)
     assert text.startswith(relaxed_bvp.BEGIN) and text.endswith(relaxed_bvp.END)
     assert "## 9. The relaxed RVE in boundary value problems" in text
+    for law in relaxed_bvp.LAWS:
+        assert f"| {law} | {len(column['steps'])} |" in text
+    for law in relaxed_bvp.RELAXED:
+        assert f"| {law}, path following, 2 ranks |" in text
+    law = relaxed_bvp.confined_law("relaxed_friction", 1, relaxed_bvp.COLUMN_CONFINEMENT)
+    assert law.springs.mu == relaxed_bvp.FRICTION and law.springs.kt == relaxed_bvp.K_N
 
 
 @pytest.mark.slow
