@@ -231,6 +231,11 @@ def _ending(r):
     crossed = ", ".join(r.get("critical") or []) or "none"
     if r["failed"] is not None:
         return f"at {top:.4g} x the weight: {r['failed']} (critical points crossed: {crossed})"
+    if not r.get("critical"):
+        return (
+            f"after {len(r['steps'])} increments at {top:.4g} x the weight, without a critical "
+            f"point (by the sign of det K); {r.get('stopped')}"
+        )
     return (
         f"after {len(r['steps'])} increments with a peak of {top:.4g} x the weight (critical "
         f"points crossed, by the sign of det K: {crossed}); {r.get('stopped')}"

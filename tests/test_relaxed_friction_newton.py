@@ -10,6 +10,7 @@ from dolfinx_granular.laws.relaxed_friction.block_lu import BlockLU
 from dolfinx_granular.laws.relaxed_friction.cell_state import CellState
 from dolfinx_granular.laws.relaxed_friction.newton import Counts, solve
 from dolfinx_granular.laws.relaxed_friction.point import predicted
+from dolfinx_granular.laws.tools import CHUNK, chunks
 
 import numpy as np
 import pytest
@@ -196,3 +197,30 @@ def test_a_disk_that_barely_touches_is_a_rattler():
     assert keep.tolist() == [True, True, True, True, False]
     e[6:] = 1e-4  # (a tenth of the mean: it holds)
     assert cell_state.holding(pi, pj, e, 5).all()
+
+
+def test_the_entries_take_every_argument_in_chunks_numba_types_from_its_cache(start):
+    """What crosses from Python into the compiled loop: every tuple in chunks of at most 4
+    items, joined back to the tuple it was, each with a type fingerprint Numba caches (at most
+    40 bytes: Numba before 0.57 corrupts a longer one and types it in Python at every call)."""
+    from numba import _dispatcher
+
+    rve, inc, w, th = start
+    cell = rve.cell
+    s = CellState(cell, rve.springs, F2, w, th, inc)
+    pattern, lu = _pattern(cell, s.m)
+    long = (*_arguments(rve, inc, F2), cell.geometry(), pattern, s.arrays())
+    for t in long:
+        parts = chunks(t)
+        assert sum(parts, ()) == t and all(0 < len(c) <= CHUNK for c in parts)
+        for c in parts:
+            fingerprint = _dispatcher.compute_fingerprint(c)
+            assert len(fingerprint) <= 40 and fingerprint == _dispatcher.compute_fingerprint(c)
+    assert max(len(_dispatcher.compute_fingerprint(t)) for t in long) > 40  # (why chunks)
+    code, held, statuses = nk.factorise(F2, s.arrays(), *_arguments(rve, inc, F2)[1:], pattern,
+                                        lu, 0.0, False, 1.0)  # fmt: skip
+    again = nk.factorise_entry(F2, *chunks(s.arrays()), *chunks(nk.cell_arrays(cell)),
+                               nk.spring_arrays(rve.springs), *chunks(pattern), lu, 0.0, False,
+                               1.0)  # fmt: skip
+    assert code == again[0] and np.array_equal(held, again[1])
+    assert np.array_equal(statuses, again[2])

@@ -140,5 +140,5 @@ def test_a_start_of_no_contact_has_lost_rigidity(committed):
     w, th = _start(committed, HARD)
     F = 1.5 * np.eye(2)  # (every contact open)
     code, _, _, _ = nk.run(rve.cell, rve.springs, F, w, th, inc, rve.settings, Counts(),
-                           pt.transient, 10, (np.array([pt.SIGMA_START]),))  # fmt: skip
+                           pt.transient_entry, 10, (np.array([pt.SIGMA_START]),))  # fmt: skip
     assert code == nk.RIGIDITY_LOST

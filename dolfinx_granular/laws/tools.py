@@ -125,6 +125,21 @@ def push_forward(
     return sigma, a
 
 
+#: the most items of a tuple handed from Python to a compiled function (:func:`chunks`)
+CHUNK = 4
+
+
+def chunks(items: tuple) -> tuple:
+    """``items`` in tuples of at most :data:`CHUNK` items, for a compiled entry that joins
+    them again (``a + b`` of tuples compiles to nothing).
+
+    Why: Numba before 0.57 (Debian 12's 0.56) caches the type of each argument under a
+    fingerprint whose buffer is corrupted past 40 bytes, as a tuple of 5 arrays or more makes
+    it. Such a tuple misses the cache and is typed in Python at every call (about 0.2 ms), and
+    the cache grows by an entry each time."""
+    return tuple(items[k : k + CHUNK] for k in range(0, len(items), CHUNK))
+
+
 def singular_values_2x2(F: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Singular values ``(s_max, s_min)`` of (n, 2, 2) matrices, accurate to a few ulp absolute.
 

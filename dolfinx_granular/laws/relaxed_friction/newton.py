@@ -23,6 +23,7 @@ from scipy.sparse.linalg import splu
 
 from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
+from ..tools import chunks
 from . import newton_kernel, pseudo_time
 from .block_lu import BlockLU
 from .cell_state import CellState, Increment, Springs
@@ -69,10 +70,11 @@ def factorise(cell: Cell, springs: Springs, F, s: CellState, tangent: bool,
     p, lu, cover = cell.block_pattern(
         -1, int(used[-1]) + 1 if used.size else 1, d=3, new_factor=BlockLU.on
     )
-    code, held, _ = newton_kernel.factorise(
-        np.ascontiguousarray(F, dtype=np.float64), s.arrays(), newton_kernel.cell_arrays(cell),
-        newton_kernel.spring_arrays(springs), newton_kernel.pattern_arrays(p, cover),
-        lu.arrays(), 0.0, tangent, float(free_rotation),
+    code, held, _ = newton_kernel.factorise_entry(
+        np.ascontiguousarray(F, dtype=np.float64), *chunks(s.arrays()),
+        *chunks(newton_kernel.cell_arrays(cell)), newton_kernel.spring_arrays(springs),
+        *chunks(newton_kernel.pattern_arrays(p, cover)), lu.arrays(), 0.0, tangent,
+        float(free_rotation),
     )  # fmt: skip
     lu.ok = code == 0
     if lu.ok:
@@ -92,7 +94,7 @@ def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Sett
     t0 = time.perf_counter()
     if pseudo:
         code, why, w, th = newton_kernel.run(
-            cell, springs, F, w, th, inc, settings, counts, pseudo_time.transient,
+            cell, springs, F, w, th, inc, settings, counts, pseudo_time.transient_entry,
             settings.pseudo_steps, (np.array([pseudo_time.SIGMA_START]),),
         )  # fmt: skip
         counts.pseudo_steps += counts.steps - steps

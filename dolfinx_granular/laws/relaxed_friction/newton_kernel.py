@@ -15,7 +15,7 @@ from numba import njit
 
 from ..relaxed.cell import SKIN
 from ..relaxed.newton import visited
-from ..tools import singular_values_2x2
+from ..tools import chunks, singular_values_2x2
 from .block_lu import BlockLU, assemble, numeric, refined_solve
 from .cell_state import RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal, holding
 from .contact_law import OPEN, SLIP, STICK, return_map
@@ -349,18 +349,39 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
     return FAILED, STALLED, w, th, w
 
 
+@njit(cache=True)
+def newton_entry(F, F_smin, w, th, inc0, inc1, cell0, cell1, springs, geo0, geo1, geo2,
+                 verlet, pat0, pat1, pat2, pat3, lu, force_tol, max_iterations, history,
+                 counts):  # fmt: skip
+    """:func:`newton` from Python: its long tuples in chunks (:func:`~dolfinx_granular.laws.
+    tools.chunks`: the increment's 5 arrays, the cell's 6, the geometry's 12, the pattern's
+    13)."""
+    return newton(F, F_smin, w, th, inc0 + inc1, cell0 + cell1, springs, geo0 + geo1 + geo2,
+                  verlet, pat0 + pat1 + pat2 + pat3, lu, force_tol, max_iterations, history,
+                  counts)  # fmt: skip
+
+
+@njit(cache=True)
+def factorise_entry(F, s0, s1, s2, s3, s4, cell0, cell1, springs, pat0, pat1, pat2, pat3, lu,
+                    edge, tangent, free_rotation):  # fmt: skip
+    """:func:`factorise` from Python: the cell state's 18 arrays, the cell's 6 and the
+    pattern's 13 in chunks (:func:`~dolfinx_granular.laws.tools.chunks`)."""
+    return factorise(F, s0 + s1 + s2 + s3 + s4, cell0 + cell1, springs,
+                     pat0 + pat1 + pat2 + pat3, lu, edge, tangent, free_rotation)  # fmt: skip
+
+
 #: hand-backs (the list grown, a longer pattern) of one solve before it counts as failed
 HAND_BACKS = 20
 
 
 def run(cell, springs, F, w, th, inc, settings, counts, kernel=None, max_steps=None,
         extra=()) -> tuple:  # fmt: skip
-    """``kernel`` (:func:`newton`, or one with its arguments and outcome and ``extra`` ones
-    after them) at most ``max_steps`` (``settings.max_iterations``) steps on the cell's block
+    """``kernel`` (:func:`newton_entry`, or one with its arguments and outcome and ``extra``
+    ones after them) at most ``max_steps`` (``settings.max_iterations``) steps on the cell's block
     pattern for the candidates visited at (F, w), the list grown and the pattern lengthened
     where it hands back: ``(code, why, w, th)``, the residuals appended to
     ``counts.history``."""
-    kernel = newton if kernel is None else kernel
+    kernel = newton_entry if kernel is None else kernel
     max_steps = settings.max_iterations if max_steps is None else max_steps
     F = np.ascontiguousarray(F, dtype=np.float64)
     F_smin = float(singular_values_2x2(F[None])[1][0])
@@ -372,10 +393,10 @@ def run(cell, springs, F, w, th, inc, settings, counts, kernel=None, max_steps=N
         committed = inc.arrays(cell.pi.shape[0])
         p, lu, cover = cell.block_pattern(-1, max(need, 1), d=3, new_factor=BlockLU.on)
         code, why, w, th, reached = kernel(
-            F, F_smin, w, th, committed,
-            cell_arrays(cell), spring_arrays(springs), cell.geometry(), cell.verlet(),
-            pattern_arrays(p, cover), lu.arrays(), settings.force_tol, max_steps, history,
-            tally, *extra,
+            F, F_smin, w, th, *chunks(committed), *chunks(cell_arrays(cell)),
+            spring_arrays(springs), *chunks(cell.geometry()), cell.verlet(),
+            *chunks(pattern_arrays(p, cover)), lu.arrays(), settings.force_tol, max_steps,
+            history, tally, *extra,
         )  # fmt: skip
         if code != HAND_BACK:
             break

@@ -80,6 +80,17 @@ def potential_falls(s, trial, dq, cell, springs, armijo):
 
 
 @njit(cache=True)
+def transient_entry(F, F_smin, w, th, inc0, inc1, cell0, cell1, springs, geo0, geo1, geo2,
+                    verlet, pat0, pat1, pat2, pat3, lu, force_tol, max_steps, history, counts,
+                    sigma):  # fmt: skip
+    """:func:`transient` from Python, its long tuples in chunks as
+    :func:`~dolfinx_granular.laws.relaxed_friction.newton_kernel.newton_entry` takes them."""
+    return transient(F, F_smin, w, th, inc0 + inc1, cell0 + cell1, springs, geo0 + geo1 + geo2,
+                     verlet, pat0 + pat1 + pat2 + pat3, lu, force_tol, max_steps, history,
+                     counts, sigma)  # fmt: skip
+
+
+@njit(cache=True)
 def transient(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force_tol,
               max_steps, history, counts, sigma):  # fmt: skip
     """Pseudo-transient continuation from (w, th), with the arguments and outcome of
