@@ -142,6 +142,49 @@ def test_next_friction_starts_at_mu():
     assert next_friction([], 0.3, lambda m: 1.0) == 0.3
 
 
+def test_a_scattered_flat_curve_ends_the_bisection_on_the_frictions():
+    """Where phi is flat in mu and scattered (packings measured at each mu_f), FS at the two
+    ends of a narrow bracket can differ by more than the tolerance however narrow it is (here
+    phi steps by half a degree at the limit): the search stops once the frictions differ by at
+    most the tolerance, and says that the curve, not the search, limits FS (as on the 380-cell
+    slope: phi_cs 7.3, 6.9 and 7.9 degrees at mu_f = 0.031, 0.047 and 0.0625)."""
+    mu, limit = 0.5, 0.05
+
+    def fs(m):  # tan phi(mu) / tan phi(m)
+        phi = 28.0 if m >= 0.5 else (7.0 if m >= limit else 6.5)
+        return math.tan(math.radians(28.0)) / math.tan(math.radians(phi))
+
+    trials, done = search(lambda m: fake_trial(m, limit), mu, fs, 0.01)
+    failing, passing = bracket(trials)
+    assert done and failing.mu_f < limit <= passing.mu_f
+    assert passing.mu_f / failing.mu_f - 1.0 <= 0.01 < fs(failing.mu_f) / fs(passing.mu_f) - 1
+    assert len(trials) == 4 + 7  # 0.5 .. 0.03125, then 7 bisections of [0.03125, 0.0625]
+    answer = outcome(trials, mu, fs, fs, 0.01)
+    assert answer["converged"] and answer["curve_limited"]
+
+
+def test_a_curve_that_falls_across_the_bracket_ends_the_search_curve_limited():
+    """phi at the failing end above phi at the passing one (FS falling as mu_f rises): no
+    bisection can order them; the search ends there, and says so."""
+    mu, limit = 0.5, 0.05
+
+    def fs(m):
+        phi = 28.0 if m >= 0.5 else (7.0 if m >= limit else 7.5)
+        return math.tan(math.radians(28.0)) / math.tan(math.radians(phi))
+
+    trials, done = search(lambda m: fake_trial(m, limit), mu, fs, 0.01)
+    assert done and [t.mu_f for t in trials] == [0.5, 0.25, 0.125, 0.0625, 0.03125]
+    answer = outcome(trials, mu, fs, fs, 0.01)
+    assert answer["converged"] and answer["curve_limited"]
+
+
+def test_a_smooth_curve_is_not_curve_limited():
+    strength, trials, _ = run_search(0.5, 0.07)
+    fs = strength.factor_of_safety
+    answer = outcome(trials, 0.5, fs, fs)
+    assert answer["converged"] and not answer["curve_limited"]
+
+
 def test_measured_strength_is_measured_at_each_trial_friction():
     asked = []
 

@@ -9,7 +9,10 @@ is found along it (the run stops early).
 The search (:func:`next_friction`) starts at the user's mu; while every trial passes it halves
 mu_f (at most :data:`HALVINGS` times), while every trial fails it doubles it (at most
 :data:`DOUBLINGS` times); once a failing mu_f lies below a passing one it bisects that bracket
-until the factors of safety of its ends differ by at most ``tolerance`` (relative). The factor of
+until the factors of safety of its ends differ by at most ``tolerance`` (relative), or until its
+ends' frictions do (:func:`settled`): where phi is flat in mu, as below mu of about 0.1, the
+scatter of the measured curve between packings can make phi at the two ends of a narrow bracket
+differ more than its width, and no bisection would narrow FS. The factor of
 safety is FS = tan phi(mu) / tan phi(mu_f) with phi from the strength curve
 (:func:`~dolfinx_granular.drivers.strength.friction_angle`, linear in mu) and mu_f the middle of
 the last bracket; mu / mu_f is reported beside it, never alone (phi saturates in mu).
@@ -149,9 +152,16 @@ def next_friction(
         above = failing.mu_f * 2.0
         ok = above <= mu * 2.0**DOUBLINGS * (1 + 1e-12) and above <= mu_range[1]
         return above if ok else None
-    if width(fs, failing, passing) <= tolerance:
+    if settled(fs, failing, passing, tolerance):
         return None
     return 0.5 * (failing.mu_f + passing.mu_f)
+
+
+def settled(fs: Callable[[float], float], failing: Trial, passing: Trial, tolerance: float) -> bool:
+    """Whether the bracket (failing, passing) is narrow enough: its ends' FS, or their frictions,
+    differ by at most ``tolerance`` (relative)."""
+    narrow_mu = passing.mu_f / failing.mu_f - 1.0 <= tolerance
+    return width(fs, failing, passing) <= tolerance or narrow_mu
 
 
 def width(fs: Callable[[float], float], failing: Trial, passing: Trial) -> float:
@@ -171,8 +181,11 @@ def outcome(
     ``factor_of_safety_peak`` at ``mu_f``, ``mu_ratio`` = mu / mu_f, the ``mu_f_bracket``
     (failing, passing) and its ``factor_of_safety_bracket`` (low, high), ``bound``: None where
     a bracket exists, ``"lower"`` where every trial passed (FS >= the value: even the least
-    mu_f carried the load), ``"upper"`` where every trial failed (FS < the value), and
-    ``converged`` (the bracket within ``tolerance``). Empty values without trials."""
+    mu_f carried the load), ``"upper"`` where every trial failed (FS < the value),
+    ``converged`` (the bracket within ``tolerance``, :func:`settled`) and ``curve_limited``
+    (converged, but the bracket's FS differ by more than ``tolerance``, or fall as mu_f rises:
+    phi is not monotone between its ends, and FS is as uncertain as the strength curve, not as
+    the search). Empty values without trials."""
     failing, passing = bracket(trials)
     out = dict(
         factor_of_safety=None,
@@ -183,6 +196,7 @@ def outcome(
         factor_of_safety_bracket=None,
         bound=None,
         converged=False,
+        curve_limited=False,
     )
     if failing is None and passing is None:
         return out
@@ -192,7 +206,9 @@ def outcome(
         out.update(
             mu_f_bracket=[failing.mu_f, passing.mu_f],
             factor_of_safety_bracket=ends,
-            converged=width(fs, failing, passing) <= tolerance,
+            converged=settled(fs, failing, passing, tolerance),
+            curve_limited=settled(fs, failing, passing, tolerance)
+            and not 0.0 <= width(fs, failing, passing) <= tolerance,
         )
     else:
         mu_f = (passing or failing).mu_f
