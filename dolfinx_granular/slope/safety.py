@@ -203,12 +203,12 @@ def outcome(
     if failing is not None and passing is not None:
         mu_f = 0.5 * (failing.mu_f + passing.mu_f)
         ends = sorted((fs(passing.mu_f), fs(failing.mu_f)))
+        done = settled(fs, failing, passing, tolerance)
         out.update(
             mu_f_bracket=[failing.mu_f, passing.mu_f],
             factor_of_safety_bracket=ends,
-            converged=settled(fs, failing, passing, tolerance),
-            curve_limited=settled(fs, failing, passing, tolerance)
-            and not 0.0 <= width(fs, failing, passing) <= tolerance,
+            converged=done,
+            curve_limited=done and not 0.0 <= width(fs, failing, passing) <= tolerance,
         )
     else:
         mu_f = (passing or failing).mu_f

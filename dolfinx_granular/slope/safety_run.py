@@ -327,9 +327,8 @@ class SafetyRun:
         within = f" (bracket {spread[0]:.4g} .. {spread[1]:.4g})" if spread else ""
         if record.get("curve_limited"):
             within += (
-                f" (mu_f bracketed to {100 * self.tolerance:g} %; the strength curve, not the "
-                "search, sets how well FS is known there: phi is not monotone or not resolved "
-                "between the bracket's frictions)"
+                " (the strength curve, not the search, sets how well FS is known: phi is flat "
+                "or not monotone between the bracket's frictions)"
             )
         return (
             f"safety: factor of safety {bound}{fs:.4g}{within} from phi_cs, {bound}"
