@@ -21,7 +21,8 @@
 #
 # `--factor-of-safety` finds the slope's factor of safety by strength reduction of the contact
 # friction (the frictional relaxed RVE; see docs/slope.md); with `--small` on a 2-row mesh with
-# a coarse strength curve and bracket, into `results/slope-safety-small`.
+# a coarse strength curve and bracket, into `results/slope-safety-small` (with `--continuation`,
+# one run that lowers the friction at the whole weight, on the same mesh).
 # An `--out` that holds a run is refused unless `--force` (replace it) or `--resume DIR`
 # (continue it); Ctrl-C stops after the load step in progress, and `--resume DIR` goes on.
 #
@@ -41,6 +42,10 @@ SMALL = ["--particles", "70", "--steps", "4", "--out", "results/slope-small"]
 SMALL_SAFETY = ["--particles", "70", "--rows", "2", "--gravity-steps", "4", "--steps", "4",
                 "--footing-scale", "0.5", "--strength-seeds", "1", "--strength-strain", "0.02",
                 "--fs-tolerance", "0.05", "--out", "results/slope-safety-small"]  # fmt: skip
+#: the same with ``--continuation``: the weight alone (one run lowers mu at the whole weight)
+SMALL_CONTINUATION = ["--particles", "70", "--rows", "2", "--gravity-steps", "4",
+                      "--strength-seeds", "1", "--strength-strain", "0.02",
+                      "--out", "results/slope-safety-small"]  # fmt: skip
 
 # %% [markdown]
 # ## The pieces
@@ -77,7 +82,9 @@ def main(argv=None):
     """The slope's command line; ``--small`` (or ``DEMO_SMALL=1``): a reduced run for tests."""
     argv = list(sys.argv[1:] if argv is None else argv)
     small = "--small" in argv or os.environ.get("DEMO_SMALL") == "1"
-    prefix = SMALL_SAFETY if "--factor-of-safety" in argv else SMALL
+    prefix = SMALL
+    if "--factor-of-safety" in argv:
+        prefix = SMALL_CONTINUATION if "--continuation" in argv else SMALL_SAFETY
     return cli.main((prefix if small else []) + [a for a in argv if a != "--small"])
 
 

@@ -434,3 +434,85 @@ def test_a_state_without_rolling_moments_loads_with_none(rve, sheared):
     del arrays["rolling"]
     old = FrictionalRelaxedState.from_arrays(arrays)
     assert old.rolling.shape == state.force.shape and not old.rolling.any()
+
+
+# -- strength reduction: the friction lowered at a fixed F ---------------------------------------
+
+
+@pytest.fixture(scope="module", params=[0.0, 0.1], ids=["sliding", "rolling"])
+def reduced(packing, request):
+    """(law, committed state at F_TWO under mu = 0.3, the state after lowering mu (and mu_r)
+    to half at the same F, its (W, P, A))."""
+    mu_r = request.param
+    rve = FrictionalRelaxedRVE(
+        packing, K_N, K_N, friction=0.3, force_tol=1e-12, rolling_friction=mu_r
+    )
+    committed = rve.evaluate(F_ONE, rve.initial_state(1))[3]
+    committed = rve.evaluate(F_TWO, committed)[3]
+    rve.set_friction(0.15, mu_r / 2)
+    W, P, A, state = rve.evaluate(F_TWO, committed)
+    return rve, committed, state, (W, P, A)
+
+
+def _unmoved(a, b):
+    """True where two one-point states hold the same positions, rotations, contacts, forces
+    and dissipation, bit for bit (the sensitivities of a state at rest are its own)."""
+    fields = ("w", "theta", "F", "dissipation", "keys", "force", "sliding", "rolling")
+    return all(np.array_equal(getattr(a, f), getattr(b, f)) for f in fields)
+
+
+def test_the_same_friction_leaves_a_committed_state_at_rest(rve, sheared):
+    """set_friction with the law's own coefficients: the committed state at its F does not
+    move, bit for bit, and dissipates nothing."""
+    (_, P, _, state), _ = sheared
+    law = FrictionalRelaxedRVE(
+        rve.packing, K_N, K_N, friction=0.3, force_tol=1e-12,
+        rolling_friction=rve.rolling_friction,
+    )  # fmt: skip
+    law.set_friction(0.3)
+    _, P1, _, again = law.evaluate(F_TWO, state)
+    assert np.array_equal(P1, P) and _unmoved(again, state)
+
+
+def test_a_lowered_friction_relaxes_the_point_at_its_f(packing, reduced):
+    """Half the friction at the committed F: every force and moment back in its (smaller)
+    cone, some on it, every disk in equilibrium (brute force), energy dissipated, the shear
+    stress lower; the new state is at rest under the new law."""
+    rve, committed, state, (_, P, _) = reduced
+    c = rve.contacts(F_TWO, state)
+    cap = rve.friction * c.force
+    assert np.all(np.abs(c.tangential) <= cap * (1 + 1e-12))
+    assert np.allclose(np.abs(c.tangential[c.sliding]), cap[c.sliding], rtol=1e-12)
+    assert c.sliding.any()
+    assert np.all(np.abs(c.rolling) <= _rolling_caps(rve, c) * (1 + 1e-12))
+    f, M, mean = _brute_force_balance(packing, rve, F_TWO, state)
+    assert np.abs(f).max() <= 1e-9 * mean
+    assert np.abs(M).max() <= 1e-9 * mean * packing.radii.mean()
+    assert state.dissipation[0] > committed.dissipation[0]
+    P0 = rve.stress(F_TWO, committed)[1]  # (the same answer: the relaxation is deterministic)
+    assert np.array_equal(P0, P)
+    before = FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.3, force_tol=1e-12,
+                                  rolling_friction=2 * rve.rolling_friction)  # fmt: skip
+    P_before = before.stress(F_TWO, committed)[1]
+    assert abs(P[0, 1]) < 0.9 * abs(P_before[0, 1])
+    _, P2, _, again = rve.evaluate(F_TWO, state)
+    assert np.array_equal(P2, P) and _unmoved(again, state)
+
+
+def test_the_tangent_after_a_lowered_friction_is_the_derivative_of_the_stress(reduced):
+    """A at the committed F under the lowered friction against central differences of P from
+    the same committed state and law."""
+    rve, committed, _, (_, _, A) = reduced
+    dP, _ = _differences(rve, F_TWO, committed)
+    assert np.abs(dP - A).max() <= 1e-5 * np.abs(A).max()
+
+
+def test_friction_cannot_be_switched_off_or_rolling_on_without_springs(packing):
+    rve = FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.3, rolling_stiffness=0.0)
+    with pytest.raises(ValueError, match="cannot be switched on or off"):
+        rve.set_friction(0.0)
+    with pytest.raises(ValueError, match="needs rolling springs"):
+        rve.set_friction(0.2, 0.1)
+    with pytest.raises(ValueError, match="friction"):
+        rve.set_friction(-0.1)
+    assert rve.friction == 0.3 and rve.springs.mu == 0.3

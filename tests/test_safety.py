@@ -9,6 +9,7 @@ from dolfinx_granular.slope.safety import (
     HALVINGS,
     Trial,
     bracket,
+    continuation_trials,
     next_friction,
     outcome,
     search,
@@ -266,6 +267,58 @@ def test_with_a_footing_the_footing_share_decides():
         summary("failed", weight[:1], {"phase": "gravity", "reason": "r"}), 0.3, 0.2, -4e7, "x", 1.0
     )
     assert not short.passed and short.phase == "gravity" and short.carried == 0.5
+
+
+def reduced(t, mu=0.5):
+    """The continuation's mu_f at t: mu to mu / 64 geometrically."""
+    return mu * (1.0 / 64.0) ** t
+
+
+def continued(status="failed", ts=(0.25, 0.5, 0.53), failed_at=0.54, load_failed=False):
+    """The summary of a continuation run: the weight in two steps, reduction steps at ``ts``;
+    ``status`` failed: the reduction (or with ``load_failed`` the weight) found no
+    equilibrium from t = ts[-1] to ``failed_at``."""
+    weight = [dict(step("gravity", g), friction=0.5) for g in (0.5, 1.0)]
+    steps = [dict(step("reduction", 1.0), friction=reduced(t)) for t in ts]
+    cuts = [dict(phase="reduction", step=9, t=ts[-1], target=failed_at, reason="r", iterations=4)]
+    failed = {"phase": "reduction", "reason": "stagnation"} if status == "failed" else None
+    if load_failed:
+        weight, steps = weight[:1], []
+        failed = {"phase": "gravity", "reason": "stagnation"}
+    return {**summary(status, [*weight, *steps], failed), "wall_time": 42.0, "cutbacks": cuts}
+
+
+def test_a_continuation_that_fails_in_its_reduction_brackets_mu_f():
+    """The last friction carried passes, the one whose step failed after every cut-back fails;
+    the outcome lies between."""
+    rows = continuation_trials(continued(), 0.5, reduced, 0.0, -4e7, "trials/reduction")
+    ok, bad = rows
+    assert ok.passed and ok.mu_f == reduced(0.53) and ok.phase == "reduction"
+    assert not bad.passed and bad.mu_f == reduced(0.54) and "no equilibrium" in bad.why
+    assert ok.seconds == bad.seconds == 42.0 and ok.folder == "trials/reduction"
+    strength = Strength(curve(grid(0.5)), P, 0.5)
+    answer = outcome(rows, 0.5, strength.factor_of_safety, strength.factor_of_safety)
+    assert answer["mu_f_bracket"] == [reduced(0.54), reduced(0.53)] and answer["bound"] is None
+    assert reduced(0.54) < answer["mu_f"] < reduced(0.53)
+
+
+def test_a_continuation_to_its_end_is_a_lower_bound():
+    rows = continuation_trials(
+        continued("converged", ts=(0.5, 1.0)), 0.5, reduced, 0.0, -4e7, "trials/reduction"
+    )
+    assert len(rows) == 1 and rows[0].passed and rows[0].mu_f == reduced(1.0)
+    strength = Strength(curve(grid(0.5)), P, 0.5)
+    answer = outcome(rows, 0.5, strength.factor_of_safety, strength.factor_of_safety)
+    assert answer["bound"] == "lower" and answer["mu_f"] == pytest.approx(0.5 / 64)
+
+
+def test_a_continuation_whose_load_fails_fails_at_mu():
+    rows = continuation_trials(
+        continued(load_failed=True), 0.5, reduced, 0.0, -4e7, "trials/reduction"
+    )
+    assert len(rows) == 1 and not rows[0].passed and rows[0].mu_f == 0.5
+    assert rows[0].phase == "gravity" and rows[0].carried == 0.5
+    assert "no equilibrium in the gravity" in rows[0].why
 
 
 def test_strength_reads_phi_linear_in_mu():

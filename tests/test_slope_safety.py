@@ -79,6 +79,9 @@ def main(capsys, *argv):
         (["--strength", "no/such.csv"], "--strength no/such.csv:"),
         (["--resume", "no/such/run"], "no factor-of-safety run to continue there"),
         (["--resume", "x", "--friction", "0.3"], "drop --friction"),
+        (["--reduction-steps", "4"], "--reduction-steps applies to --continuation"),
+        (["--continuation", "--reduction-steps", "0"], "--reduction-steps: must be"),
+        (["--continuation", "--resume", "x"], "drop --continuation"),
     ],
 )
 def test_bad_options_are_one_line_errors(capsys, tmp_path, argv, words):
@@ -284,3 +287,37 @@ def test_with_rolling_friction_the_trials_divide_both_frictions(tmp_path):
     curve = read_curve(out / "strength.csv")
     assert all(r["mu_r"] == pytest.approx(0.2 * r["mu"], rel=1e-12) for r in curve)
     assert s["phi_cs"] == Strength(curve, 1e-2, 0.5, rolling_ratio=0.2).phi(0.5)
+
+
+# -- strength reduction by continuation ------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_the_continuation_brackets_the_factor_of_safety_in_one_run(tmp_path):
+    """--small --continuation on 2 ranks: one run (trials/reduction) carries the weight at mu
+    and lowers mu until a step finds no equilibrium; safety.json's bracket is its last
+    friction carried and the one that failed, FS between their FS, the mechanism drawn; a
+    resume changes nothing."""
+    out = tmp_path / "continuation"
+    proc, _ = run_slope_demo(out, "--factor-of-safety", "--small", "--continuation", ranks=2,
+                             timeout=1500)  # fmt: skip
+    with open(out / "safety.json") as f:
+        s = json.load(f)
+    assert s["status"] == "done" and s["method"] == "continuation"
+    assert s["options"]["reduction"] == pytest.approx(0.5 / 64, rel=1e-14)
+    failing, passing = s["trials"]
+    assert passing["passed"] and not failing["passed"]
+    assert failing["folder"] == passing["folder"] == os.path.join("trials", "reduction")
+    lo, hi = s["mu_f_bracket"]
+    assert (lo, hi) == (failing["mu_f"], passing["mu_f"]) and lo < s["mu_f"] < hi < 0.5
+    fs_lo, fs_hi = s["factor_of_safety_bracket"]
+    assert fs_lo <= s["factor_of_safety"] <= fs_hi and s["factor_of_safety"] > 1.0
+    assert s["mu_ratio"] == pytest.approx(0.5 / s["mu_f"], rel=1e-14)
+    with open(out / "trials" / "reduction" / "summary.json") as f:
+        run = json.load(f)
+    reduction = [x for x in run["step_info"] if x["phase"] == "reduction"]
+    assert reduction[-1]["friction"] == passing["mu_f"] and run["failed"]["phase"] == "reduction"
+    assert is_png(out / "mechanism.png")
+    assert "safety: continuation from mu = 0.5" in proc.stdout
+    proc, _ = run_slope_demo(None, "--factor-of-safety", "--resume", out)
+    assert "nothing to resume" in proc.stdout

@@ -287,7 +287,15 @@ def _add_path_and_run(p: argparse.ArgumentParser) -> None:
 
 
 #: the options of the factor of safety alone (refused without --factor-of-safety)
-SAFETY_OPTIONS = ("footing_scale", "fs_tolerance", "strength", "strength_seeds", "strength_strain")
+SAFETY_OPTIONS = (
+    "footing_scale",
+    "fs_tolerance",
+    "strength",
+    "strength_seeds",
+    "strength_strain",
+    "continuation",
+    "reduction_steps",
+)
 
 
 def _fraction(text):
@@ -332,6 +340,21 @@ def _add_safety(p: argparse.ArgumentParser) -> None:
         metavar="TOL",
         help="bisect until the factors of safety of the bracket's ends differ by at most TOL "
         "(relative; default 0.01)",
+    )
+    g.add_argument(
+        "--continuation",
+        action="store_true",
+        help="one run instead of trials: the whole load at mu under load control, then mu "
+        "lowered at that load (geometrically to mu / 64) until no equilibrium is found after "
+        "every cut-back; the bracket is the last friction carried and the one that failed",
+    )
+    g.add_argument(
+        "--reduction-steps",
+        type=_int_at_least(1),
+        default=16,
+        metavar="N",
+        help="with --continuation: nominal steps from mu to mu / 64, each lowering mu by the "
+        "same factor (default 16; cut-backs halve a step 6 times before the run stops)",
     )
     g.add_argument(
         "--strength",

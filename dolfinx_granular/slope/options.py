@@ -66,6 +66,14 @@ class SlopeOptions:
             relaxed (:func:`~dolfinx_granular.drivers.confinement.confined_packing`), and the
             slope's boundaries other than the fixed base carry the traction P(I) n that holds
             this reference stress: the gravity and footing loads come on top of it.
+        reduction: strength reduction by continuation (None: none): after the load phases,
+            a ``"reduction"`` phase lowers the contact friction (and the rolling friction in
+            proportion) at the whole load, geometrically from ``friction`` at t = 0 to this
+            value at t = 1 (:meth:`reduced_friction`), each step an equilibrium of the slope
+            from the last one; the phase fails where the slope can carry its load no more.
+            Only with the frictional relaxed RVE, under load control.
+        reduction_steps: nominal steps of the reduction phase (each lowers the friction by
+            the same factor; cut-backs halve it).
     """
 
     steps: int = 20
@@ -87,10 +95,13 @@ class SlopeOptions:
     confinement: float = 0.0
     linear_solver: str = "direct"
     rolling_friction: float = 0.0
+    reduction: float | None = None
+    reduction_steps: int = 16
 
     def __post_init__(self):
         self._check_rve()
         self._check_path()
+        self._check_reduction()
         check_linear_solver(self.linear_solver)
         if self.path_following and self.linear_solver != "direct":
             raise ValueError(
@@ -114,6 +125,35 @@ class SlopeOptions:
                 f"path_following is one of {PHASES} (the phase taken by arc length) or None, "
                 f"got {self.path_following!r}"
             )
+
+    def _check_reduction(self):
+        if self.reduction is None:
+            return
+        if self.rve != "relaxed" or self.friction <= 0.0:
+            raise ValueError(
+                "strength reduction by continuation lowers the friction of the frictional "
+                "relaxed RVE: give --rve relaxed --friction MU (> 0) with a --confinement"
+            )
+        if not 0.0 < self.reduction < self.friction:
+            raise ValueError(
+                f"reduction is the smallest friction of the reduction phase, in (0, friction "
+                f"= {self.friction:g}), got {self.reduction!r}"
+            )
+        if self.path_following or self.unload:
+            raise ValueError(
+                "strength reduction by continuation follows the whole load under load control: "
+                "drop --path-following and --unload"
+            )
+        if int(self.reduction_steps) != self.reduction_steps or self.reduction_steps < 1:
+            raise ValueError(
+                f"reduction_steps must be an integer >= 1, got {self.reduction_steps!r}"
+            )
+
+    def reduced_friction(self, t: float) -> tuple[float, float]:
+        """(mu, mu_r) at t of the reduction phase: friction (reduction / friction)^t, the
+        rolling friction lowered in proportion."""
+        mu = self.friction * (self.reduction / self.friction) ** t
+        return mu, self.rolling_friction / self.friction * mu
 
     def _check_rve(self):
         if self.rve not in RVES:
@@ -152,9 +192,12 @@ class SlopeOptions:
     @property
     def phases(self) -> tuple:
         """The load phases: gravity, footing and (``unload``) unloading; gravity alone when
-        it is taken by arc length."""
+        it is taken by arc length; with a ``reduction``, gravity, the footing (unless
+        ``load_factor`` is 0) and the reduction."""
         if self.path_following == "gravity":
             return PHASES[:1]
+        if self.reduction is not None:  # (the weight alone: no footing phase)
+            return (PHASES if self.load_factor else PHASES[:1]) + ("reduction",)
         return PHASES + (("unloading",) if self.unload else ())
 
     def law(

@@ -269,6 +269,8 @@ class SlopeRun:
             return o.max_increments
         if o.path_following:
             return o.gravity_steps + o.max_increments
+        if o.reduction is not None:
+            return o.gravity_steps + o.steps * (len(o.phases) - 2) + o.reduction_steps
         return o.gravity_steps + o.steps * (len(o.phases) - 1)
 
     # -- output ----------------------------------------------------------------------------------
@@ -468,6 +470,7 @@ class SlopeRun:
                 "settlement": m.settlement(),
                 "stabiliser_force": m.stabiliser_share(),
                 "dissipated_energy": m.material.dissipated_energy(),
+                **self._friction(phase_index, t),
                 "time": elapsed,
                 **self._overlaps(step),
             }
@@ -476,9 +479,18 @@ class SlopeRun:
         self.say(
             f"step {step:2d} ({self.options.phases[phase_index]}, t = {t:.4g}): gravity "
             f"x{lam_g:.2f}, footing "
-            f"{footing:.3e} N/m, {result.iterations} iterations, "
+            f"{footing:.3e} N/m{_friction_note(self.step_info[-1])}, {result.iterations} "
+            "iterations, "
             f"{elapsed:.2f} s{_overlap_note(self.step_info[-1])}{self._time_left(step)}"
         )
+
+    def _friction(self, phase_index, t):
+        """The step's contact friction for ``step_info`` where the run reduces it."""
+        o = self.options
+        if o.reduction is None:
+            return {}
+        reducing = o.phases[phase_index] == "reduction"
+        return {"friction": o.reduced_friction(t if reducing else 0.0)[0]}
 
     def _time_left(self, step):
         """``; ~3.2 min left`` for a step's log line (see :func:`time_left_note`)."""
@@ -536,7 +548,12 @@ class SlopeRun:
         """The driver of phase i from the converged state at t0 (its loads set), and the map
         from its increments to the phase's t."""
         o, m = self.options, self.model
-        setter = (m.set_gravity, m.set_footing, lambda t: m.set_footing(1.0 - t))[i]
+        setter = {
+            "gravity": m.set_gravity,
+            "footing": m.set_footing,
+            "unloading": lambda t: m.set_footing(1.0 - t),
+            "reduction": self._set_friction,
+        }[o.phases[i]]
         setter(t0)  # the loads of the converged state the phase starts from
         if o.phases[i] == o.path_following:
             stored = None
@@ -550,8 +567,19 @@ class SlopeRun:
                 None if stored is None else last_increment(self.restart, self.nodes, m.V),
             )
             return self.arclength, lambda inc: inc.lam / o.path_full_load
-        increment = 1.0 / (o.gravity_steps if i == 0 else o.steps)
+        steps = {"gravity": o.gravity_steps, "reduction": o.reduction_steps}
+        increment = 1.0 / steps.get(o.phases[i], o.steps)
         return self.stepper.phase(o.phases[i], setter, increment, t0, dt), lambda inc: inc.t
+
+    def _set_friction(self, t: float) -> None:
+        """The friction (and rolling friction) of every RVE at t of the reduction phase,
+        under the whole load."""
+        m = self.model
+        if "footing" in self.options.phases:
+            m.set_footing(1.0)
+        else:
+            m.set_gravity(1.0)
+        self.law.set_friction(*self.options.reduced_friction(t))
 
     def _failure(self, i, driver):
         """The run's ``failed`` record of phase i's driver."""
@@ -580,6 +608,11 @@ def _duration(seconds):
     if seconds < 90:
         return f"{seconds:.0f} s"
     return f"{seconds / 60:.1f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
+
+
+def _friction_note(info):
+    """``, mu 0.125`` for a step's log line where the run reduces the friction ('' without)."""
+    return f", mu {info['friction']:.5g}" if "friction" in info else ""
 
 
 def _overlap_note(info):

@@ -121,6 +121,43 @@ def _why(summary, passed):
     return f"{what} before the whole load: {stopped}"
 
 
+def continuation_trials(
+    summary: Mapping[str, Any],
+    mu: float,
+    reduced: Callable[[float], float],
+    footing_scale: float,
+    footing_load: float,
+    folder: str,
+) -> list[Trial]:
+    """The answer of a strength reduction by continuation (one slope run whose last phase,
+    ``reduction``, lowers mu at the whole load; its finished ``summary.json`` dict) as the
+    :class:`Trial` rows of a bracket: the least friction that carried the load (passed) and
+    the one at which its reduction step found no equilibrium after every cut-back (failed;
+    ``reduced(t)``: mu_f at t of the phase; ``footing_scale`` x ``footing_load`` (N/m) the
+    footing on the path). One row where the reduction reached its end (passed: FS at least
+    that) or where the load phases failed before it (failed at mu)."""
+    info = summary.get("step_info") or []
+    steps = [s for s in info if s["phase"] == "reduction"]
+    load = 1.0 if footing_scale > 0.0 else 0.0
+    seconds, status = float(summary["wall_time"]), summary["status"]
+    failed = summary.get("failed")
+    if failed is not None and failed["phase"] != "reduction":  # (the load before it)
+        return [trial_of(summary, mu, footing_scale, footing_load, folder, seconds)]
+    last = steps[-1]["friction"] if steps else mu
+    rows = [
+        Trial(last, True, "reduction", 1.0, 1.0, load, seconds,
+              f"carried the whole load at mu_f = {last:.6g}", status, folder)
+    ]  # fmt: skip
+    if failed is not None:
+        cut = [c for c in summary.get("cutbacks") or [] if c["phase"] == "reduction"][-1]
+        mu_fail = reduced(cut["target"])
+        why = f"no equilibrium at mu_f = {mu_fail:.6g} after every cut-back: {failed['reason']}"
+        rows.append(
+            Trial(mu_fail, False, "reduction", 1.0, 1.0, load, seconds, why, status, folder)
+        )
+    return rows
+
+
 def bracket(trials: Sequence[Trial]) -> tuple[Trial | None, Trial | None]:
     """(failing, passing): the passing trial of least mu_f and the failing trial of largest
     mu_f below it (None where there is none)."""

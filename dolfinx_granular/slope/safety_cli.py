@@ -14,6 +14,7 @@ factor-of-safety run is refused unless ``--force`` (which removes its files, no 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import TYPE_CHECKING
 
@@ -23,6 +24,7 @@ from ..packings.packing import PackingFileError
 from .arguments import UserError, make_packing, options_of
 from .interrupt import RunInterrupted
 from .options import K_N
+from .safety import HALVINGS
 from .safety_run import SAFETY_FILES, SafetyRun, resume_state
 from .safety_strength import Strength, measured_rows
 
@@ -79,6 +81,8 @@ def check(a: argparse.Namespace, given: set[str]) -> None:
             "--steps sets the footing's first increment: give --footing-scale S > 0, "
             "or drop --steps"
         )
+    if "reduction_steps" in given and not a.continuation:
+        raise UserError("--reduction-steps applies to --continuation: add it, or drop it")
     if a.strength and given & {"strength_seeds", "strength_strain"}:
         names = _names(sorted(given & {"strength_seeds", "strength_strain"}))
         raise UserError(f"{names} apply to a measured strength curve: drop them, or --strength")
@@ -124,7 +128,13 @@ def _new(a, comm, stop, say, started):
     claimed), the folder, the packing, a measured curve."""
     a.path_following = "footing" if a.footing_scale > 0.0 else "gravity"
     a.load_factor = a.footing_scale if a.footing_scale > 0.0 else 1.0
+    if a.continuation:  # (the load under load control, then the reduction phase)
+        a.path_following, a.load_factor = None, a.footing_scale
     options = options_of(a)
+    if a.continuation:
+        options = dataclasses.replace(
+            options, reduction=a.friction / 2.0**HALVINGS, reduction_steps=a.reduction_steps
+        )
     p_over_kn = options.confinement / options.normal_stiffness
     ratio = options.rolling_friction / options.friction  # (mu_r / mu: divided alike)
     curve = _read(a.strength, p_over_kn, a.friction, ratio) if a.strength else None

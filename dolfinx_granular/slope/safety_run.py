@@ -28,7 +28,17 @@ from ..packings.packing import Packing
 from .limit_equilibrium import bishop_factor_of_safety, infinite_slope_factor_of_safety
 from .options import SlopeOptions
 from .run import RUN_FILES, clear_run, converged_steps, load_restart, run_slope
-from .safety import TOLERANCE, TRIAL_COLUMNS, Trial, bracket, outcome, search, trial_line, trial_of
+from .safety import (
+    TOLERANCE,
+    TRIAL_COLUMNS,
+    Trial,
+    bracket,
+    continuation_trials,
+    outcome,
+    search,
+    trial_line,
+    trial_of,
+)
 from .safety_figure import draw_mechanism, limit_increment
 from .safety_strength import Strength
 
@@ -38,6 +48,8 @@ if TYPE_CHECKING:
     from .geometry import SlopeGeometry
     from .interrupt import StopRequest
 
+#: the run folder of the strength reduction by continuation, relative to the safety run's
+CONTINUATION = os.path.join("trials", "reduction")
 #: the files of a factor-of-safety run in its folder (``--force`` removes these, no others)
 SAFETY_FILES = (
     "safety.json",
@@ -46,6 +58,7 @@ SAFETY_FILES = (
     "packing.npz",
     "mechanism.png",
     *(f"trials/mu_*/{name}" for name in RUN_FILES),
+    *(f"{CONTINUATION}/{name}" for name in RUN_FILES),
 )
 
 
@@ -86,7 +99,9 @@ class SafetyRun:
         packing: the RVE's packing (as for :func:`~.run.run_slope`).
         options: the slope's options at the user's friction mu (its load path: the weight by
             path following, or with a footing the weight in load steps and the footing by path
-            following to ``load_factor`` = footing_scale).
+            following to ``load_factor`` = footing_scale). With a ``reduction`` the search is
+            one run by continuation instead (:meth:`continuation`): the load under load
+            control, then the friction lowered at the whole load.
         strength: phi(mu) of the slope's RVE (:class:`~.safety_strength.Strength`).
         out: the run's folder.
         tolerance: the last bracket's relative width in FS.
@@ -147,15 +162,18 @@ class SafetyRun:
         for n, t in enumerate(trials, 1):
             self.say(trial_line(t, self.fs, n) + " (finished before)")
         self._write(list(trials), "running")
-        trials, done = search(
-            self._trial,
-            self.strength.mu,
-            self.fs,
-            self.tolerance,
-            self.strength.mu_range,
-            trials,
-            self._after,
-        )
+        if self.options.reduction is not None:
+            trials, done = self.continuation(trials)
+        else:
+            trials, done = search(
+                self._trial,
+                self.strength.mu,
+                self.fs,
+                self.tolerance,
+                self.strength.mu_range,
+                trials,
+                self._after,
+            )
         status = "done" if done else "interrupted"
         if done and self.figure:
             self._draw(trials)
@@ -173,14 +191,57 @@ class SafetyRun:
         what = f"{mu:g}"
         if o.rolling_friction:
             what += f" and the rolling friction mu_r = {o.rolling_friction:g} alike"
+        how = (
+            "by continuation at the whole load"
+            if o.reduction is not None
+            else f"FS to {100 * self.tolerance:g} %"
+        )
         return (
-            f"safety: strength reduction of the contact friction mu = {what} ({load}; FS to "
-            f"{100 * self.tolerance:g} %): phi_cs {self.phi['cs']:.2f}°, phi_peak "
+            f"safety: strength reduction of the contact friction mu = {what} ({load}; {how}"
+            f"): phi_cs {self.phi['cs']:.2f}°, phi_peak "
             f"{self.phi['peak']:.2f}° at p/k_n = {self.strength.p_over_kn:g}; Bishop "
             f"{self.limit['bishop_cs']:.4g} (cs), {self.limit['bishop_peak']:.4g} (peak)"
             f"{_confined(self.limit)}, infinite slope {self.limit['infinite_slope_cs']:.4g} (cs); "
             f"1:{o.geometry.slope_ratio:g} slope, {o.geometry.n_cells} cells"
         )
+
+    def continuation(self, finished: Sequence[Trial] = ()) -> tuple[list[Trial], bool]:
+        """The strength reduction by continuation: one slope run (in :data:`CONTINUATION`)
+        whose load phases carry the whole load at mu and whose reduction phase then lowers
+        mu_f until no equilibrium is found after every cut-back. Returns the bracket's
+        :class:`Trial` rows (:func:`~.safety.continuation_trials`) and whether the run
+        finished (False: a signal stopped it; its restart file goes on)."""
+        if finished:  # (safety.json holds them: the run was done)
+            return list(finished), True
+        path = os.path.join(self.out, CONTINUATION)
+        summary, restart = self._stored(path)
+        o = self.options
+        if summary is None:
+            more = " (continued from its restart file)" if restart else ""
+            self.say(
+                f"safety: continuation from mu = {o.friction:g} to {o.reduction:.4g} in "
+                f"{o.reduction_steps} steps at the whole load, in {path}{more}"
+            )
+            summary = run_slope(
+                self.packing, o, out=path, comm=self.comm, figure=False, restart=restart,
+                stop_request=self.stop_request,
+            )  # fmt: skip
+        if summary["status"] == "interrupted":
+            self.interrupted_by = summary["interrupted_by"]
+            return [], False
+        trials = continuation_trials(
+            summary,
+            o.friction,
+            lambda t: o.reduced_friction(t)[0],
+            self.footing_scale,
+            o.geometry.footing_load,
+            CONTINUATION,
+        )
+        trials = self.comm.bcast(trials, root=0)
+        self.strength.cover([t.mu_f for t in trials])
+        for n in range(1, len(trials) + 1):
+            self._after(trials[:n])
+        return trials, True
 
     def _trial(self, mu_f: float) -> Trial | None:
         """The trial at ``mu_f``: run in its folder, or read from there where a run started
@@ -258,6 +319,7 @@ class SafetyRun:
             "status": status,
             **answer,
             "tolerance": self.tolerance,
+            "method": "bisection" if o.reduction is None else "continuation",
             "mu": self.strength.mu,
             "rolling_friction": self.options.rolling_friction,
             "phi_cs": self.phi["cs"],

@@ -10,6 +10,7 @@ increment of the contact law of :class:`~dolfinx_granular.FrictionalRVE`.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -21,7 +22,7 @@ from ..taylor import ContactSet
 from ..tools import as_batch, non_negative, output_buffers, push_forward, to_float
 from .cell_state import Increment, Springs
 from .contact_law import SLIP
-from .point import Equilibrium, at_rest, follow
+from .point import Equilibrium, at_rest, follow, within_cones
 from .settings import Settings
 from .state import FrictionalRelaxedState
 
@@ -109,6 +110,31 @@ class FrictionalRelaxedRVE:
         self.settings = Settings(force_tol=self._frictionless.settings.force_tol, substep=step)
         self.springs = Springs(self.normal_stiffness, kt, mu, 1.0 / packing.area, beta * kt, mu_r)
 
+    def set_friction(self, friction: float, rolling_friction: float | None = None) -> None:
+        """Change the Coulomb coefficient mu (and mu_r; None: as it is) of every point from
+        their next evaluation on: strength reduction at a fixed F. A committed state whose
+        forces or moments lie outside the new cones is relaxed at its own F (it slides);
+        one inside them stays at rest. The stiffnesses stay; ValueError where the change would
+        switch between the law with and without friction (mu = mu_r = 0 is computed by
+        the frictionless relaxed RVE, with another state)."""
+        mu = non_negative(friction, "friction")
+        mu_r = self.rolling_friction if rolling_friction is None else rolling_friction
+        mu_r = non_negative(mu_r, "rolling_friction")
+        if (mu == 0.0 and mu_r == 0.0) != self._without_friction:
+            raise ValueError(
+                f"set_friction({mu:g}, {mu_r:g}) on a law with friction {self.friction:g} and "
+                f"rolling friction {self.rolling_friction:g}: friction cannot be switched on "
+                "or off (mu = mu_r = 0 is the frictionless relaxed RVE); reduce it to a small "
+                "positive value instead"
+            )
+        if mu_r > 0.0 and self.springs.kr == 0.0:
+            raise ValueError(
+                "rolling_friction > 0 needs rolling springs: build the law with "
+                "rolling_stiffness > 0"
+            )
+        self.friction, self.rolling_friction = mu, mu_r
+        self.springs = dataclasses.replace(self.springs, mu=mu, mu_r=mu_r)
+
     @property
     def _without_friction(self) -> bool:
         """Neither sliding nor rolling friction: the frictionless relaxed RVE's points."""
@@ -142,10 +168,14 @@ class FrictionalRelaxedRVE:
     ) -> tuple[Equilibrium, float]:
         """Point q of ``state`` at F (2, 2) along its quasi-static path: its
         :class:`~dolfinx_granular.laws.relaxed_friction.point.Equilibrium` and the energy
-        dissipated on the way (Pa). A committed F is not relaxed again."""
+        dissipated on the way (Pa). A committed F is not relaxed again, unless the friction
+        was lowered below what its state carries (:meth:`set_friction`)."""
         inc = self.increment(state, q)
         if np.array_equal(F, state.F[q]):
-            return at_rest(self.cell, self.springs, F, inc, tangent), 0.0
+            eq = at_rest(self.cell, self.springs, F, inc, tangent)
+            if within_cones(eq, inc, float(self.cell.radii.mean())):
+                return eq, 0.0
+            inc = self.increment(state, q)  # (at_rest may have grown its force lists)
         dq = state.sensitivity[q]
         return follow(self.cell, self.springs, F, inc, dq, self.settings, tangent)
 
@@ -192,7 +222,7 @@ class FrictionalRelaxedRVE:
                         eq.sensitivity,
                     )
                     D[q] += dissipated
-                    k, f, slips, mr = self._history(eq, state, q, F[q])
+                    k, f, slips, mr = self._history(eq, state, q)
                     keys.append(k)
                     forces.append(f)
                     sliding.append(slips)
@@ -215,14 +245,14 @@ class FrictionalRelaxedRVE:
             return W[0], P[0], (A[0] if tangent else None), new
         return W, P, A, new
 
-    def _history(self, eq: Equilibrium, state, q, F) -> tuple:
+    def _history(self, eq: Equilibrium, state, q) -> tuple:
         """``(keys, tangential forces, sliding, rolling moments)`` of the contacts of an
-        equilibrium of point q (at its committed F: the committed contacts, which slid in the
-        increment to it)."""
+        equilibrium of point q (at rest at its committed F: the committed contacts, which slid
+        in the increment to it)."""
         s, c = eq.state, self.cell
         on = np.flatnonzero(s.on)
         keys = c.keys_of(c.pi[on], c.pj[on], np.asarray(c.shift)[on])
-        if np.array_equal(F, state.F[q]):
+        if eq.rested:
             committed, _, slid, _ = state.contacts(q)
             sliding = np.zeros(on.size, bool)
             if committed.size:
@@ -284,7 +314,7 @@ class FrictionalRelaxedRVE:
         eq = self.equilibrium(F, state, 0, False)[0]
         s = eq.state
         on = np.flatnonzero(s.on)
-        sliding = self._history(eq, state, 0, F)[2]
+        sliding = self._history(eq, state, 0)[2]
         c = self.cell
         return ContactSet(
             pairs=np.stack([c.pi[on], c.pj[on]], axis=1).astype(np.int64),

@@ -28,6 +28,10 @@ from .tangent import path_condensation
 
 #: the shortest substep, relative to ``Settings.substep``
 MIN_SUBSTEP = 1e-2
+#: a committed force cut to a lowered cap by more than this part of the mean contact force
+#: (a committed moment: times the mean radius) puts the point out of equilibrium
+#: (:func:`within_cones`); the same law cuts none by more than round-off
+CONE_SLACK = 1e-9
 #: rounds of the fallback (each ``Settings.fire_steps`` FIRE steps from where the last ended,
 #: then Newton): FIRE's last approach to a stiff cell's equilibrium is slow (200 disks at
 #: p / k_n = 1e-3: a residual of 4e-4 after 20,000 steps, 1e-5 after 400,000), and Newton
@@ -45,7 +49,8 @@ class Equilibrium:
         state: the :class:`CellState` (contacts, forces, statuses); dissipated: the energy the
         increment dissipated (Pa); residual: the largest net force or moment over the mean
         contact force (and radius); counts: the solver's :class:`Counts`; chain: the
-        solution's derivatives with respect to the path's end (with A; :mod:`.path_tangent`).
+        solution's derivatives with respect to the path's end (with A; :mod:`.path_tangent`);
+        rested: the committed state itself (:func:`at_rest`), nothing solved.
     """
 
     w: np.ndarray
@@ -59,6 +64,7 @@ class Equilibrium:
     residual: float
     counts: Counts
     chain: Chain | None = None
+    rested: bool = False
 
 
 def polar_angle(F) -> float:
@@ -153,8 +159,26 @@ def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> E
     committed one (a contact at the cone sticks there)."""
     s = CellState(cell, springs, F, inc.w0, inc.th0, inc)
     residual, _ = s.residual(cell)
-    return finish(cell, springs, F, np.eye(4), inc, inc.w0, inc.th0, s, residual, Counts(),
-                  tangent)  # fmt: skip
+    eq = finish(cell, springs, F, np.eye(4), inc, inc.w0, inc.th0, s, residual, Counts(),
+                tangent)  # fmt: skip
+    eq.rested = True
+    return eq
+
+
+def within_cones(eq: Equilibrium, inc: Increment, mean_radius: float) -> bool:
+    """True where the committed tangential forces and rolling moments of ``inc`` lie in the
+    cones of the law at rest (``eq`` from :func:`at_rest`): none was cut to its cap by more than
+    :data:`CONE_SLACK` of the mean contact force (times ``mean_radius`` for a moment). False
+    once the friction was lowered below what the committed state carries: it is no longer in
+    equilibrium and must be relaxed at its F."""
+    s = eq.state
+    m = s.ft.shape[0]
+    on = s.on
+    slack = CONE_SLACK * s.mean_force
+    ft0, mr0 = inc.forces(m)[:m], inc.moments(m)[:m]
+    if np.any(np.abs(ft0[on]) - np.abs(s.ft[on]) > slack):
+        return False
+    return not np.any(np.abs(mr0[on]) - np.abs(s.mr[on]) > slack * mean_radius)
 
 
 def committed(cell: Cell, eq: Equilibrium, F) -> Increment:
