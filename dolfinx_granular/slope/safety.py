@@ -150,7 +150,7 @@ def continuation_trials(
     ]  # fmt: skip
     if failed is not None:
         cut = [c for c in summary.get("cutbacks") or [] if c["phase"] == "reduction"][-1]
-        mu_fail = reduced(cut["target"])
+        mu_fail = reduced(cut["t_to"])
         why = f"no equilibrium at mu_f = {mu_fail:.6g} after every cut-back: {failed['reason']}"
         rows.append(
             Trial(mu_fail, False, "reduction", 1.0, 1.0, load, seconds, why, status, folder)
