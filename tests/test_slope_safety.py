@@ -305,7 +305,7 @@ def test_the_continuation_brackets_the_factor_of_safety_in_one_run(tmp_path):
         s = json.load(f)
     assert s["status"] == "done" and s["method"] == "continuation"
     assert s["options"]["reduction"] == pytest.approx(0.5 / 64, rel=1e-14)
-    failing, passing = s["trials"]
+    passing, failing = s["trials"]
     assert passing["passed"] and not failing["passed"]
     assert failing["folder"] == passing["folder"] == os.path.join("trials", "reduction")
     lo, hi = s["mu_f_bracket"]
