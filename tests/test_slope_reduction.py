@@ -28,6 +28,13 @@ OPTIONS = dict(
 STEPS = 6
 
 
+def _shared(folder):
+    """One folder for every rank (rank 0's; pytest gives each process its own)."""
+    from mpi4py import MPI
+
+    return MPI.COMM_WORLD.bcast(str(folder) if MPI.COMM_WORLD.rank == 0 else None, root=0)
+
+
 @pytest.fixture(scope="module")
 def packing():
     return generate_packing(70, seed=0, pressure=CONFINEMENT / 2.8e7)
@@ -49,7 +56,7 @@ def _run(packing, out, stop_after, restart=None):
 
 @pytest.fixture(scope="module")
 def reduced(packing, tmp_path_factory):
-    return _run(packing, tmp_path_factory.mktemp("reduced"), STEPS)
+    return _run(packing, _shared(tmp_path_factory.mktemp("reduced")), STEPS)
 
 
 def test_the_phases_are_the_weight_then_the_reduction():
@@ -112,8 +119,9 @@ def test_the_reduction_lowers_the_friction_of_every_rve(reduced):
 def test_a_run_stopped_in_the_reduction_resumes_to_the_same_state(packing, reduced, tmp_path):
     """Stopped after the first reduction step and resumed (the friction of that step set again
     from the phase's t): the second step ends where the straight run's did."""
-    _run(packing, tmp_path, STEPS - 1)
-    resumed = _run(packing, tmp_path, STEPS, restart=load_restart(tmp_path))
+    out = _shared(tmp_path)
+    _run(packing, out, STEPS - 1)
+    resumed = _run(packing, out, STEPS, restart=load_restart(out))
     assert resumed.law.friction == reduced.law.friction
     a, b = reduced.step_info[-1], resumed.step_info[-1]
     assert a["t"] == b["t"] and a["friction"] == b["friction"]
