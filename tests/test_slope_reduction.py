@@ -115,7 +115,6 @@ def test_the_reduction_lowers_the_friction_of_every_rve(reduced):
 
 
 @pytest.mark.slow
-@pytest.mark.mpi
 def test_a_run_stopped_in_the_reduction_resumes_to_the_same_state(packing, reduced, tmp_path):
     """Stopped after the first reduction step and resumed (the friction of that step set again
     from the phase's t): the second step ends where the straight run's did."""
