@@ -280,7 +280,8 @@ def continued(status="failed", ts=(0.25, 0.5, 0.53), failed_at=0.54, load_failed
     equilibrium from t = ts[-1] to ``failed_at``."""
     weight = [dict(step("gravity", g), friction=0.5) for g in (0.5, 1.0)]
     steps = [dict(step("reduction", 1.0), friction=reduced(t)) for t in ts]
-    cuts = [dict(phase="reduction", step=9, t_from=ts[-1], t_to=failed_at, reason="r", iterations=4)]
+    cut = dict(phase="reduction", step=9, t_from=ts[-1], t_to=failed_at, reason="r")
+    cuts = [dict(cut, iterations=4)]
     failed = {"phase": "reduction", "reason": "stagnation"} if status == "failed" else None
     if load_failed:
         weight, steps = weight[:1], []
