@@ -126,10 +126,11 @@ def run_safety(
 def _new(a, comm, stop, say, started):
     """(run, []) of a new run: its options, a user's curve (checked before the folder is
     claimed), the folder, the packing, a measured curve."""
-    a.path_following = "footing" if a.footing_scale > 0.0 else "gravity"
-    a.load_factor = a.footing_scale if a.footing_scale > 0.0 else 1.0
     if a.continuation:  # (the load under load control, then the reduction phase)
         a.path_following, a.load_factor = None, a.footing_scale
+    else:
+        a.path_following = "footing" if a.footing_scale > 0.0 else "gravity"
+        a.load_factor = a.footing_scale if a.footing_scale > 0.0 else 1.0
     options = options_of(a)
     if a.continuation:
         options = dataclasses.replace(

@@ -175,7 +175,6 @@ class FrictionalRelaxedRVE:
             eq = at_rest(self.cell, self.springs, F, inc, tangent)
             if within_cones(eq, inc, float(self.cell.radii.mean())):
                 return eq, 0.0
-            inc = self.increment(state, q)  # (at_rest may have grown its force lists)
         dq = state.sensitivity[q]
         return follow(self.cell, self.springs, F, inc, dq, self.settings, tangent)
 

@@ -172,8 +172,7 @@ def within_cones(eq: Equilibrium, inc: Increment, mean_radius: float) -> bool:
     once the friction was lowered below what the committed state carries: it is no longer in
     equilibrium and must be relaxed at its F."""
     s = eq.state
-    m = s.ft.shape[0]
-    on = s.on
+    on, m = s.on, s.m
     slack = CONE_SLACK * s.mean_force
     ft0, mr0 = inc.forces(m)[:m], inc.moments(m)[:m]
     if np.any(np.abs(ft0[on]) - np.abs(s.ft[on]) > slack):
