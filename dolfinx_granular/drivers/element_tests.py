@@ -159,8 +159,11 @@ def step_row(loading, law, mu, Fc, Dc, r, before, seconds):
 
 #: where the held stress jumps across -p (a relaxed cell rearranging between two trial F a
 #: round-off apart: no F holds it), a step takes the nearer side if it misses p by at most this
-#: part (``control_error_Pa`` in its row); the next step holds it again
-ACCEPT_JUMP = 1e-2
+#: part (``control_error_Pa`` in its row); the next step holds it again. A rearrangement
+#: moves the stress by the forces of a few contacts, each about 2 / (number of contacts) of p
+#: (70 disks: ~1.5 %; measured misses of biaxial tests at p / k_n = 1e-2: 2.4-3.8 %), as a
+#: servo-controlled wall of a DEM cell lags its target while the cell rearranges
+ACCEPT_JUMP = 0.1
 
 
 def load_test(

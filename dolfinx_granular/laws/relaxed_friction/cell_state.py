@@ -13,7 +13,7 @@ from ..relaxed.cell import Cell
 from ..relaxed.contact_state import non_rattlers
 from .contact_law import OPEN, SLIP, STICK, return_map
 from .rolling import radius
-from .system import balance, equations
+from .system import balance, dissipation, energy, equations, rolling_springs
 
 #: a disk needs this many contacts with the other non-rattlers to be no rattler: with friction
 #: two contacts can hold a disk, with forces along the chord between them (while that chord
@@ -140,6 +140,18 @@ class CellState:
         return (self.qx, self.qy, self.lx, self.ly, self.d, self.e, self.ft, self.fstar,
                 self.status, self.keep, self.f, self.M, self.mean_force, self.count,
                 self.r, self.mr, self.mstar, self.rstatus)  # fmt: skip
+
+    def energies(self, cell: Cell, springs: Springs) -> tuple[float, float]:
+        """``(W, D)`` (Pa): the stored energy here and the energy the increment's return map
+        dissipated (:func:`~dolfinx_granular.laws.relaxed_friction.system.energy`,
+        :func:`~dolfinx_granular.laws.relaxed_friction.system.dissipation`)."""
+        sp = springs
+        _, kr = rolling_springs(cell.pi, cell.pj, cell.radii, self.e, sp.kn, sp.kr, sp.mu_r)
+        W = energy(self.e, self.ft, self.status, sp.kn, sp.kt, sp.inv_area, self.mr,
+                   self.rstatus, kr)  # fmt: skip
+        D = dissipation(self.ft, self.fstar, self.status, sp.kt, sp.inv_area, self.mr,
+                        self.mstar, self.rstatus, kr)  # fmt: skip
+        return W, D
 
     def held_rotations(self, cell: Cell) -> np.ndarray:
         """(N,) disks with a sticking contact (sliding or rolling) in the network: their

@@ -45,7 +45,8 @@ _FAILURES = {
 class Counts:
     """What a solve did: Newton steps, factorisations, chord steps (on an earlier
     factorisation), steps of the fallbacks (pseudo-transient continuation's among ``steps``
-    too); ``history`` the residual of every iterate; ``newton_seconds`` the wall time in the
+    too), rearrangements (:func:`~dolfinx_granular.laws.relaxed_friction.point.rearranged`);
+    ``history`` the residual of every iterate; ``newton_seconds`` the wall time in the
     compiled loops."""
 
     steps: int = 0
@@ -53,6 +54,7 @@ class Counts:
     chord_steps: int = 0
     pseudo_steps: int = 0
     fire_steps: int = 0
+    rearrangements: int = 0
     history: list = field(default_factory=list)
     newton_seconds: float = 0.0
 

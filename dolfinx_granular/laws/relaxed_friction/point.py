@@ -19,11 +19,10 @@ from ..relaxed.cell import Cell
 from ..relaxed.errors import RelaxationError, RigidityLostError
 from ..relaxed.path import stretches_between
 from .cell_state import CellState, Increment, Springs, overlap_ratio
-from .fire import fire
+from .fire import fire, settle
 from .newton import Counts, solve
 from .path_tangent import Chain, stretch_derivative
 from .settings import Settings
-from .system import dissipation, energy, rolling_springs
 from .tangent import path_condensation
 
 #: the shortest substep, relative to ``Settings.substep``
@@ -98,7 +97,9 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     again, FIRE goes on (to a thousandth of its tolerance where it reached it),
     :data:`FIRE_ROUNDS` times in all. The fallbacks solve the same increment: they do not
     change the path, so the answer stays the model's (a halved increment would commit a
-    midpoint, another path, and make P jump with F where Newton's success does)."""
+    midpoint, another path, and make P jump with F where Newton's success does). Where the
+    increment has no equilibrium they find, the cell rearranges (:func:`rearranged`): a dynamic
+    event, the friction integrated along it."""
     counts = Counts()
     w, th = predicted(inc.w0, inc.th0, dq, inc.F0, G)
     done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
@@ -123,9 +124,35 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
             return done
         if converged:  # (Newton failed from there: FIRE goes closer)
             tol = max(1e-3 * tol, settings.force_tol)
+    return rearranged(cell, springs, G, DG, w, th, inc, settings, counts, tangent)
+
+
+def rearranged(cell, springs, G, DG, w, th, inc, settings, counts, tangent) -> Equilibrium:
+    """The equilibrium at G where the increment from ``inc`` has none that the solvers find:
+    the cell rearranges from (w, th) as a DEM cell does (:func:`.fire.settle`), and Newton
+    (then the continuation) finishes from where it came to rest, an increment of no strain
+    from that state committed; where both fail there (contacts at their caps, whose statuses
+    flip), the cell settles closer, to a thousandth of the last tolerance, :data:`FIRE_ROUNDS`
+    times in all. Its ``dissipated`` is all the event released (no work is done at the fixed
+    G)."""
+    base, available, steps = settle(cell, springs, G, w, th, inc, settings)
+    counts.fire_steps += steps
+    counts.rearrangements += 1
+    tol = settings.fire_tol
+    for _ in range(FIRE_ROUNDS):
+        for pseudo in (False, True):
+            done = _newton(cell, springs, G, DG, base, base.w0, base.th0, settings, counts,
+                           tangent, pseudo)  # fmt: skip
+            if done is not None:
+                done.dissipated = available - done.W
+                return done
+        tol = max(1e-3 * tol, settings.force_tol)
+        base, _, steps = settle(cell, springs, G, base.w0, base.th0, base,
+                                replace(settings, fire_tol=tol))  # fmt: skip
+        counts.fire_steps += steps
     raise RelaxationError(
-        f"no equilibrium: Newton failed from FIRE's best positions after {counts.fire_steps} "
-        "FIRE steps (the cell keeps rearranging)"
+        f"no equilibrium: Newton failed where the rearranged cell came to rest (after "
+        f"{counts.fire_steps} FIRE steps)"
     )
 
 
@@ -147,10 +174,7 @@ def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Eq
     if tangent:
         chain0 = Chain.zero(cell.n_disks, cell.pi.shape[0]) if inc.chain is None else inc.chain
         A, dq, chain = path_condensation(cell, springs, G, s, inc, chain0, DG)
-    sp = springs
-    _, kr = rolling_springs(cell.pi, cell.pj, cell.radii, s.e, sp.kn, sp.kr, sp.mu_r)
-    W = energy(s.e, s.ft, s.status, sp.kn, sp.kt, sp.inv_area, s.mr, s.rstatus, kr)
-    D = dissipation(s.ft, s.fstar, s.status, sp.kt, sp.inv_area, s.mr, s.mstar, s.rstatus, kr)
+    W, D = s.energies(cell, springs)
     return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, chain)
 
 

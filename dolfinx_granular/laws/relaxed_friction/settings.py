@@ -22,6 +22,9 @@ class Settings:
             increment) stops at this net force, or after that many steps, and Newton takes
             over; up to
             :data:`~dolfinx_granular.laws.relaxed_friction.point.FIRE_ROUNDS` such rounds.
+        settle_steps: where all of those fail, the cell rearranges (damped dynamics with the
+            friction law step by step, :func:`~dolfinx_granular.laws.relaxed_friction.fire.
+            settle`) for at most this many steps.
         substep, substep_overlap: the quasi-static path's substeps |U_k+1 - U_k| (the right
             stretch, Frobenius norm) are at most ``substep``, and at most ``substep_overlap``
             times the mean overlap over the mean radius sum (of the committed state or, if
@@ -36,5 +39,6 @@ class Settings:
     pseudo_steps: int = 2000
     fire_tol: float = 1e-5
     fire_steps: int = 20_000
+    settle_steps: int = 200_000
     substep: float = 1e-3
     substep_overlap: float = 0.25

@@ -1,0 +1,134 @@
+"""Rearrangements of the frictional relaxed RVE (laws/relaxed_friction/fire.py ``settle``,
+point.py ``rearranged``): where an increment has no equilibrium that Newton, the continuation
+and FIRE find, the cell rearranges with the friction law step by step and comes to rest in an
+equilibrium (brute force), its forces in their cones, having dissipated; Newton finishes
+there and its tangent is the derivative of P at the rearranged history."""
+
+from dataclasses import replace
+
+from dolfinx_granular import FrictionalRelaxedRVE, generate_packing
+from dolfinx_granular.laws.relaxed_friction.cell_state import CellState
+from dolfinx_granular.laws.relaxed_friction.contact_law import OPEN
+from dolfinx_granular.laws.relaxed_friction.fire import settle
+from dolfinx_granular.laws.relaxed_friction.point import predicted, relax
+
+import numpy as np
+import pytest
+
+F1 = np.diag([0.99, 0.99])
+#: an increment of 3e-3 in F from F1 on which Newton stalls
+#: (tests/test_relaxed_friction_pseudo_time.py)
+HARD = np.array([[0.9890745152008461, 0.0006247337322891522],
+                 [0.0022529423564802325, 0.9916362873796044]])  # fmt: skip
+#: fallbacks cut to one step each: the increment's solvers fail, the cell rearranges
+NO_FALLBACK = {"pseudo_steps": 1, "fire_steps": 1}
+
+
+@pytest.fixture(scope="module", params=[0.0, 0.1], ids=["sliding", "rolling"])
+def committed(request):
+    """A frictional relaxed cell (mu = 0.3, and mu_r) committed at F1: ``(rve, state, inc)``."""
+    rve = FrictionalRelaxedRVE(generate_packing(70, seed=1), 1e8, 1e8, friction=0.3,
+                               rolling_friction=request.param)  # fmt: skip
+    state = rve.evaluate(F1, rve.initial_state(1))[3]
+    return rve, state, rve.increment(state, 0)
+
+
+def brute_force_balance(rve, F, w, th, s):
+    """The largest net force over the mean normal force and net moment over it times the mean
+    radius, summed over every pair of disks and periodic image by a plain loop."""
+    p, kn = rve.packing, rve.springs.kn
+    x = (p.centers + w) @ F.T
+    box = F @ np.diag(p.box)
+    n = len(p.radii)
+    f, M, normal = np.zeros((n, 2)), np.zeros(n), []
+    ft = {}  # the return map's tangential forces and moments, by pair and image
+    c = rve.cell
+    for k in np.flatnonzero(s.on):
+        ft[(c.pi[k], c.pj[k], tuple(np.asarray(c.shift)[k]))] = (s.ft[k], s.mr[k])
+    for i in range(n):
+        for j in range(n):
+            for a in (-1, 0, 1):
+                for b in (-1, 0, 1):
+                    if (i, j, (a, b)) not in ft:
+                        continue
+                    l = x[j] + box @ (a, b) - x[i]
+                    d = np.linalg.norm(l)
+                    e = p.radii[i] + p.radii[j] - d
+                    assert e > 0.0
+                    nrm, t = l / d, np.array([-l[1], l[0]]) / d
+                    fij, mr = ft[(i, j, (a, b))]
+                    force = kn * e * nrm - fij * (p.radii[i] + p.radii[j]) / d * t
+                    f[j] += force
+                    f[i] -= force
+                    M[j] += p.radii[j] * fij + mr
+                    M[i] += p.radii[i] * fij - mr
+                    normal.append(kn * e)
+    scale = np.mean(normal)
+    return max(np.linalg.norm(f, axis=1).max() / scale,
+               np.abs(M).max() / (scale * p.radii.mean()))  # fmt: skip
+
+
+def test_a_disturbed_cell_settles_into_an_equilibrium_having_dissipated(committed):
+    """From the increment's start with every disk pushed by up to 3 % of the smallest radius
+    sum: at rest (brute force, FIRE's tolerance), forces and moments in their cones, its stored
+    energy below the energy it started with."""
+    rve, state, inc = committed
+    cell, sp, settings = rve.cell, rve.springs, rve.settings
+    w, th = predicted(inc.w0, inc.th0, state.sensitivity[0], inc.F0, HARD)
+    kick = np.random.default_rng(0).uniform(-1, 1, size=w.shape) * 0.03 * cell.R.min()
+    w = w + kick @ np.linalg.inv(HARD).T
+    base, available, steps = settle(cell, sp, HARD, w, th, inc, settings)
+    assert steps > 0 and np.array_equal(base.F0, HARD) and base.chain is None
+    s = CellState(cell, sp, HARD, base.w0, base.th0, base)
+    assert s.residual(cell)[0] <= settings.fire_tol
+    assert brute_force_balance(rve, HARD, base.w0, base.th0, s) <= 1.01 * settings.fire_tol
+    on = s.status != OPEN
+    assert (np.abs(s.ft[on]) <= sp.mu * sp.kn * s.e[on] * (1 + 1e-12)).all()
+    if sp.mu_r > 0.0:
+        assert np.any(s.mr[on] != 0.0)
+    stored, _ = s.energies(cell, sp)
+    assert available > stored > 0.0
+
+
+def test_where_every_solver_fails_the_cell_rearranges(committed):
+    """The hard increment with the fallbacks cut short: one rearrangement, then Newton's
+    equilibrium (brute force), every force in its cone, energy dissipated."""
+    rve, state, inc = committed
+    settings = replace(rve.settings, **NO_FALLBACK)
+    eq = relax(rve.cell, rve.springs, HARD, np.eye(4), inc, state.sensitivity[0], settings, True)
+    assert eq.counts.rearrangements == 1
+    assert eq.residual <= settings.force_tol
+    s, sp = eq.state, rve.springs
+    assert brute_force_balance(rve, HARD, eq.w, eq.theta, s) <= 1e-8
+    on = s.status != OPEN
+    assert (np.abs(s.ft[on]) <= sp.mu * sp.kn * s.e[on] * (1 + 1e-12)).all()
+    assert eq.dissipated > 0.0 and eq.W > 0.0
+    # the default settings solve the same increment without rearranging
+    default = relax(rve.cell, sp, HARD, np.eye(4), inc, state.sensitivity[0], rve.settings, True)
+    assert default.counts.rearrangements == 0
+
+
+def test_the_tangent_after_a_rearrangement_is_the_derivative_of_p_at_its_history(committed):
+    """A of the equilibrium Newton finds from where the disturbed cell came to rest (as
+    ``rearranged`` does) against central differences of P from that rest, the history fixed,
+    where no contact changes status."""
+    rve, state, inc = committed
+    cell, sp = rve.cell, rve.springs
+    w, th = predicted(inc.w0, inc.th0, state.sensitivity[0], inc.F0, HARD)
+    kick = np.random.default_rng(0).uniform(-1, 1, size=w.shape) * 0.03 * cell.R.min()
+    base = settle(cell, sp, HARD, w + kick @ np.linalg.inv(HARD).T, th, inc, rve.settings)[0]
+    still = np.zeros((cell.n_disks, 3, 4))
+    eq = relax(cell, sp, HARD, np.eye(4), base, still, rve.settings, True)
+    h = 1e-9  # (at 1e-8 a rolling spring at its cap changes status)
+    for k in range(4):
+        dF = np.zeros(4)
+        dF[k] = h
+        P = []
+        for sign in (1.0, -1.0):
+            G = HARD + sign * dF.reshape(2, 2)
+            other = relax(cell, sp, G, np.eye(4), base, still, rve.settings, False)
+            assert np.array_equal(other.state.status, eq.state.status)
+            assert np.array_equal(other.state.rstatus, eq.state.rstatus)
+            P.append(other.P.ravel())
+        fd = (P[0] - P[1]) / (2 * h)
+        assert np.allclose(eq.A.reshape(4, 4)[:, k], fd, rtol=0, atol=1e-5 * np.abs(eq.A).max())
