@@ -10,6 +10,7 @@ from dolfinx_granular.drivers.material_point import (
     solve_pressure,
     stress_tangent,
 )
+from dolfinx_granular.laws.relaxed.errors import RigidityLostError
 
 import numpy as np
 import pytest
@@ -224,6 +225,35 @@ def test_a_stress_that_jumps_across_its_target_is_named_or_taken_at_the_nearer_s
     assert step.control_error == pytest.approx(-1e3, rel=1e-6)  # (the nearer side: below)
     with pytest.raises(ControlError, match="jumps"):  # (a miss beyond accept_jump)
         solve_point(law, np.eye(2), {(0, 0): target}, measure="piola", accept_jump=0.1)
+
+
+class UnjamLaw(LinearLaw):
+    """LinearLaw whose cell comes apart (RigidityLostError, as a relaxed RVE's) where F11 > 1,
+    its tangent the linear one's times ``stiff`` (< 1: Newton overshoots)."""
+
+    def __init__(self, stiff=0.3):
+        super().__init__()
+        self.stiff = stiff
+
+    def evaluate(self, F):
+        if F[0, 0] > 1.0:
+            raise RigidityLostError("no disk has 2 contacts or more (all are rattlers)")
+        W, P, A = super().evaluate(F)
+        return W, P, self.stiff * A
+
+
+def test_an_iterate_that_unjams_bounds_a_compressive_target_from_the_dilated_side():
+    law = UnjamLaw()
+    target = -(law.lam + 2 * law.mu) * 1e-3  # (its root F11 = 0.999; Newton from 0.99 leaps
+    F = np.diag([0.99, 1.0])  # past 1, where the cell comes apart)
+    step = solve_point(law, F, {(0, 0): target}, measure="piola")
+    assert step.F[0, 0] == pytest.approx(0.999, rel=1e-12) and step.control_error == 0.0
+    assert max(step.residuals) == pytest.approx(-target)  # (an unjammed iterate: sigma = 0)
+    # an iterate that unjams before any held the target tells nothing; nor with a tensile target
+    with pytest.raises(RigidityLostError):
+        solve_point(law, np.diag([1.01, 1.0]), {(0, 0): target}, measure="piola")
+    with pytest.raises(RigidityLostError):
+        solve_point(UnjamLaw(), F, {(0, 0): 1e2}, measure="piola", stress_scale=1.0)
 
 
 def test_a_crawling_newton_is_bisected_in_its_bracket():

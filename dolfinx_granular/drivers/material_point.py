@@ -6,7 +6,8 @@ a prescribed value. Newton's method uses the law's consistent tangent A = dP/dF 
 for the Cauchy stress); steps are capped, and with one unknown an iterate that leaves the bracket
 of the root found so far is replaced by bisection (stick/slip switches make the stress only
 piecewise smooth; where the last step did not halve the residual, too; where the stress jumps
-across its target, ``accept_jump`` takes the nearer side). Works for
+across its target, ``accept_jump`` takes the nearer side; an iterate at which a relaxed cell
+comes apart bounds a compressive target from the dilated side). Works for
 :class:`~dolfinx_granular.MaterialLaw` (no history) and :class:`~dolfinx_granular.HistoryLaw`
 (a committed 1-point state), in any dimension d.
 
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..laws.protocol import law_dimension
+from ..laws.relaxed.errors import RigidityLostError
 
 #: default tolerance: |s_ij - target_ij| <= RTOL * stress scale at every stress-controlled ij
 RTOL = 1e-10
@@ -134,6 +136,10 @@ def solve_point(
             between two branches), the bracket's end nearer the target is the answer if it
             misses by at most ``accept_jump`` times the stress scale (its miss in
             ``PointResult.control_error``); 0: never (a :class:`ControlError` names the jump).
+            With one unknown held to a compressive target, an iterate at which the law's cell
+            comes apart (:class:`~dolfinx_granular.laws.relaxed.errors.RigidityLostError`: a
+            relaxed RVE dilated past jamming) counts as stress-free, the bracket's dilated end,
+            once an iterate has held more than the target (before that it is raised).
 
     Returns:
         :class:`PointResult`. Raises :class:`ControlError` (with the residual history) when not
@@ -151,7 +157,13 @@ def solve_point(
         F = F0.copy()
         if keys:
             F[idx] = one + x
-        W, P, A, new = _evaluate(law, F, state)
+        try:
+            W, P, A, new = _evaluate(law, F, state)
+        except RigidityLostError:
+            if not _unjammed_side(bracket, x, targets, residuals):
+                raise
+            x = np.array([0.5 * (bracket.lo + bracket.hi)])
+            continue
         sigma = P @ F.T / np.linalg.det(F)
         if idx is None:
             return PointResult(F, W, P, sigma, new, 0, ())
@@ -174,6 +186,18 @@ def solve_point(
         f"{scale:.6g} Pa after {max_iter} iterations (residuals "
         f"{', '.join(f'{x:.2e}' for x in residuals[-5:])}); state not committed"
     )
+
+
+def _unjammed_side(bracket, x, targets, residuals) -> bool:
+    """Where the iterate x of one unknown held to a compressive target lost its contact
+    network (a relaxed cell dilated past jamming carries no stress: residual = -target), x
+    bounds the root from the dilated side; True where the bracket then holds the root (the
+    caller bisects it), False where x tells nothing (the caller re-raises)."""
+    if x is None or x.size != 1 or not targets[0] < 0.0:
+        return False
+    bracket.add(x[0], -float(targets[0]), None)
+    residuals.append(-float(targets[0]))
+    return bracket.found()
 
 
 #: a bracket narrower than this (in F_ij, times max(1, |F_ij - delta_ij|)) has shrunk to
@@ -228,7 +252,7 @@ class _Bracket:
         ``scale``; else ControlError."""
         (r_lo, lo), (r_hi, hi) = self.ends["lo"], self.ends["hi"]
         r, result = (r_lo, lo) if -r_lo <= r_hi else (r_hi, hi)
-        if abs(r) <= accept * scale:
+        if result is not None and abs(r) <= accept * scale:  # (None: a cell that unjammed)
             return replace(result, control_error=float(r))
         raise ControlError(
             f"material point: the stress {key} jumps from {r_lo:+.3e} to {r_hi:+.3e} Pa about its "
