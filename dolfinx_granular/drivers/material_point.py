@@ -138,8 +138,9 @@ def solve_point(
             ``PointResult.control_error``); 0: never (a :class:`ControlError` names the jump).
             With one unknown held to a compressive target, an iterate at which the law's cell
             comes apart (:class:`~dolfinx_granular.laws.relaxed.errors.RigidityLostError`: a
-            relaxed RVE dilated past jamming) counts as stress-free, the bracket's dilated end,
-            once an iterate has held more than the target (before that it is raised).
+            relaxed RVE dilated past jamming) counts as stress-free, the bracket's dilated end
+            (before an iterate held more than the target, the next one lies
+            ``max_increment`` more compressed).
 
     Returns:
         :class:`PointResult`. Raises :class:`ControlError` (with the residual history) when not
@@ -160,9 +161,10 @@ def solve_point(
         try:
             W, P, A, new = _evaluate(law, F, state)
         except RigidityLostError:
-            if not _unjammed_side(bracket, x, targets, residuals):
+            x = _unjammed_next(bracket, x, keys[0] if keys else None,
+                               targets[0] if keys else 0.0, residuals, max_increment)  # fmt: skip
+            if x is None:
                 raise
-            x = np.array([0.5 * (bracket.lo + bracket.hi)])
             continue
         sigma = P @ F.T / np.linalg.det(F)
         if idx is None:
@@ -188,16 +190,19 @@ def solve_point(
     )
 
 
-def _unjammed_side(bracket, x, targets, residuals) -> bool:
-    """Where the iterate x of one unknown held to a compressive target lost its contact
-    network (a relaxed cell dilated past jamming carries no stress: residual = -target), x
-    bounds the root from the dilated side; True where the bracket then holds the root (the
-    caller bisects it), False where x tells nothing (the caller re-raises)."""
-    if x is None or x.size != 1 or not targets[0] < 0.0:
-        return False
-    bracket.add(x[0], -float(targets[0]), None)
-    residuals.append(-float(targets[0]))
-    return bracket.found()
+def _unjammed_next(bracket, x, key, target, residuals, max_increment):
+    """The next iterate where the iterate x (1,) of the unknown F_key (diagonal), held to a
+    compressive ``target``, lost its contact network (a relaxed cell dilated past jamming
+    carries no stress: residual = -target): x bounds the root from the dilated side, and the
+    next iterate bisects the bracket, or before an iterate held more than the target, lies
+    ``max_increment`` more compressed. None where x tells nothing (the caller re-raises)."""
+    if x is None or x.size != 1 or key[0] != key[1] or not target < 0.0:
+        return None
+    bracket.add(x[0], -float(target), None)
+    residuals.append(-float(target))
+    if bracket.found():
+        return np.array([0.5 * (bracket.lo + bracket.hi)])
+    return x - max_increment
 
 
 #: a bracket narrower than this (in F_ij, times max(1, |F_ij - delta_ij|)) has shrunk to
