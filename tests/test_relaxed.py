@@ -5,6 +5,7 @@ brute-force pair loop over the relaxed positions, P and A by central differences
 modulus and W, P by a TaylorRVE of the relaxed positions, a lattice against TaylorRVE."""
 
 import warnings
+from dataclasses import replace
 
 from dolfinx_granular import (
     HistoryLaw,
@@ -287,6 +288,22 @@ def test_small_steps_from_an_equilibrium_need_no_fire():
         eq = relax(rve.cell, F0 + 1e-4 * d[q], w0, False, rve.settings)
         assert eq.fire_steps == 0, f"point {q} went through FIRE"
         assert eq.residual <= 1e-9, f"point {q}: net force {eq.residual:.3g} of the mean"
+
+
+def test_where_newton_fails_from_fires_positions_fire_goes_closer():
+    """70 disks kicked by 2 % of the smallest radius sum, FIRE stopping at 0.1 of the mean
+    contact force and Newton given 3 steps: Newton fails from FIRE's first positions (a net
+    force of 0.27 after its 3 steps, before FIRE went on), and a later round, FIRE to a
+    thousandth of that, reaches the equilibrium (brute force over pairs and images)."""
+    rve = RelaxedRVE(generate_packing(70, seed=1), 1e8)
+    settings = replace(rve.settings, fire_tol=0.1, max_iterations=3)
+    F = 0.99 * np.eye(2)
+    w0 = np.random.default_rng(0).uniform(-1, 1, (70, 2)) * 0.02 * rve.cell.R.min()
+    eq = relax(rve.cell, F, w0, False, settings)
+    assert eq.fire_steps > 0 and eq.residual <= settings.force_tol
+    p = rve.packing
+    f, mean = net_forces(p, (p.centers + eq.w) @ F.T, F)
+    assert np.linalg.norm(f, axis=1).max() <= 1e-9 * mean
 
 
 def test_a_big_step_follows_the_quasi_static_path():
