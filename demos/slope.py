@@ -85,7 +85,24 @@ def main(argv=None):
     prefix = SMALL
     if "--factor-of-safety" in argv:
         prefix = SMALL_CONTINUATION if "--continuation" in argv else SMALL_SAFETY
+    if "--strength" in argv:  # (a given curve: nothing to measure)
+        prefix = without(prefix, MEASURED_CURVE)
     return cli.main((prefix if small else []) + [a for a in argv if a != "--small"])
+
+
+#: the options of a strength curve that the run measures itself (with their values)
+MEASURED_CURVE = ("--strength-seeds", "--strength-strain")
+
+
+def without(args, options):
+    """``args`` (option, value, ...) without ``options`` and their values."""
+    out, skip = [], False
+    for a in args:
+        if skip or a in options:
+            skip = not skip
+            continue
+        out.append(a)
+    return out
 
 
 if __name__ == "__main__":

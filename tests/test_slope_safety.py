@@ -10,6 +10,7 @@ import json
 import math
 import os
 import shutil
+from pathlib import Path
 
 from dolfinx_granular.io.strength_table import read_curve, write_curve
 from dolfinx_granular.slope.geometry import SlopeGeometry
@@ -25,6 +26,8 @@ from helpers import assert_user_error, is_png, run_slope_demo
 
 pytest.importorskip("dolfinx")
 
+#: the slope's demo script
+DEMO = Path(__file__).resolve().parent.parent / "demos" / "slope.py"
 #: what a test of the command line passes besides its own options
 FS = ["--factor-of-safety", "--no-figure"]
 
@@ -102,6 +105,22 @@ def test_a_curve_that_lacks_the_slope_is_refused(capsys, tmp_path, curve_csv):
     assert code == 2 and "mu = 2 lies outside" in err[0] and not out.exists()
     code, err = main(capsys, "--strength", str(curve_csv), "--strength-seeds", "2")
     assert code == 2 and "apply to a measured strength curve" in err[0]
+
+
+def test_small_takes_a_given_curve_without_its_own_curves_options(capsys, tmp_path, curve_csv):
+    """``demos/slope.py --small --strength CSV``: --small's --strength-seeds and
+    --strength-strain (for a curve it measures) are left out, so the run goes on to check the
+    curve (here refused for its pressure, before anything runs)."""
+    import runpy
+
+    demo = runpy.run_path(str(DEMO), run_name="slope_demo")
+    for extra in ([], ["--continuation"]):
+        out = tmp_path / f"out{len(extra)}"
+        code = demo["main"]([*FS, "--small", *extra, "--strength", str(curve_csv),
+                             "--confinement", "2.8e4", "--out", str(out)])  # fmt: skip
+        err = capsys.readouterr().err
+        assert code == 2 and "p_over_kn = 0.001 is not in the curve" in err, err
+        assert not out.exists()
 
 
 def test_safety_options_without_factor_of_safety_are_refused(capsys):
