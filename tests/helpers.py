@@ -318,3 +318,50 @@ def net_forces(packing, x, F):
             f -= np.einsum("ij,ijk->ik", np.where(on, eps, 0.0), n)  # pushed away from j
             overlaps.append(eps[on])
     return f, np.concatenate(overlaps).mean()
+
+
+def frictional_balance(packing, F, w, c):
+    """Net force (N, 2) and moment (N,) of every disk of the frictional relaxed cell at F with
+    fluctuations w (N, 2) and contacts c (a ``ContactSet`` with ``tangential`` and
+    ``rolling``), every pair and image found by brute force (and checked to be in the set), and
+    the mean normal force."""
+    r = packing.radii
+    xi = packing.centers + w
+    wraps = np.floor(xi / packing.box).astype(int)
+    x = (xi - wraps * packing.box) @ F.T  # (the centres in the current cell, as positions())
+    a = F @ np.diag(packing.box)
+    known = {
+        (int(i), int(j), int(s0), int(s1)): k
+        for k, ((i, j), (s0, s1)) in enumerate(zip(c.pairs, c.shift))
+    }
+    f, M, found = np.zeros_like(x), np.zeros(len(r)), np.zeros(len(c.force), bool)
+    for i in range(len(r)):
+        for j in range(i, len(r)):
+            for s0 in (-1, 0, 1):
+                for s1 in (-1, 0, 1):
+                    l = x[j] + a @ [s0, s1] - x[i]
+                    d = np.linalg.norm(l)
+                    if (i == j and s0 == s1 == 0) or d >= r[i] + r[j]:
+                        continue
+                    # the image in the candidates' convention (of the unwrapped centres; a
+                    # candidate may list the pair the other way round)
+                    sh = (s0 - wraps[j, 0] + wraps[i, 0], s1 - wraps[j, 1] + wraps[i, 1])
+                    a_, b_ = i, j
+                    if (i, j) + sh not in known:
+                        sh, a_, b_, l = (-sh[0], -sh[1]), j, i, -l
+                    if (a_, b_) + sh not in known:  # (only at a rattler's zero overlap)
+                        assert r[i] + r[j] - d <= 1e-12 * (r[i] + r[j])
+                        continue
+                    k = known[(a_, b_) + sh]
+                    found[k] = True
+                    n = l / d
+                    t = np.array([-n[1], n[0]])
+                    force = c.force[k] * n + c.tangential[k] * (r[i] + r[j]) / d * t
+                    f[b_] += force
+                    f[a_] -= force
+                    M[a_] -= r[a_] * c.tangential[k] + c.rolling[k]
+                    M[b_] -= r[b_] * c.tangential[k] - c.rolling[k]
+    # every contact of the set is found, but one whose overlap is round-off (~1e-16 of the
+    # radii: either side of touching, its force nothing against the balance's 1e-9)
+    assert found[c.force > 1e-12 * c.force.mean()].all()
+    return f, M, c.force.mean()

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from helpers import hex_lattice
+from helpers import frictional_balance, hex_lattice
 
 K_N = 1e8
 #: a compression, then a shear under it (p / k_n ~ 1e-3 on the 70-disk packing)
@@ -186,54 +186,9 @@ def test_without_friction_it_is_the_frictionless_relaxed_rve(packing):
     assert not c.tangential.any() and not c.sliding.any()
 
 
-def _brute_force_balance(packing, rve, F, state):
-    """Net force (N, 2) and moment (N,) of every disk from the contact set, every pair and
-    image found by brute force (and checked to be in the set), and the mean normal force."""
-    c = rve.contacts(F, state)
-    x = rve.positions(F, state)[0]
-    a = F @ np.diag(packing.box)
-    r = packing.radii
-    known = {
-        (int(i), int(j), int(s0), int(s1)): k
-        for k, ((i, j), (s0, s1)) in enumerate(zip(c.pairs, c.shift))
-    }
-    f, M, found = np.zeros_like(x), np.zeros(len(r)), np.zeros(len(c.force), bool)
-    wraps = np.floor((packing.centers + state.w[0]) / packing.box).astype(int)
-    for i in range(len(r)):
-        for j in range(i, len(r)):
-            for s0 in (-1, 0, 1):
-                for s1 in (-1, 0, 1):
-                    l = x[j] + a @ [s0, s1] - x[i]
-                    d = np.linalg.norm(l)
-                    if (i == j and s0 == s1 == 0) or d >= r[i] + r[j]:
-                        continue
-                    # the image in the candidates' convention (of the unwrapped centres; a
-                    # candidate may list the pair the other way round)
-                    sh = (s0 - wraps[j, 0] + wraps[i, 0], s1 - wraps[j, 1] + wraps[i, 1])
-                    a_, b_ = i, j
-                    if (i, j) + sh not in known:
-                        sh, a_, b_, l = (-sh[0], -sh[1]), j, i, -l
-                    if (a_, b_) + sh not in known:  # (only at a rattler's zero overlap)
-                        assert r[i] + r[j] - d <= 1e-12 * (r[i] + r[j])
-                        continue
-                    k = known[(a_, b_) + sh]
-                    found[k] = True
-                    n = l / d
-                    t = np.array([-n[1], n[0]])
-                    force = c.force[k] * n + c.tangential[k] * (r[i] + r[j]) / d * t
-                    f[b_] += force
-                    f[a_] -= force
-                    M[a_] -= r[a_] * c.tangential[k] + c.rolling[k]
-                    M[b_] -= r[b_] * c.tangential[k] - c.rolling[k]
-    # every contact of the set is found, but one whose overlap is round-off (~1e-16 of the
-    # radii: either side of touching, its force nothing against the balance's 1e-9)
-    assert found[c.force > 1e-12 * c.force.mean()].all()
-    return f, M, c.force.mean()
-
-
 def test_every_disk_is_in_equilibrium_of_forces_and_moments(packing, rve, sheared):
     (_, P, _, state), _ = sheared
-    f, M, mean = _brute_force_balance(packing, rve, F_TWO, state)
+    f, M, mean = frictional_balance(packing, F_TWO, state.w[0], rve.contacts(F_TWO, state))
     assert np.abs(f).max() <= 1e-9 * mean
     assert np.abs(M).max() <= 1e-9 * mean * packing.radii.mean()
     sigma = P @ F_TWO.T / np.linalg.det(F_TWO)
@@ -485,7 +440,7 @@ def test_a_lowered_friction_relaxes_the_point_at_its_f(packing, reduced):
     assert np.allclose(np.abs(c.tangential[c.sliding]), cap[c.sliding], rtol=1e-12)
     assert c.sliding.any()
     assert np.all(np.abs(c.rolling) <= _rolling_caps(rve, c) * (1 + 1e-12))
-    f, M, mean = _brute_force_balance(packing, rve, F_TWO, state)
+    f, M, mean = frictional_balance(packing, F_TWO, state.w[0], rve.contacts(F_TWO, state))
     assert np.abs(f).max() <= 1e-9 * mean
     assert np.abs(M).max() <= 1e-9 * mean * packing.radii.mean()
     assert state.dissipation[0] > committed.dissipation[0]

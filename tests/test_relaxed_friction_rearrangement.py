@@ -6,15 +6,17 @@ there and its tangent is the derivative of P at the rearranged history."""
 
 from dataclasses import replace
 
-from dolfinx_granular import FrictionalRelaxedRVE, generate_packing
+from dolfinx_granular import ContactSet, FrictionalRelaxedRVE, generate_packing
 from dolfinx_granular.drivers import element_tests as et
 from dolfinx_granular.laws.relaxed_friction.cell_state import CellState
-from dolfinx_granular.laws.relaxed_friction.contact_law import OPEN
+from dolfinx_granular.laws.relaxed_friction.contact_law import OPEN, SLIP
 from dolfinx_granular.laws.relaxed_friction.fire import settle
 from dolfinx_granular.laws.relaxed_friction.point import predicted, relax
 
 import numpy as np
 import pytest
+
+from helpers import frictional_balance
 
 F1 = np.diag([0.99, 0.99])
 #: an increment of 3e-3 in F from F1 on which Newton stalls
@@ -34,39 +36,21 @@ def committed(request):
     return rve, state, rve.increment(state, 0)
 
 
-def brute_force_balance(rve, F, w, th, s):
+def balance(rve, F, w, s):
     """The largest net force over the mean normal force and net moment over it times the mean
-    radius, summed over every pair of disks and periodic image by a plain loop."""
-    p, kn = rve.packing, rve.springs.kn
-    x = (p.centers + w) @ F.T
-    box = F @ np.diag(p.box)
-    n = len(p.radii)
-    f, M, normal = np.zeros((n, 2)), np.zeros(n), []
-    ft = {}  # the return map's tangential forces and moments, by pair and image
-    c = rve.cell
-    for k in np.flatnonzero(s.on):
-        ft[(c.pi[k], c.pj[k], tuple(np.asarray(c.shift)[k]))] = (s.ft[k], s.mr[k])
-    for i in range(n):
-        for j in range(n):
-            for a in (-1, 0, 1):
-                for b in (-1, 0, 1):
-                    if (i, j, (a, b)) not in ft:
-                        continue
-                    l = x[j] + box @ (a, b) - x[i]
-                    d = np.linalg.norm(l)
-                    e = p.radii[i] + p.radii[j] - d
-                    assert e > 0.0
-                    nrm, t = l / d, np.array([-l[1], l[0]]) / d
-                    fij, mr = ft[(i, j, (a, b))]
-                    force = kn * e * nrm - fij * (p.radii[i] + p.radii[j]) / d * t
-                    f[j] += force
-                    f[i] -= force
-                    M[j] += p.radii[j] * fij + mr
-                    M[i] += p.radii[i] * fij - mr
-                    normal.append(kn * e)
-    scale = np.mean(normal)
-    return max(np.linalg.norm(f, axis=1).max() / scale,
-               np.abs(M).max() / (scale * p.radii.mean()))  # fmt: skip
+    radius of the cell state s at (F, w), by brute force over every pair and image
+    (``helpers.frictional_balance``; the contacts as ``FrictionalRelaxedRVE.contacts`` gives
+    them)."""
+    c, on = rve.cell, np.flatnonzero(s.on)
+    contacts = ContactSet(
+        pairs=np.stack([c.pi[on], c.pj[on]], axis=1).astype(np.int64),
+        shift=np.asarray(c.shift)[on], branch=np.stack([s.lx[on], s.ly[on]], axis=1),
+        overlap=s.e[on], force=rve.springs.kn * s.e[on], tangential=-s.ft[on],
+        sliding=s.status[on] == SLIP, rolling=s.mr[on],
+    )  # fmt: skip
+    f, M, mean = frictional_balance(rve.packing, F, w, contacts)
+    return max(np.linalg.norm(f, axis=1).max() / mean,
+               np.abs(M).max() / (mean * rve.packing.radii.mean()))  # fmt: skip
 
 
 def test_a_disturbed_cell_settles_into_an_equilibrium_having_dissipated(committed):
@@ -82,7 +66,7 @@ def test_a_disturbed_cell_settles_into_an_equilibrium_having_dissipated(committe
     assert steps > 0 and np.array_equal(base.F0, HARD) and base.chain is None
     s = CellState(cell, sp, HARD, base.w0, base.th0, base)
     assert s.residual(cell)[0] <= settings.fire_tol
-    assert brute_force_balance(rve, HARD, base.w0, base.th0, s) <= 1.01 * settings.fire_tol
+    assert balance(rve, HARD, base.w0, s) <= 1.01 * settings.fire_tol
     on = s.status != OPEN
     assert (np.abs(s.ft[on]) <= sp.mu * sp.kn * s.e[on] * (1 + 1e-12)).all()
     if sp.mu_r > 0.0:
@@ -100,7 +84,7 @@ def test_where_every_solver_fails_the_cell_rearranges(committed):
     assert eq.counts.rearrangements == 1
     assert eq.residual <= settings.force_tol
     s, sp = eq.state, rve.springs
-    assert brute_force_balance(rve, HARD, eq.w, eq.theta, s) <= 1e-8
+    assert balance(rve, HARD, eq.w, s) <= 1e-8
     on = s.status != OPEN
     assert (np.abs(s.ft[on]) <= sp.mu * sp.kn * s.e[on] * (1 + 1e-12)).all()
     assert eq.dissipated > 0.0 and eq.W > 0.0
