@@ -161,8 +161,7 @@ def solve_point(
         try:
             W, P, A, new = _evaluate(law, F, state)
         except RigidityLostError:
-            x = _unjammed_next(bracket, x, keys[0] if keys else None,
-                               targets[0] if keys else 0.0, residuals, max_increment)  # fmt: skip
+            x = _unjammed_next(bracket, x, keys, targets, residuals, max_increment)
             if x is None:
                 raise
             continue
@@ -190,16 +189,16 @@ def solve_point(
     )
 
 
-def _unjammed_next(bracket, x, key, target, residuals, max_increment):
-    """The next iterate where the iterate x (1,) of the unknown F_key (diagonal), held to a
-    compressive ``target``, lost its contact network (a relaxed cell dilated past jamming
-    carries no stress: residual = -target): x bounds the root from the dilated side, and the
-    next iterate bisects the bracket, or before an iterate held more than the target, lies
+def _unjammed_next(bracket, x, keys, targets, residuals, max_increment):
+    """The next iterate where the iterate x (1,) of one diagonal unknown F_ij, held to a
+    compressive target, lost its contact network (a relaxed cell dilated past jamming carries
+    no stress: residual = -target): x bounds the root from the dilated side, and the next
+    iterate bisects the bracket, or before an iterate held more than the target, lies
     ``max_increment`` more compressed. None where x tells nothing (the caller re-raises)."""
-    if x is None or x.size != 1 or key[0] != key[1] or not target < 0.0:
+    if x is None or x.size != 1 or keys[0][0] != keys[0][1] or not targets[0] < 0.0:
         return None
-    bracket.add(x[0], -float(target), None)
-    residuals.append(-float(target))
+    bracket.add(x[0], -float(targets[0]), None)
+    residuals.append(-float(targets[0]))
     if bracket.found():
         return np.array([0.5 * (bracket.lo + bracket.hi)])
     return x - max_increment

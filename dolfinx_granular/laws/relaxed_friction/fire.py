@@ -101,12 +101,12 @@ def fire_chunk(F, Finv, u, th, v, inc_arrays, geo, law, m, params, n_steps, tol,
 
 
 def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Settings,
-         stepwise: bool = False, steps: int | None = None) -> tuple:  # fmt: skip
+         stepwise: bool = False, budget: int | None = None) -> tuple:  # fmt: skip
     """FIRE from (w (N, 2), th (N,)) until the residual is ``settings.fire_tol``: ``(w, th,
-    steps, converged)``. After ``steps`` (default ``settings.fire_steps``; where a disk keeps
-    sliding in its cage or bouncing about it) the positions of the smallest residual seen at
-    the end of a chunk, converged False, for Newton to try from. ``stepwise``: the friction
-    law step by step, ``inc`` updated in place (its F0 must be F; :func:`settle`)."""
+    steps, converged)``. After ``budget`` steps (default ``settings.fire_steps``; where a disk
+    keeps sliding in its cage or bouncing about it) the positions of the smallest residual
+    seen at the end of a chunk, converged False, for Newton to try from. ``stepwise``: the
+    friction law step by step, ``inc`` updated in place (its F0 must be F; :func:`settle`)."""
     Finv = np.linalg.inv(F)
     u = np.ascontiguousarray(w @ F.T)
     th = np.array(th, dtype=np.float64)
@@ -116,7 +116,7 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
     dt_max = 0.5 / np.sqrt(springs.kn + springs.kt)
     params = np.array([0.1 * dt_max, 0.1, 0.0, dt_max])
     law = (springs.kn, springs.kt, springs.mu, springs.kr, springs.mu_r)
-    budget = settings.fire_steps if steps is None else steps
+    budget = settings.fire_steps if budget is None else budget
     steps, best = 0, (np.inf, w, th)
     while steps < budget:
         m = cell.visited(F, u @ Finv.T)
@@ -162,7 +162,7 @@ def settle(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Set
                      ft0, None, mr0)  # fmt: skip
     available = sum(s.energies(cell, springs))
     _, _, steps, rested = fire(cell, springs, F, base.w0.copy(), base.th0.copy(), base, settings,
-                               stepwise=True, steps=settings.settle_steps)  # fmt: skip
+                               stepwise=True, budget=settings.settle_steps)  # fmt: skip
     if not rested:
         raise RelaxationError(
             f"no equilibrium: the cell did not come to rest after {steps} steps of damped "
