@@ -173,6 +173,26 @@ def test_the_jacobian_and_mixed_terms_are_derivatives(increment, mu, mu_r):
 # -- the law --------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("mu, mu_r", [(0.3, 0.0), (0.3, 0.1)])
+def test_the_newton_loops_sums_are_the_equations_bit_for_bit(increment, mu, mu_r):
+    """forces (the residual and stress of every iterate) and jacobian_blocks (the blocks the
+    block LU assembles) are system.equations' sums, in the same order: equal bit for bit."""
+    cell, F, w, th, inc = increment
+    kt, kr = 0.7 * K_N, 0.7 * K_N
+    _, r, P, J, c = _equations(cell, F, w, th, inc, mu, kt, True, mu_r)
+    args = (cell.pi, cell.pj, cell.R, cell.radii, K_N)
+    r2, P2 = system.forces(F, *c[:7], c[8], c[9], c[11], *args, 1.0, cell.n_disks)
+    assert np.array_equal(r2.ravel(), r) and np.array_equal(P2.ravel(), P)
+    contacts = np.flatnonzero(c[8] != contact_law.OPEN)
+    K = system.jacobian_blocks(F, *c[:9], c[9], c[11], *args, kt, mu, kr, mu_r, 1.0, contacts)
+    dofs = 3 * np.c_[cell.pi[contacts], cell.pj[contacts]]
+    dofs = (dofs[:, :, None] + np.arange(3)).reshape(-1, 6)
+    rows = np.broadcast_to(dofs[:, :, None], K.shape).ravel()
+    cols = np.broadcast_to(dofs[:, None, :], K.shape).ravel()
+    J2 = sp.coo_matrix((K.ravel(), (rows, cols)), J.shape).toarray()
+    assert np.array_equal(J2, J)
+
+
 def test_without_friction_it_is_the_frictionless_relaxed_rve(packing):
     frictional = FrictionalRelaxedRVE(packing, K_N, K_N, friction=0.0)
     frictionless = RelaxedRVE(packing, K_N)

@@ -13,7 +13,7 @@ from ..relaxed.cell import Cell
 from ..relaxed.contact_state import non_rattlers
 from .contact_law import OPEN, SLIP, STICK, return_map
 from .rolling import radius
-from .system import balance, dissipation, energy, equations, rolling_springs
+from .system import balance, dissipation, energy, equations, forces, rolling_springs
 
 #: a disk needs this many contacts with the other non-rattlers to be no rattler: with friction
 #: two contacts can hold a disk, with forces along the chord between them (while that chord
@@ -113,7 +113,11 @@ class CellState:
             cell.pi, cell.pj, self.lx, self.ly, self.d, self.e, self.ft, self.mr, cell.R,
             cell.radii, sp.kn, cell.n_disks,
         )  # fmt: skip
-        self.r, self.P, _ = self.equations(cell, springs, F, None, False)
+        self.r, self.P = forces(
+            F, self.qx, self.qy, self.lx, self.ly, self.d, self.e, self.ft, self.status,
+            self.mr, self.rstatus, cell.pi, cell.pj, cell.R, cell.radii, sp.kn, sp.inv_area,
+            cell.n_disks,
+        )  # fmt: skip
 
     def equations(self, cell, springs, F, mode, jacobian):
         """``(r (N, 3), P (2, 2), (rows, cols, values))`` (:func:`system.equations`; the

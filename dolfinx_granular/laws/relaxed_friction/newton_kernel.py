@@ -20,7 +20,7 @@ from .block_lu import BlockLU, assemble, numeric, refined_solve
 from .cell_state import RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal, holding
 from .contact_law import OPEN, SLIP, STICK, return_map
 from .rolling import radius
-from .system import EXACT, SKIPPED, balance, equations
+from .system import EXACT, SKIPPED, balance, forces, jacobian_blocks
 
 #: longest move of a disk in one step (its centre, or its surface by turning), relative to the
 #: smallest radius sum
@@ -56,10 +56,8 @@ def cell_state(F, w, th, inc, cell, springs, m):
     )
     keep = holding(pi, pj, e, N)
     f, M, mean_force, count = balance(pi, pj, lx, ly, d, e, ft, mr, R, radii, kn, N)
-    none = np.empty(0, np.int64)
-    r, _, _ = equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj,
-                        R, radii, kn, kt, mu, kr, mu_r, inv_area, N, np.zeros(m, np.int8), False,
-                        none, none, np.empty(0))  # fmt: skip
+    r, _ = forces(F, qx, qy, lx, ly, d, e, ft, status, mr, rstatus, pi, pj, R, radii, kn,
+                  inv_area, N)  # fmt: skip
     return (qx, qy, lx, ly, d, e, ft, fstar, status, keep, f, M, mean_force, count, r, mr, mstar,
             rstatus)  # fmt: skip
 
@@ -143,10 +141,8 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, sh
             elif c >= cover:
                 return BEYOND_PATTERN, np.zeros(3 * N, np.bool_), statuses
     contacts = np.flatnonzero((status != OPEN) & (mode == EXACT))
-    rows, cols = np.empty(36 * contacts.size, np.int64), np.empty(36 * contacts.size, np.int64)
-    vals = np.empty(36 * contacts.size)
-    equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj, R, radii,
-              kn, kt, mu, kr, mu_r, inv_area, N, mode, True, rows, cols, vals)  # fmt: skip
+    K = jacobian_blocks(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, rstatus, pi, pj, R,
+                        radii, kn, kt, mu, kr, mu_r, inv_area, contacts)  # fmt: skip
     pinned = np.argmax(keep)
     reach = RATTLER_REACH * sum_e / n_on
     diag = diagonal(status, rstatus, network, keep, pi[:m], pj[:m], radii, r, fstar, mstar, e,
@@ -163,7 +159,7 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, sh
         for k in range(N):
             if not keep[k]:
                 held[3 * k] = held[3 * k + 1] = held[3 * k + 2] = True
-    assemble(n, diag_slot, pair_slot, pair_flip, pi, pj, contacts, vals.reshape(-1, 6, 6), held,
+    assemble(n, diag_slot, pair_slot, pair_flip, pi, pj, contacts, K, held,
              diag, values)  # fmt: skip
     if not numeric(n, Ap, Ai, values, Lp, Li, Rp, Rc, Rq, Lx, Ux, Dinv):
         return SINGULAR_PIVOT, held, statuses

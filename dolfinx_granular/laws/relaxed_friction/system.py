@@ -89,6 +89,64 @@ def equations(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi
 
 
 @njit(cache=True)
+def forces(F, qx, qy, lx, ly, d, e, ft, status, mr, rstatus, pi, pj, R, radii, kn, inv_area,
+           n_disks):  # fmt: skip
+    """:func:`equations` without the Jacobian: ``(r (N, 3), P (2, 2))``, the same sums in the
+    same order (bit for bit), inline: the residual of every Newton iterate and line-search
+    trial."""
+    r = np.zeros((n_disks, 3))
+    P = np.zeros((2, 2))
+    for c in range(e.shape[0]):
+        if status[c] == OPEN:
+            continue
+        i, j = pi[c], pj[c]
+        nx, ny = lx[c] / d[c], ly[c] / d[c]
+        fn = kn * e[c]
+        lever = R[c] / d[c]
+        gx = -fn * nx + ft[c] * lever * -ny  # (local's g with t = (-n_y, n_x))
+        gy = -fn * ny + ft[c] * lever * nx
+        Fg0 = F[0, 0] * gx + F[1, 0] * gy
+        Fg1 = F[0, 1] * gx + F[1, 1] * gy
+        mi, mj = -radii[i] * ft[c], -radii[j] * ft[c]
+        if rstatus[c] != OPEN:  # (add_rolling's couple)
+            mi += mr[c]
+            mj -= mr[c]
+        r[i, 0] += inv_area * -Fg0
+        r[i, 1] += inv_area * -Fg1
+        r[i, 2] += inv_area * mi
+        r[j, 0] += inv_area * Fg0
+        r[j, 1] += inv_area * Fg1
+        r[j, 2] += inv_area * mj
+        P[0, 0] += inv_area * (gx * qx[c])
+        P[0, 1] += inv_area * (gx * qy[c])
+        P[1, 0] += inv_area * (gy * qx[c])
+        P[1, 1] += inv_area * (gy * qy[c])
+    return r, P
+
+
+@njit(cache=True)
+def jacobian_blocks(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, rstatus, pi, pj, R, radii,
+                    kn, kt, mu, kr, mu_r, inv_area, contacts):  # fmt: skip
+    """(k, 6, 6) dr/dq of each of the ``contacts`` (k,) with its exact derivatives (rows and
+    columns (w_i, theta_i, w_j, theta_j)): :func:`equations`' Jacobian as blocks for the block
+    assembly, without its coordinates and residual."""
+    out = scratch()
+    K = np.empty((contacts.shape[0], 6, 6))
+    for t in range(contacts.shape[0]):
+        c = contacts[t]
+        i, j = pi[c], pj[c]
+        local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
+              radii[i], radii[j], kn, kt, mu, 1, out)  # fmt: skip
+        if rstatus[c] != OPEN:
+            add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
+                        out[8][3][:4], 1, out)  # fmt: skip
+        for u in range(6):
+            for v in range(6):
+                K[t, u, v] = inv_area * out[2][u, v]
+    return K
+
+
+@njit(cache=True)
 def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj, R, radii, kn,
           kt, mu, kr, mu_r, inv_area, n_disks, use):  # fmt: skip
     """``(K_FF (4, 4), K_Fq (4, 3N), K_qF (3N, 4))`` over the contacts ``use`` (m,) bool: dP/dF
