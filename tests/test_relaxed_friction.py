@@ -184,7 +184,8 @@ def test_the_newton_loops_sums_are_the_equations_bit_for_bit(increment, mu, mu_r
     r2, P2 = system.forces(F, *c[:7], c[8], c[9], c[11], *args, 1.0, cell.n_disks)
     assert np.array_equal(r2.ravel(), r) and np.array_equal(P2.ravel(), P)
     contacts = np.flatnonzero(c[8] != contact_law.OPEN)
-    K = system.jacobian_blocks(F, *c[:9], c[9], c[11], *args, kt, mu, kr, mu_r, 1.0, contacts)
+    K = system.jacobian_blocks(F, *c[2:7], c[8], c[9], c[11], *args, kt, mu, kr, mu_r, 1.0,
+                               contacts)  # fmt: skip
     dofs = 3 * np.c_[cell.pi[contacts], cell.pj[contacts]]
     dofs = (dofs[:, :, None] + np.arange(3)).reshape(-1, 6)
     rows = np.broadcast_to(dofs[:, :, None], K.shape).ravel()

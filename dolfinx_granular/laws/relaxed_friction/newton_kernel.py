@@ -141,8 +141,8 @@ def factorise(F, s, cell, springs, pattern, lu, edge, tangent, free_rotation, sh
             elif c >= cover:
                 return BEYOND_PATTERN, np.zeros(3 * N, np.bool_), statuses
     contacts = np.flatnonzero((status != OPEN) & (mode == EXACT))
-    K = jacobian_blocks(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, rstatus, pi, pj, R,
-                        radii, kn, kt, mu, kr, mu_r, inv_area, contacts)  # fmt: skip
+    K = jacobian_blocks(F, lx, ly, d, e, ft, status, mr, rstatus, pi, pj, R, radii, kn, kt, mu,
+                        kr, mu_r, inv_area, contacts)  # fmt: skip
     pinned = np.argmax(keep)
     reach = RATTLER_REACH * sum_e / n_on
     diag = diagonal(status, rstatus, network, keep, pi[:m], pj[:m], radii, r, fstar, mstar, e,

@@ -61,7 +61,20 @@ def add_rolling(m, status, ri, rj, kn, kr, mu_r, de, deF, tangent, out):
     r[5] -= m
     if tangent == 0:
         return
-    Kuu, KuF = out[2], out[5]
+    add_jacobian(m, status, ri, rj, kn, kr, mu_r, de, out[2])
+    if status == SLIP and tangent == 2:
+        KuF = out[5]
+        reff = radius(ri, rj)
+        k = mu_r * reff * kn if m >= 0.0 else -mu_r * reff * kn
+        for p in range(4):
+            KuF[2, p] += k * deF[p]
+            KuF[5, p] -= k * deF[p]
+
+
+@njit(cache=True, inline="always")
+def add_jacobian(m, status, ri, rj, kn, kr, mu_r, de, Kuu):
+    """Add the rolling moment's dr/du to one contact's Kuu (6, 6) (status STICK or SLIP; de:
+    de/du (6,))."""
     reff = radius(ri, rj)
     if status == STICK:
         k = kr * reff * reff
@@ -74,10 +87,6 @@ def add_rolling(m, status, ri, rj, kn, kr, mu_r, de, deF, tangent, out):
     for v in range(6):
         Kuu[2, v] += k * de[v]
         Kuu[5, v] -= k * de[v]
-    if tangent == 2:
-        for p in range(4):
-            KuF[2, p] += k * deF[p]
-            KuF[5, p] -= k * deF[p]
 
 
 @njit(cache=True)

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .contact_law import OPEN, SLIP, STICK, local, scratch
-from .rolling import add_rolling, radius, stiffness
+from .contact_law import OPEN, SLIP, STICK, jacobian, local, scratch
+from .rolling import add_jacobian, add_rolling, radius, stiffness
 
 #: how a contact enters the Jacobian (:func:`equations`)
 SKIPPED, EXACT = 0, 2
@@ -125,24 +125,24 @@ def forces(F, qx, qy, lx, ly, d, e, ft, status, mr, rstatus, pi, pj, R, radii, k
 
 
 @njit(cache=True)
-def jacobian_blocks(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, rstatus, pi, pj, R, radii,
-                    kn, kt, mu, kr, mu_r, inv_area, contacts):  # fmt: skip
+def jacobian_blocks(F, lx, ly, d, e, ft, status, mr, rstatus, pi, pj, R, radii, kn, kt, mu, kr,
+                    mu_r, inv_area, contacts):  # fmt: skip
     """(k, 6, 6) dr/dq of each of the ``contacts`` (k,) with its exact derivatives (rows and
     columns (w_i, theta_i, w_j, theta_j)): :func:`equations`' Jacobian as blocks for the block
-    assembly, without its coordinates and residual."""
-    out = scratch()
+    assembly (:func:`.contact_law.jacobian`, :func:`.rolling.add_jacobian`), bit for bit,
+    without its coordinates and residual."""
     K = np.empty((contacts.shape[0], 6, 6))
+    Kc, de = np.empty((6, 6)), np.empty(6)
     for t in range(contacts.shape[0]):
         c = contacts[t]
         i, j = pi[c], pj[c]
-        local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
-              radii[i], radii[j], kn, kt, mu, 1, out)  # fmt: skip
+        jacobian(F, lx[c], ly[c], d[c], e[c], ft[c], status[c], R[c], radii[i], radii[j], kn, kt,
+                 mu, Kc, de)  # fmt: skip
         if rstatus[c] != OPEN:
-            add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
-                        out[8][3][:4], 1, out)  # fmt: skip
+            add_jacobian(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, de, Kc)
         for u in range(6):
             for v in range(6):
-                K[t, u, v] = inv_area * out[2][u, v]
+                K[t, u, v] = inv_area * Kc[u, v]
     return K
 
 
