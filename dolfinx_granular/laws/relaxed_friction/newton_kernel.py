@@ -35,6 +35,10 @@ STALL_STEPS, STALL_RATE = 4, 0.5
 #: a step that cut the residual to below this part takes the next on the same factorisation
 #: (a chord step) while no contact has changed its status since it
 CHORD_RATE = 0.1
+#: below this residual a chord step is tried even where contacts have changed their status
+#: since the factorisation: those left to change lie near their cone's edge, where the two
+#: sides' Jacobians give nearly the same step
+CHORD_NEAR = 1e-5
 
 #: what :func:`newton` ends with
 CONVERGED, FAILED, RIGIDITY_LOST, HAND_BACK = 0, 1, 2, 3
@@ -316,7 +320,7 @@ def newton(F, F_smin, w, th, inc, cell, springs, geo, verlet, pattern, lu, force
         ):
             return FAILED, STALLED, w, th, w
         code, wt, tt, trial = NO_DESCENT, w, th, s
-        if chord and _same(chord_status, _statuses(s)):
+        if chord and (res <= CHORD_NEAR or _same(chord_status, _statuses(s))):
             dq = direction(s, chord_held, pattern, lu)
             code, wt, tt, trial = line_search(F, F_smin, w, th, s, dq, chord_held, inc, cell,
                                               springs, geo, verlet)  # fmt: skip

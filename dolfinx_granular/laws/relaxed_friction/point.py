@@ -36,6 +36,10 @@ CONE_SLACK = 1e-9
 #: p / k_n = 1e-3: a residual of 4e-4 after 20,000 steps, 1e-5 after 400,000), and Newton
 #: takes over from a state that one round may not yet reach
 FIRE_ROUNDS = 5
+#: ``tangent`` of :func:`relax` and :func:`finish` (False and True are the first two): P alone;
+#: A and the sensitivities of the predictor too; those and the solution's :class:`Chain`, which
+#: a later substep of the path starts from
+NO_TANGENT, TANGENT, CHAINED = 0, 1, 2
 
 
 @dataclass
@@ -87,7 +91,7 @@ def predicted(w, th, dq, Fc, F):
 
 
 def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Settings,
-          tangent: bool) -> Equilibrium:  # fmt: skip
+          tangent: int) -> Equilibrium:  # fmt: skip
     """The equilibrium of the increment from ``inc`` to G (2, 2) (dG/dF = DG (4, 4), F the
     path's end): Newton from the predicted start. Where it fails, pseudo-transient
     continuation (:mod:`.pseudo_time`: implicit damped steps that lower the increment's
@@ -172,8 +176,8 @@ def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Eq
     """The :class:`Equilibrium` at the solved state s of the increment to G."""
     A, dq, chain = None, np.zeros((cell.n_disks, 3, 4)), None
     if tangent:
-        chain0 = Chain.zero(cell.n_disks, cell.pi.shape[0]) if inc.chain is None else inc.chain
-        A, dq, chain = path_condensation(cell, springs, G, s, inc, chain0, DG)
+        A, dq, chain = path_condensation(cell, springs, G, s, inc, inc.chain, DG,
+                                         chained=tangent == CHAINED)  # fmt: skip
     W, D = s.energies(cell, springs)
     return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, chain)
 
@@ -222,7 +226,7 @@ def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settin
     stretches = stretches_between(inc.F0, F, substep(cell, springs, inc, F, settings))
     dU = stretch_derivative(F)
     for k, Uk in enumerate(stretches, start=1):
-        eq = relax(cell, springs, Uk, k / (len(stretches) + 1) * dU, inc, dq, settings, True)
+        eq = relax(cell, springs, Uk, k / (len(stretches) + 1) * dU, inc, dq, settings, CHAINED)
         dissipated += eq.dissipated
         inc, dq = committed(cell, eq, Uk), eq.sensitivity
     eq = relax(cell, springs, F, np.eye(4), inc, dq, settings, tangent)

@@ -38,30 +38,39 @@ def condensation(
 
 
 def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increment,
-                      chain: Chain, DG) -> tuple:  # fmt: skip
+                      chain: Chain | None, DG, chained: bool = True) -> tuple:  # fmt: skip
     """The tangent through the path (:mod:`.path_tangent`) at the solution s of a substep to
     G (2, 2), dG/dF = DG (4, 4), from the committed side ``inc`` whose derivatives are
-    ``chain``: ``(dP/dF (2, 2, 2, 2), dq (N, 3, 4) at fixed history (the predictor's), the
-    solution's :class:`Chain`)``."""
+    ``chain`` (None: the path's start, whose history does not depend on F): ``(dP/dF (2, 2,
+    2, 2), dq (N, 3, 4) at fixed history (the predictor's), the solution's :class:`Chain`
+    (None unless ``chained``: a later substep starts from it))``."""
     KFF, KFq, KqF, lu, held = _parts(cell, springs, G, s, 1.0)
     sp, m, N = springs, s.m, cell.n_disks
     arrays = (s.qx, s.qy, s.lx, s.ly, s.d, s.e, s.ft, s.fstar, s.status)
-    Dft0, Dmr0 = chain.forces(cell.pi.shape[0])
-    Rh, Ph, dfh, dmh = history_terms(
-        G, *arrays, s.rstatus, cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii, inc.F0,
-        inc.w0, sp.kn, sp.kt, sp.mu, sp.kr, sp.inv_area, s.network, chain.Dw, chain.Dth, Dft0,
-        chain.DF0, Dmr0,
-    )  # fmt: skip
-    X = _solve(lu, held, np.hstack([KqF, KqF @ DG + Rh]))
+    if chain is None:  # (no history terms: K_qq^-1 (K_qF DG) = (K_qq^-1 K_qF) DG)
+        X = _solve(lu, held, KqF)
+        X = np.hstack([X, X @ DG])
+        Ph, dfh, dmh = 0.0, np.zeros((m, 4)), np.zeros((m, 4))
+    else:
+        Dft0, Dmr0 = chain.forces(cell.pi.shape[0])
+        Rh, Ph, dfh, dmh = history_terms(
+            G, *arrays, s.rstatus, cell.pi, cell.pj, cell.X, cell.Y, cell.R, cell.radii, inc.F0,
+            inc.w0, sp.kn, sp.kt, sp.mu, sp.kr, sp.inv_area, s.network, chain.Dw, chain.Dth,
+            Dft0, chain.DF0, Dmr0,
+        )  # fmt: skip
+        X = _solve(lu, held, np.hstack([KqF, KqF @ DG + Rh]))
     total = -X[:, 4:].reshape(N, 3, 4)
     total[~s.held_rotations(cell), 2] = 0.0  # (as the predictor's: not set by F)
     A = (KFF @ DG + KFq @ total.reshape(3 * N, 4) + Ph).reshape(2, 2, 2, 2)
+    dq = _predictor(cell, s, -X[:, :4])
+    if not chained:
+        return A, dq, None
     Dft, Dmr = np.zeros((cell.pi.shape[0], 4)), np.zeros((cell.pi.shape[0], 4))
     Dft[:m], Dmr[:m] = force_derivatives(
         G, *arrays, s.mr, s.rstatus, cell.pi, cell.pj, cell.R, cell.radii, sp.kn, sp.kt, sp.mu,
         sp.kr, sp.mu_r, s.network, total, DG, dfh, dmh,
     )  # fmt: skip
-    return A, _predictor(cell, s, -X[:, :4]), Chain(total[:, :2], total[:, 2], Dft, DG, Dmr)
+    return A, dq, Chain(total[:, :2], total[:, 2], Dft, DG, Dmr)
 
 
 def _parts(cell, springs, F, s, free_rotation):
