@@ -230,6 +230,63 @@ def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de):
             K[u, v] = g + s[u] * (k * df[v])
 
 
+@njit(cache=True, inline="always")
+def _entry(b1, b2, h00, h01, h11, s1, df2):
+    """One entry of B1^T H B2 + s1 (x) df2 from B1's and B2's columns b1, b2 (2-tuples), as
+    :func:`_quadratic` sums it."""
+    a0 = b1[0] * h00 + b1[1] * h01
+    a1 = b1[0] * h01 + b1[1] * h11
+    return a0 * b2[0] + a1 * b2[1] + s1 * df2
+
+
+@njit(cache=True)
+def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF, KFu, KuF, de,
+                deF):  # fmt: skip
+    """:func:`local`'s KFF (4, 4), KFu (4, 6) and KuF (6, 4) into the arrays given, and de/du
+    (6,), de/dF (4,) into ``de``, ``deF``: the same products and sums, bit for bit, with B's
+    and B_F's columns as tuples (the condensed tangent's mixed terms, without Kuu)."""
+    nx, ny = lx / d, ly / d
+    tx, ty = -ny, nx
+    fn = kn * e
+    lever = R / d
+    gx = -fn * nx + ft * lever * tx
+    gy = -fn * ny + ft * lever * ty
+    h00 = kn * nx * nx - fn / d * tx * tx - 2.0 * ft * lever / d * nx * tx
+    h01 = kn * nx * ny - fn / d * tx * ty - ft * lever / d * (nx * ty + tx * ny)
+    h11 = kn * ny * ny - fn / d * ty * ty - 2.0 * ft * lever / d * ny * ty
+    B = ((-F[0, 0], -F[1, 0]), (-F[0, 1], -F[1, 1]), (0.0, 0.0), (F[0, 0], F[1, 0]),
+         (F[0, 1], F[1, 1]), (0.0, 0.0))  # fmt: skip
+    BF = ((qx, 0.0), (qy, 0.0), (0.0, qx), (0.0, qy))
+    s, df, sF, dfF = np.empty(6), np.empty(6), np.empty(4), np.empty(4)
+    k = kt if status == STICK else (mu * kn if ft >= 0.0 else -mu * kn)
+    for u in range(6):
+        s[u] = lever * (B[u][0] * tx + B[u][1] * ty)
+        de[u] = -(B[u][0] * nx + B[u][1] * ny)
+    s[2] -= ri
+    s[5] -= rj
+    for u in range(4):
+        sF[u] = lever * (BF[u][0] * tx + BF[u][1] * ty)
+        deF[u] = -(BF[u][0] * nx + BF[u][1] * ny)
+    for u in range(6):
+        df[u] = k * (s[u] if status == STICK else de[u])
+    for u in range(4):
+        dfF[u] = k * (sF[u] if status == STICK else deF[u])
+    for u in range(4):
+        for v in range(4):
+            KFF[u, v] = _entry(BF[u], BF[v], h00, h01, h11, sF[u], dfF[v])
+        for v in range(6):
+            KFu[u, v] = _entry(BF[u], B[v], h00, h01, h11, sF[u], df[v])
+            KuF[v, u] = _entry(B[v], BF[u], h00, h01, h11, s[v], dfF[u])
+    for a, ga in ((0, gx), (1, gy)):
+        for b in range(2):
+            KFu[2 * a + b, b] -= ga
+            KFu[2 * a + b, 3 + b] += ga
+    for e_ in range(2):
+        for c, gc in ((0, gx), (1, gy)):
+            KuF[3 + e_, 2 * c + e_] += gc
+            KuF[e_, 2 * c + e_] -= gc
+
+
 @njit(cache=True)
 def _quadratic(B1, B2, h00, h01, h11, s1, df2, out):
     """out = B1^T H B2 + s1 (x) df2 (H symmetric 2 x 2)."""

@@ -62,8 +62,15 @@ def add_rolling(m, status, ri, rj, kn, kr, mu_r, de, deF, tangent, out):
     if tangent == 0:
         return
     add_jacobian(m, status, ri, rj, kn, kr, mu_r, de, out[2])
-    if status == SLIP and tangent == 2:
-        KuF = out[5]
+    if tangent == 2:
+        add_mixed(m, status, ri, rj, kn, mu_r, deF, out[5])
+
+
+@njit(cache=True, inline="always")
+def add_mixed(m, status, ri, rj, kn, mu_r, deF, KuF):
+    """Add the rolling moment's dr/dF to one contact's KuF (6, 4) (deF: de/dF (4,)): only a
+    slipping spring's cap moves with F."""
+    if status == SLIP:
         reff = radius(ri, rj)
         k = mu_r * reff * kn if m >= 0.0 else -mu_r * reff * kn
         for p in range(4):

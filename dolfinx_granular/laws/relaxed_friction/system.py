@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .contact_law import OPEN, SLIP, STICK, jacobian, local, scratch
-from .rolling import add_jacobian, add_rolling, radius, stiffness
+from .contact_law import OPEN, SLIP, STICK, jacobian, local, mixed_terms, scratch
+from .rolling import add_jacobian, add_mixed, add_rolling, radius, stiffness
 
 #: how a contact enters the Jacobian (:func:`equations`)
 SKIPPED, EXACT = 0, 2
@@ -154,23 +154,28 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj
     KFF = np.zeros((4, 4))
     KFq = np.zeros((4, 3 * n_disks))
     KqF = np.zeros((3 * n_disks, 4))
-    out = scratch()
+    kFF, kFu, kuF, de, deF = (
+        np.empty((4, 4)),
+        np.empty((4, 6)),
+        np.empty((6, 4)),
+        np.empty(6),
+        np.empty(4),
+    )
     for c in range(e.shape[0]):
         if status[c] == OPEN or not use[c]:
             continue
         i, j = pi[c], pj[c]
-        local(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], fstar[c], status[c], R[c],
-              radii[i], radii[j], kn, kt, mu, 2, out)  # fmt: skip
+        mixed_terms(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], status[c], R[c], radii[i],
+                    radii[j], kn, kt, mu, kFF, kFu, kuF, de, deF)  # fmt: skip
         if rstatus[c] != OPEN:
-            add_rolling(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, out[8][2],
-                        out[8][3][:4], 2, out)  # fmt: skip
+            add_mixed(mr[c], rstatus[c], radii[i], radii[j], kn, mu_r, deF, kuF)
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
         for a in range(4):
             for b in range(4):
-                KFF[a, b] += inv_area * out[3][a, b]
+                KFF[a, b] += inv_area * kFF[a, b]
             for u in range(6):
-                KFq[a, idx[u]] += inv_area * out[4][a, u]
-                KqF[idx[u], a] += inv_area * out[5][u, a]
+                KFq[a, idx[u]] += inv_area * kFu[a, u]
+                KqF[idx[u], a] += inv_area * kuF[u, a]
     return KFF, KFq, KqF
 
 
