@@ -259,6 +259,38 @@ def test_an_iterate_that_unjams_bounds_a_compressive_target_from_the_dilated_sid
         solve_point(UnjamLaw(), F, {(0, 0): 1e2}, measure="piola", stress_scale=1.0)
 
 
+class CollapsingLaw(UnjamLaw):
+    """UnjamLaw held at ``hold`` Pa more compression in P11 while it holds (F11 <= 1): at
+    F11 = 1 it jumps from P11 = hold to apart, as a loose cell that collapses when dilated."""
+
+    def __init__(self, hold):
+        super().__init__(stiff=1.0)
+        self.hold = hold
+
+    def evaluate(self, F):
+        W, P, A = super().evaluate(F)
+        P = P.copy()
+        P[0, 0] += self.hold
+        return W, P, A
+
+
+def test_where_a_jammed_cell_collapses_beyond_a_round_off_the_jammed_side_is_taken():
+    """Between F11 = 1 (P11 = hold) and F11 > 1 (apart) no F holds the target: the jammed end
+    is taken where it misses by at most accept_unjammed, the miss in control_error."""
+    k = CollapsingLaw(0.0).lam + 2 * CollapsingLaw(0.0).mu
+    law = CollapsingLaw(-1.5e-3 * k)
+    target = -1e-3 * k
+    F = np.diag([0.99, 1.0])
+    step = solve_point(law, F, {(0, 0): target}, measure="piola", accept_jump=0.1,
+                       accept_unjammed=0.6)  # fmt: skip
+    assert step.F[0, 0] == pytest.approx(1.0, abs=1e-12)
+    assert step.control_error == pytest.approx(-0.5e-3 * k, rel=1e-9)
+    for accept, unjammed in ((0.1, 0.0), (0.1, 0.4)):
+        with pytest.raises(ControlError, match="jumps"):
+            solve_point(law, F, {(0, 0): target}, measure="piola", accept_jump=accept,
+                        accept_unjammed=unjammed)  # fmt: skip
+
+
 def test_a_crawling_newton_is_bisected_in_its_bracket():
     law = JumpLaw(stiff=1e3)  # (Newton's steps a thousandth of what they should be)
     target = -(law.lam + 2 * law.mu) * 2e-3

@@ -117,6 +117,7 @@ def solve_point(
     max_iter=50,
     max_increment=0.02,
     accept_jump=0.0,
+    accept_unjammed=0.0,
 ):
     """Solve the unknown components of F so that the stress meets its targets, from ``state``.
 
@@ -141,6 +142,10 @@ def solve_point(
             relaxed RVE dilated past jamming) counts as stress-free, the bracket's dilated end
             (before an iterate held more than the target, the next one lies
             ``max_increment`` more compressed).
+        accept_unjammed: where the bracket has shrunk between such an iterate and one that
+            holds (a cell jammed on one side of a round-off, come apart on the other: no F
+            between holds the target), the jammed end is the answer if it misses by at most
+            this times the stress scale (0: only as ``accept_jump`` allows).
 
     Returns:
         :class:`PointResult`. Raises :class:`ControlError` (with the residual history) when not
@@ -180,7 +185,7 @@ def solve_point(
             continue
         bracket.add(x[0], r[0], result)
         if bracket.shrunk():
-            return bracket.jump(accept_jump, scale, keys[0])
+            return bracket.jump(accept_jump, scale, keys[0], accept_unjammed)
         x = np.array([bracket.next(x[0], step[0], residuals, max_increment)])
     raise ControlError(
         f"material point: |s - target| = {abs(residuals[-1]):.3e} Pa > {rtol:.0e} x "
@@ -251,17 +256,24 @@ class _Bracket:
         self.move = step
         return x + step
 
-    def jump(self, accept, scale, key):
+    def jump(self, accept, scale, key, accept_unjammed=0.0):
         """The result at the end nearer the target, where it misses by at most ``accept`` x
-        ``scale``; else ControlError."""
+        ``scale``; where the other end came apart (its result None), the jammed end, where it
+        misses by at most the larger of ``accept`` and ``accept_unjammed`` x ``scale``; else
+        ControlError."""
         (r_lo, lo), (r_hi, hi) = self.ends["lo"], self.ends["hi"]
         r, result = (r_lo, lo) if -r_lo <= r_hi else (r_hi, hi)
-        if result is not None and abs(r) <= accept * scale:  # (None: a cell that unjammed)
+        limit = accept
+        if lo is None or hi is None:
+            r, result = (r_hi, hi) if lo is None else (r_lo, lo)
+            limit = max(accept, accept_unjammed)
+        if result is not None and abs(r) <= limit * scale:
             return replace(result, control_error=float(r))
         raise ControlError(
             f"material point: the stress {key} jumps from {r_lo:+.3e} to {r_hi:+.3e} Pa about its "
             f"target at F{key[0] + 1}{key[1] + 1} = {1.0 * (key[0] == key[1]) + self.lo:.15g}: "
-            f"no F meets it (accept_jump = {accept:g} of {scale:.6g} Pa takes the nearer side); "
+            f"no F meets it (accept_jump = {accept:g}, accept_unjammed = {accept_unjammed:g} of "
+            f"{scale:.6g} Pa take the nearer or the jammed side); "
             "state not committed"
         )
 

@@ -39,6 +39,6 @@ class Settings:
     pseudo_steps: int = 2000
     fire_tol: float = 1e-5
     fire_steps: int = 20_000
-    settle_steps: int = 200_000
+    settle_steps: int = 1_000_000
     substep: float = 1e-3
     substep_overlap: float = 0.25
