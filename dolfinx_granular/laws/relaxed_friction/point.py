@@ -224,7 +224,7 @@ def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settin
     dissipated on the way (Pa); its A is the derivative of P at F through the path."""
     dissipated = 0.0
     stretches = stretches_between(inc.F0, F, substep(cell, springs, inc, F, settings))
-    dU = stretch_derivative(F)
+    dU = stretch_derivative(F) if len(stretches) else None  # (one substep: not needed)
     for k, Uk in enumerate(stretches, start=1):
         eq = relax(cell, springs, Uk, k / (len(stretches) + 1) * dU, inc, dq, settings, CHAINED)
         dissipated += eq.dissipated
