@@ -28,9 +28,9 @@ every point. Each point then takes its own strain step of size ``--step`` in a r
   point, its ratio to the frictionless relaxed RVE and to Taylor, and where its time goes (the
   compiled Newton loop, the rest: the path, the tangent, the history, in Python), the block
   LU's numeric factorisation with its flops and rate, and the floor it sets;
-- ``--save`` writes the points' W, P and A to an ``.npz``; ``--against`` compares them with such
-  a file (from another version of the solver: the largest relative difference per quantity and
-  the points beyond 1e-10).
+- ``--save`` writes the points' W, P and A (the frictionless and the frictional relaxed RVE's)
+  to an ``.npz``; ``--against`` compares them with such a file (from another version of the
+  solver: the largest relative difference per quantity and the points beyond 1e-10).
 """
 
 import argparse
@@ -204,19 +204,21 @@ def main(argv=None):
         f"{counts['solves']:.2f} solves per point take {f_ms:.2f} ms ({f_mflop:.2f} MFLOP) of "
         f"the {ms:.2f}"
     )
-    frictional(packing, a, F0, F, t_relaxed, t_taylor)
+    points = {"W": W, "P": P, "A": A}
+    points.update(frictional(packing, a, F0, F, t_relaxed, t_taylor))
     if a.save:
-        np.savez(a.save, W=W, P=P, A=A)
+        np.savez(a.save, **points)
     if a.against:
-        print_against(np.load(a.against), W, P, A)
+        print_against(np.load(a.against), points)
 
 
 def frictional(packing, a, F0, F, t_relaxed, t_taylor):
-    """Time the frictional relaxed RVE on the same steps and print where its time goes."""
+    """Time the frictional relaxed RVE on the same steps and print where its time goes;
+    returns its points' W, P and A (keys ``*_frictional``)."""
     rve = FrictionalRelaxedRVE(packing, K_N, K_N, a.friction)
     _, _, _, one = rve.evaluate(F0, rve.initial_state(1))
     state = type(one).concatenate([one] * a.points)
-    t, _ = best_time(lambda: rve.evaluate(F, state), a.repeats)
+    t, (W, P, A, _) = best_time(lambda: rve.evaluate(F, state), a.repeats)
     ms = 1e3 * t / a.points
     print(
         f"frictional P+A {ms:8.2f} ms/point   (mu = {a.friction:g}) {t / t_relaxed:.1f} x the "
@@ -236,6 +238,7 @@ def frictional(packing, a, F0, F, t_relaxed, t_taylor):
     s = cell_state.CellState(rve.cell, rve.springs, F0, inc.w0, inc.th0, inc)
     lu = friction_newton.factorise(rve.cell, rve.springs, F0, s, False)[0]
     print_block_lu(lu, t_relaxed / a.points, mean["factorisations"] + 1)
+    return {"W_frictional": W, "P_frictional": P, "A_frictional": A}
 
 
 def print_block_lu(lu, t_relaxed, factorisations):
@@ -281,9 +284,13 @@ def print_parts(timed):
         print(line)
 
 
-def print_against(ref, W, P, A):
-    """The largest relative differences of W, P, A from ``ref``'s, and the points beyond 1e-10."""
-    for name, x in (("W", W), ("P", P), ("A", A)):
+def print_against(ref, points):
+    """The largest relative differences of the points' W, P, A (frictionless and frictional)
+    from ``ref``'s, and the points beyond 1e-10 (a quantity ``ref`` lacks: skipped)."""
+    for name, x in points.items():
+        if name not in ref:
+            print(f"  {name}: not in the file compared with")
+            continue
         d = relative_difference(x, ref[name])
         far = np.flatnonzero(d > 1e-10)
         print(f"  {name}: largest relative difference {d.max():.1e}; points beyond 1e-10: {far}")

@@ -232,12 +232,19 @@ def test_the_state_records_distance_from_affine_and_rearrangements(rve, relaxed)
     assert not again.rearranged.any()
 
 
-def test_the_benchmark_runs(capsys):
+def test_the_benchmark_runs(capsys, tmp_path):
+    """It times both relaxed RVEs, and --save / --against compare their W, P, A (a run against
+    its own file: no difference)."""
     import relaxed as benchmark  # benchmarks/relaxed.py
 
-    benchmark.main(["--points", "3", "--particles", "70"])
+    saved = str(tmp_path / "points.npz")
+    benchmark.main(["--points", "3", "--particles", "70", "--save", saved])
     out = capsys.readouterr().out
-    assert "ratio" in out and "ms/point" in out
+    assert "ratio" in out and "ms/point" in out and "frictional P+A" in out
+    assert set(np.load(saved)) == {"W", "P", "A", "W_frictional", "P_frictional", "A_frictional"}
+    benchmark.main(["--points", "3", "--particles", "70", "--against", saved])
+    out = capsys.readouterr().out
+    assert out.count("largest relative difference 0.0e+00; points beyond 1e-10: []") == 6
 
 
 def test_contacts_are_those_of_the_relaxed_positions(rve, relaxed):
