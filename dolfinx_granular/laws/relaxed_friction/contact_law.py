@@ -151,9 +151,7 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
             B[a, 3 + b] = F[a, b]
     BF[:] = 0.0
     BF[0, 0], BF[0, 1], BF[1, 2], BF[1, 3] = qx, qy, qx, qy
-    h00 = kn * nx * nx - fn / d * tx * tx - 2.0 * ft * lever / d * nx * tx
-    h01 = kn * nx * ny - fn / d * tx * ty - ft * lever / d * (nx * ty + tx * ny)
-    h11 = kn * ny * ny - fn / d * ty * ty - 2.0 * ft * lever / d * ny * ty
+    h00, h01, h11 = _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn)
     for u in range(6):
         s[u] = lever * (B[0, u] * tx + B[1, u] * ty)
         de[u] = -(B[0, u] * nx + B[1, u] * ny)
@@ -201,9 +199,7 @@ def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de):
     tx, ty = -ny, nx
     fn = kn * e
     lever = R / d
-    h00 = kn * nx * nx - fn / d * tx * tx - 2.0 * ft * lever / d * nx * tx
-    h01 = kn * nx * ny - fn / d * tx * ty - ft * lever / d * (nx * ty + tx * ny)
-    h11 = kn * ny * ny - fn / d * ty * ty - 2.0 * ft * lever / d * ny * ty
+    h00, h01, h11 = _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn)
     s = np.empty(6)
     for b in range(2):  # (the translations of j: B's columns F[:, b]; i's: their negatives)
         s[3 + b] = lever * (F[0, b] * tx + F[1, b] * ty)
@@ -231,6 +227,15 @@ def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de):
 
 
 @njit(cache=True, inline="always")
+def _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn):
+    """H's entries (h00, h01, h11): k_n n n^T - (f_n / d) t t^T - (f_t R / d^2)(n t^T + t n^T)."""
+    h00 = kn * nx * nx - fn / d * tx * tx - 2.0 * ft * lever / d * nx * tx
+    h01 = kn * nx * ny - fn / d * tx * ty - ft * lever / d * (nx * ty + tx * ny)
+    h11 = kn * ny * ny - fn / d * ty * ty - 2.0 * ft * lever / d * ny * ty
+    return h00, h01, h11
+
+
+@njit(cache=True, inline="always")
 def _entry(b1, b2, h00, h01, h11, s1, df2):
     """One entry of B1^T H B2 + s1 (x) df2 from B1's and B2's columns b1, b2 (2-tuples), as
     :func:`_quadratic` sums it."""
@@ -251,9 +256,7 @@ def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF,
     lever = R / d
     gx = -fn * nx + ft * lever * tx
     gy = -fn * ny + ft * lever * ty
-    h00 = kn * nx * nx - fn / d * tx * tx - 2.0 * ft * lever / d * nx * tx
-    h01 = kn * nx * ny - fn / d * tx * ty - ft * lever / d * (nx * ty + tx * ny)
-    h11 = kn * ny * ny - fn / d * ty * ty - 2.0 * ft * lever / d * ny * ty
+    h00, h01, h11 = _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn)
     B = ((-F[0, 0], -F[1, 0]), (-F[0, 1], -F[1, 1]), (0.0, 0.0), (F[0, 0], F[1, 0]),
          (F[0, 1], F[1, 1]), (0.0, 0.0))  # fmt: skip
     BF = ((qx, 0.0), (qy, 0.0), (0.0, qx), (0.0, qy))
