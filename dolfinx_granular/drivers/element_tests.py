@@ -166,7 +166,7 @@ def step_row(loading, law, mu, Fc, Dc, r, before, seconds):
 ACCEPT_JUMP = 0.1
 #: where the cell comes apart a round-off beyond a jammed trial F (a loose frictional packing
 #: that collapses when dilated: measured at p / k_n = 1e-3 with 70 disks, the jammed side held
-#: 1.16-1.54 p), the step takes the jammed side if it misses p by at most this part, as a
+#: 1.32-1.54 p), the step takes the jammed side if it misses p by at most this part, as a
 #: servo-controlled wall overshoots while a collapsing DEM cell re-jams; the next step holds p
 #: again
 ACCEPT_UNJAMMED = 1.0
