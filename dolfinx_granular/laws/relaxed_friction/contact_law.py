@@ -121,10 +121,7 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
     tuple of scratch arrays (:func:`scratch`) written in place: r (6,), P (4,), Kuu (6, 6),
     KFF (4, 4), KFu (4, 6), KuF (6, 4), then work arrays."""
     r, P = out[0], out[1]
-    nx, ny = lx / d, ly / d
-    tx, ty = -ny, nx
-    fn = kn * e
-    lever = R / d
+    nx, ny, tx, ty, fn, lever = _frame(lx, ly, d, e, R, kn)
     gx = -fn * nx + ft * lever * tx
     gy = -fn * ny + ft * lever * ty
     # B^T g: w_i gets -F^T g, w_j +F^T g
@@ -177,16 +174,7 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
     _quadratic(BF, BF, h00, h01, h11, sF, dfF, KFF)
     _quadratic(BF, B, h00, h01, h11, sF, df, KFu)
     _quadratic(B, BF, h00, h01, h11, s, dfF, KuF)
-    # P_ab = g_a Q_b with dQ/dw_i = -I, dQ/dw_j = I: + g_a dQ_b/du
-    for a, ga in ((0, gx), (1, gy)):
-        for b in range(2):
-            KFu[2 * a + b, b] -= ga
-            KFu[2 * a + b, 3 + b] += ga
-    # r_(w_j, e) = F_ae g_a: d/dF_cd adds delta_de g_c (minus for w_i)
-    for e_ in range(2):
-        for c, gc in ((0, gx), (1, gy)):
-            KuF[3 + e_, 2 * c + e_] += gc
-            KuF[e_, 2 * c + e_] -= gc
+    _add_branch_terms(KFu, KuF, gx, gy)
 
 
 @njit(cache=True, inline="always")
@@ -195,10 +183,7 @@ def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de):
     F, 0] makes each 2 x 2 block of B^T H B F^T H F up to its sign (the same products and sums
     as :func:`local`'s, bit for bit; its scratch arrays, zeros and calls cost 5 times as much
     in the Newton loop)."""
-    nx, ny = lx / d, ly / d
-    tx, ty = -ny, nx
-    fn = kn * e
-    lever = R / d
+    nx, ny, tx, ty, fn, lever = _frame(lx, ly, d, e, R, kn)
     h00, h01, h11 = _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn)
     s = np.empty(6)
     for b in range(2):  # (the translations of j: B's columns F[:, b]; i's: their negatives)
@@ -227,6 +212,28 @@ def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de):
 
 
 @njit(cache=True, inline="always")
+def _add_branch_terms(KFu, KuF, gx, gy):
+    """The mixed terms from Q's and B's own dependence on u and F: P_ab = g_a Q_b with
+    dQ/dw_i = -I, dQ/dw_j = I adds g_a dQ_b/du to KFu; r_(w_j, e) = F_ae g_a adds delta_de g_c
+    to KuF (minus for w_i)."""
+    for a, ga in ((0, gx), (1, gy)):
+        for b in range(2):
+            KFu[2 * a + b, b] -= ga
+            KFu[2 * a + b, 3 + b] += ga
+    for e_ in range(2):
+        for c, gc in ((0, gx), (1, gy)):
+            KuF[3 + e_, 2 * c + e_] += gc
+            KuF[e_, 2 * c + e_] -= gc
+
+
+@njit(cache=True, inline="always")
+def _frame(lx, ly, d, e, R, kn):
+    """The contact's frame and force: ``(n_x, n_y, t_x, t_y, f_n, R / d)``, t = (-n_y, n_x)."""
+    nx, ny = lx / d, ly / d
+    return nx, ny, -ny, nx, kn * e, R / d
+
+
+@njit(cache=True, inline="always")
 def _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn):
     """H's entries (h00, h01, h11): k_n n n^T - (f_n / d) t t^T - (f_t R / d^2)(n t^T + t n^T)."""
     h00 = kn * nx * nx - fn / d * tx * tx - 2.0 * ft * lever / d * nx * tx
@@ -245,22 +252,19 @@ def _entry(b1, b2, h00, h01, h11, s1, df2):
 
 
 @njit(cache=True)
-def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF, KFu, KuF, de,
+def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF, KFu, KuF,
                 deF):  # fmt: skip
-    """:func:`local`'s KFF (4, 4), KFu (4, 6) and KuF (6, 4) into the arrays given, and de/du
-    (6,), de/dF (4,) into ``de``, ``deF``: the same products and sums, bit for bit, with B's
-    and B_F's columns as tuples (the condensed tangent's mixed terms, without Kuu)."""
-    nx, ny = lx / d, ly / d
-    tx, ty = -ny, nx
-    fn = kn * e
-    lever = R / d
+    """:func:`local`'s KFF (4, 4), KFu (4, 6) and KuF (6, 4) into the arrays given, and de/dF
+    (4,) into ``deF``: the same products and sums, bit for bit, with B's and B_F's columns as
+    tuples (the condensed tangent's mixed terms, without Kuu)."""
+    nx, ny, tx, ty, fn, lever = _frame(lx, ly, d, e, R, kn)
     gx = -fn * nx + ft * lever * tx
     gy = -fn * ny + ft * lever * ty
     h00, h01, h11 = _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn)
     B = ((-F[0, 0], -F[1, 0]), (-F[0, 1], -F[1, 1]), (0.0, 0.0), (F[0, 0], F[1, 0]),
          (F[0, 1], F[1, 1]), (0.0, 0.0))  # fmt: skip
     BF = ((qx, 0.0), (qy, 0.0), (0.0, qx), (0.0, qy))
-    s, df, sF, dfF = np.empty(6), np.empty(6), np.empty(4), np.empty(4)
+    s, de, df, sF, dfF = np.empty(6), np.empty(6), np.empty(6), np.empty(4), np.empty(4)
     k = kt if status == STICK else (mu * kn if ft >= 0.0 else -mu * kn)
     for u in range(6):
         s[u] = lever * (B[u][0] * tx + B[u][1] * ty)
@@ -280,14 +284,7 @@ def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF,
         for v in range(6):
             KFu[u, v] = _entry(BF[u], B[v], h00, h01, h11, sF[u], df[v])
             KuF[v, u] = _entry(B[v], BF[u], h00, h01, h11, s[v], dfF[u])
-    for a, ga in ((0, gx), (1, gy)):
-        for b in range(2):
-            KFu[2 * a + b, b] -= ga
-            KFu[2 * a + b, 3 + b] += ga
-    for e_ in range(2):
-        for c, gc in ((0, gx), (1, gy)):
-            KuF[3 + e_, 2 * c + e_] += gc
-            KuF[e_, 2 * c + e_] -= gc
+    _add_branch_terms(KFu, KuF, gx, gy)
 
 
 @njit(cache=True)

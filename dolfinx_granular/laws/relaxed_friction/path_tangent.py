@@ -34,20 +34,14 @@ from .rolling import radius, stiffness
 class Chain:
     """The committed side of a substep, differentiated with respect to the final F (flattened
     row-major): Dw (N, 2, 4), Dth (N, 4), Dft (M, 4) and Dmr (M, 4) per candidate (tangential
-    forces, rolling moments; they grow with the list), DF0 (4, 4) of the committed F0. Zero at
-    the macro-committed state."""
+    forces, rolling moments; they grow with the list), DF0 (4, 4) of the committed F0. An
+    increment from the macro-committed state has none (nothing there depends on F)."""
 
     Dw: np.ndarray
     Dth: np.ndarray
     Dft: np.ndarray
     DF0: np.ndarray
     Dmr: np.ndarray
-
-    @classmethod
-    def zero(cls, n_disks: int, n_candidates: int) -> Chain:
-        return cls(np.zeros((n_disks, 2, 4)), np.zeros((n_disks, 4)),
-                   np.zeros((n_candidates, 4)), np.zeros((4, 4)),
-                   np.zeros((n_candidates, 4)))  # fmt: skip
 
     def forces(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(Dft, Dmr) for a list of n candidates (new pairs: zero)."""

@@ -36,10 +36,10 @@ CONE_SLACK = 1e-9
 #: p / k_n = 1e-3: a residual of 4e-4 after 20,000 steps, 1e-5 after 400,000), and Newton
 #: takes over from a state that one round may not yet reach
 FIRE_ROUNDS = 5
-#: ``tangent`` of :func:`relax` and :func:`finish` (False and True are the first two): P alone;
-#: A and the sensitivities of the predictor too; those and the solution's :class:`Chain`, which
-#: a later substep of the path starts from
-NO_TANGENT, TANGENT, CHAINED = 0, 1, 2
+#: ``tangent`` of :func:`relax` and :func:`finish` beside False (P alone) and True (A and the
+#: predictor's sensitivities too): those and the solution's :class:`Chain`, which a later
+#: substep of the path starts from
+CHAINED = 2
 
 
 @dataclass

@@ -154,19 +154,13 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj
     KFF = np.zeros((4, 4))
     KFq = np.zeros((4, 3 * n_disks))
     KqF = np.zeros((3 * n_disks, 4))
-    kFF, kFu, kuF, de, deF = (
-        np.empty((4, 4)),
-        np.empty((4, 6)),
-        np.empty((6, 4)),
-        np.empty(6),
-        np.empty(4),
-    )
+    kFF, kFu, kuF, deF = np.empty((4, 4)), np.empty((4, 6)), np.empty((6, 4)), np.empty(4)
     for c in range(e.shape[0]):
         if status[c] == OPEN or not use[c]:
             continue
         i, j = pi[c], pj[c]
         mixed_terms(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], status[c], R[c], radii[i],
-                    radii[j], kn, kt, mu, kFF, kFu, kuF, de, deF)  # fmt: skip
+                    radii[j], kn, kt, mu, kFF, kFu, kuF, deF)  # fmt: skip
         if rstatus[c] != OPEN:
             add_mixed(mr[c], rstatus[c], radii[i], radii[j], kn, mu_r, deF, kuF)
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
