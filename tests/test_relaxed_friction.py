@@ -13,9 +13,10 @@ from dolfinx_granular import (
     RelaxedRVE,
     generate_packing,
 )
-from dolfinx_granular.laws.relaxed.path import stretches_between
+from dolfinx_granular.laws.relaxed.path import stretch, stretches_between
 from dolfinx_granular.laws.relaxed_friction import contact_law, point, system
 from dolfinx_granular.laws.relaxed_friction.cell_state import Increment
+from dolfinx_granular.laws.relaxed_friction.path_tangent import stretch_derivative
 from dolfinx_granular.laws.relaxed_friction.tangent import condensation
 
 import numpy as np
@@ -300,6 +301,19 @@ def test_the_tangent_is_the_derivative_of_the_stress_through_the_path(rve, shear
     h_path = point.substep(rve.cell, rve.springs, inc, F_TWO, rve.settings)
     assert len(stretches_between(F_ONE, F_TWO, h_path)) >= 3
     assert np.abs(dP - A).max() <= 1e-6 * np.abs(A).max()
+
+
+def test_the_stretchs_derivative_is_its_difference_quotient():
+    """dU/dF of the path's right stretch (compiled, :func:`stretch_derivative`) against
+    central differences of :func:`stretch`, at an F with rotation and shear."""
+    F = np.array([[0.97, 0.04], [-0.11, 1.02]])
+    h = 1e-6
+    dU = np.empty((4, 4))
+    for p in range(4):
+        dF = np.zeros(4)
+        dF[p] = h
+        dU[:, p] = (stretch(F + dF.reshape(2, 2)) - stretch(F - dF.reshape(2, 2))).ravel() / (2 * h)
+    assert np.abs(stretch_derivative(F) - dU).max() <= 1e-8
 
 
 def test_a_superposed_rotation_rotates_everything(rve, sheared):

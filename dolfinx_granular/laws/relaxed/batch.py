@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .cell import Cell, fingerprint
+from .cell import Cell, fingerprint, smallest_stretch
 from .contact_state import MIN_CONTACTS, contact_state, non_rattlers
 from .newton import CONVERGED, run_newton, visited
 from .path import MAX_SUBSTEP, predicted, stretches_between
@@ -86,7 +86,7 @@ def _point(F, w, dw, Fc, tangent, geo, verlet, pat, fac, tol, budget, longest, q
     """One point along its path into row q of ``out`` (W, P, A, w, dw, network, the candidates'
     shifts): False where it needs Python."""
     if (F == Fc).all():  # the committed positions are at rest
-        m = visited(_smallest_stretch(F), w, geo, verlet)
+        m = visited(smallest_stretch(F), w, geo, verlet)
         return m >= 0 and _finish(F, w.copy(), m, tangent, geo, pat, fac, q, out)
     Us = stretches_between(Fc, F, longest)
     for k in range(Us.shape[0] + 1):
@@ -107,7 +107,7 @@ def _newton(F, w, geo, verlet, pat, fac, tol, budget):
     N = geo[10]
     request = np.zeros(2, np.int64)
     status = run_newton(
-        F, _smallest_stretch(F), w, geo, verlet, pat, fac, tol, budget, True,
+        F, smallest_stretch(F), w, geo, verlet, pat, fac, tol, budget, True,
         np.array([0.0, np.inf, 0.0, np.inf]), np.zeros(N, np.bool_), np.zeros(6, np.int64),
         request, np.empty_like(w),
     )  # fmt: skip
@@ -146,12 +146,3 @@ def _finish(F, w, m, tangent, geo, pat, fac, q, out):
     w_out[q] = w
     network[q] = fingerprint(pi, pj, shift, np.flatnonzero(net), N)
     return True
-
-
-@njit(cache=True)
-def _smallest_stretch(F):
-    """The smaller singular value of F (2, 2) (as
-    :func:`~dolfinx_granular.laws.tools.singular_values_2x2`)."""
-    q = np.hypot(0.5 * (F[0, 0] + F[1, 1]), 0.5 * (F[1, 0] - F[0, 1]))
-    r = np.hypot(0.5 * (F[0, 0] - F[1, 1]), 0.5 * (F[1, 0] + F[0, 1]))
-    return abs(q - r)

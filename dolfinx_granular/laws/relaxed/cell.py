@@ -16,7 +16,6 @@ import numpy as np
 from numba import njit
 
 from ...packings import neighbours
-from ..tools import singular_values_2x2
 from . import block_ldlt
 
 #: Verlet skin of the candidates added beyond the reference list, relative to the smallest
@@ -83,21 +82,27 @@ class Cell:
         changes no branch vector). Where that reaches past the sorted list (a rattler that
         crossed its cage, a rearrangement), :meth:`extend` adds the pairs now within reach and
         the whole list is visited."""
-        s_min = float(singular_values_2x2(F[None])[1][0])
-        v = w - w.mean(axis=0)
-        reach = 1.0 / s_min + 2.0 * np.sqrt((v * v).sum(axis=1).max()) / self.R.min()
-        if reach <= 1.0 / self.min_stretch:
-            return int(np.searchsorted(self.ratio[: self.n_sorted], reach, side="right"))
+        s_min = smallest_stretch(np.ascontiguousarray(F, dtype=np.float64))
+        m = reach_prefix(s_min, w, self.ratio, self.n_sorted, 1.0 / self.min_stretch, self.R_min)
+        if m >= 0:
+            return int(m)
         ref = self.__dict__.get("_verlet")
         if ref is not None and s_min >= ref[1]:
             moved = w - ref[0]
             moved -= moved.mean(axis=0)
             if (moved * moved).sum(axis=1).max() <= (0.5 * ref[2]) ** 2:
                 return self.pi.shape[0]
-        skin = SKIN * self.R.min()
+        skin = SKIN * self.R_min
         self.extend(w, s_min, skin)
         self._verlet = (w.copy(), s_min, skin)
         return self.pi.shape[0]
+
+    @property
+    def R_min(self) -> float:
+        """The smallest radius sum of the candidates (kept until the list grows)."""
+        if "_R_min" not in self.__dict__:
+            self._R_min = float(self.R.min())
+        return self._R_min
 
     def extend(self, w, s_min, skin):
         """Append every pair whose relaxed reference distance is below (r_i + r_j) / s_min(F)
@@ -134,6 +139,7 @@ class Cell:
         self.shift = np.concatenate([self.shift, sh])
         self._known = np.sort(np.concatenate([self.known_keys(), keys]))
         self.__dict__.pop("_order", None)
+        self.__dict__.pop("_R_min", None)
         for a in (self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.shift):
             a.flags.writeable = False  # as the list of Cell.of: one compiled kernel, not two
 
@@ -163,7 +169,7 @@ class Cell:
         n_candidates, 1 / min_stretch, min R, n_disks, K)``."""
         return (
             self.pi, self.pj, self.X, self.Y, self.R, self.ratio, self.n_sorted,
-            self.pi.shape[0], 1.0 / self.min_stretch, float(self.R.min()), self.n_disks, self.K,
+            self.pi.shape[0], 1.0 / self.min_stretch, self.R_min, self.n_disks, self.K,
         )  # fmt: skip
 
     def verlet(self) -> tuple:
@@ -179,8 +185,8 @@ class Cell:
         :meth:`visited` would say, and make w the Verlet reference: the list then holds while
         no disk moves by more than ``skin`` / 2 (default :data:`SKIN` times the smallest radius
         sum) from w, relative to their mean move."""
-        s_min = float(singular_values_2x2(F[None])[1][0])
-        skin = SKIN * self.R.min() if skin is None else float(skin)
+        s_min = smallest_stretch(np.ascontiguousarray(F, dtype=np.float64))
+        skin = SKIN * self.R_min if skin is None else float(skin)
         self.extend(w, s_min, skin)
         self._verlet = (np.array(w, dtype=np.float64), s_min, skin)
 
@@ -253,3 +259,29 @@ def fingerprint(pi, pj, shift, contacts, n_disks):
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
         total += z ^ (z >> np.uint64(31))
     return total
+
+
+@njit(cache=True)
+def smallest_stretch(F):
+    """The smaller singular value of F (2, 2) (as
+    :func:`~dolfinx_granular.laws.tools.singular_values_2x2`)."""
+    q = np.hypot(0.5 * (F[0, 0] + F[1, 1]), 0.5 * (F[1, 0] - F[0, 1]))
+    r = np.hypot(0.5 * (F[0, 0] - F[1, 1]), 0.5 * (F[1, 0] + F[0, 1]))
+    return abs(q - r)
+
+
+@njit(cache=True)
+def reach_prefix(s_min, w, ratio, n_sorted, inv_min_stretch, R_min):
+    """The candidates of the sorted list (a prefix) that can touch at fluctuations w (N, 2)
+    under an F whose smaller singular value is s_min: |F Q| < R needs |L| / R < 1 / s_min +
+    2 max|w - mean w| / min R (a common translation changes no branch vector). -1 where that
+    reach passes the sorted list (:meth:`Cell.visited` then looks beyond it)."""
+    mean = w.sum(axis=0) / w.shape[0]
+    big = 0.0
+    for i in range(w.shape[0]):
+        vx, vy = w[i, 0] - mean[0], w[i, 1] - mean[1]
+        big = max(big, vx * vx + vy * vy)
+    reach = 1.0 / s_min + 2.0 * np.sqrt(big) / R_min
+    if reach > inv_min_stretch:
+        return -1
+    return np.searchsorted(ratio[:n_sorted], reach, side="right")

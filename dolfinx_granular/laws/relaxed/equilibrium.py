@@ -18,9 +18,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..tools import singular_values_2x2
 from . import newton as rn
-from .cell import SKIN, Cell
+from .cell import SKIN, Cell, smallest_stretch
 from .contact_state import ContactState
 from .errors import RelaxationError, RigidityLostError
 from .fire import fire
@@ -91,7 +90,7 @@ def _newton(cell, F, w, settings, budget, counts, stall=True):
     positive definite."""
     F = np.ascontiguousarray(F, dtype=np.float64)
     w = np.array(w, dtype=np.float64)
-    s_min = float(singular_values_2x2(F[None])[1][0])
+    s_min = float(smallest_stretch(np.ascontiguousarray(F, dtype=np.float64)))
     solver = np.array([0.0, np.inf, 0.0, np.inf])
     counts[0] = 0  # the step budget is per start; the other counts add up
     key = np.zeros(cell.n_disks, np.bool_)

@@ -50,6 +50,7 @@ from numba import njit
 
 from .assembly import assemble as assemble_blocks
 from .block_ldlt import numeric_factorisation, substitute
+from .cell import reach_prefix
 from .contact_state import MIN_CONTACTS, contact_state, energy, forces, non_rattlers
 
 #: what :func:`newton` stopped at
@@ -80,14 +81,9 @@ def visited(F_smin, w, geo, verlet):
     """The candidates (a prefix) that can touch at fluctuations w (N, 2), as
     :meth:`Cell.visited`; -1 where the list must grow first."""
     ratio, n_sorted, n_all, inv_min_stretch, R_min = geo[5], geo[6], geo[7], geo[8], geo[9]
-    mean = w.sum(axis=0) / w.shape[0]
-    big = 0.0
-    for i in range(w.shape[0]):
-        vx, vy = w[i, 0] - mean[0], w[i, 1] - mean[1]
-        big = max(big, vx * vx + vy * vy)
-    reach = 1.0 / F_smin + 2.0 * np.sqrt(big) / R_min
-    if reach <= inv_min_stretch:
-        return np.searchsorted(ratio[:n_sorted], reach, side="right")
+    m = reach_prefix(F_smin, w, ratio, n_sorted, inv_min_stretch, R_min)
+    if m >= 0:
+        return m
     vw, vsmin, vskin, valid = verlet
     if not valid or F_smin < vsmin:
         return -1

@@ -170,13 +170,27 @@ class CellState:
         """``(residual, floor)``: the larger of the largest net force over the mean contact
         force and the largest net moment over the mean contact force times the mean radius
         (inf without contacts), and the round-off below which it means nothing."""
-        if self.count == 0 or self.mean_force == 0.0:
-            return np.inf, np.inf
-        f = np.sqrt((self.f**2).sum(axis=1).max()) / self.mean_force
-        M = np.abs(self.M).max() / (self.mean_force * cell.radii.mean())
-        mean_e = self.e[self.on].mean()
-        floor = RESOLVED * np.finfo(float).eps * cell.R[: self.m][self.on].mean() / mean_e
-        return max(f, M), floor
+        return equilibrium_residual(self.f, self.M, self.mean_force, self.count, self.e,
+                                    self.status, cell.R, cell.radii)  # fmt: skip
+
+
+@njit(cache=True)
+def equilibrium_residual(f, M, mean_force, count, e, status, R, radii):
+    """``(residual, floor)`` of net forces f (N, 2) and moments M (N,) over the contacts of
+    overlaps e and statuses (m,) (as :meth:`CellState.residual`)."""
+    if count == 0 or mean_force == 0.0:
+        return np.inf, np.inf
+    fmax = 0.0
+    for k in range(f.shape[0]):
+        fmax = max(fmax, f[k, 0] ** 2 + f[k, 1] ** 2)
+    Mmax = np.abs(M).max()
+    sum_e, sum_R = 0.0, 0.0
+    for c in range(e.shape[0]):
+        if status[c] != OPEN:
+            sum_e += e[c]
+            sum_R += R[c]
+    floor = RESOLVED * np.finfo(np.float64).eps * sum_R / sum_e
+    return max(np.sqrt(fmax) / mean_force, Mmax / (mean_force * radii.mean())), floor
 
 
 @njit(cache=True)

@@ -13,11 +13,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..relaxed.cell import SKIN
+from ..relaxed.cell import SKIN, smallest_stretch
 from ..relaxed.newton import visited
-from ..tools import chunks, singular_values_2x2
+from ..tools import chunks
 from .block_lu import BlockLU, assemble, numeric, refined_solve
-from .cell_state import RATTLER_REACH, RATTLER_SHIFT, RESOLVED, diagonal, holding
+from .cell_state import RATTLER_REACH, RATTLER_SHIFT, diagonal, equilibrium_residual, holding
 from .contact_law import OPEN, SLIP, STICK, return_map
 from .rolling import radius
 from .system import EXACT, SKIPPED, balance, forces, jacobian_blocks
@@ -70,20 +70,7 @@ def cell_state(F, w, th, inc, cell, springs, m):
 def residual(s, R, radii):
     """``(residual, floor)`` of a :func:`cell_state`, as ``CellState.residual``."""
     e, status, f, M, mean_force, count = s[5], s[8], s[10], s[11], s[12], s[13]
-    if count == 0 or mean_force == 0.0:
-        return np.inf, np.inf
-    fmax = 0.0
-    for k in range(f.shape[0]):
-        fmax = max(fmax, f[k, 0] ** 2 + f[k, 1] ** 2)
-    Mmax = np.abs(M).max()
-    sum_e, sum_R, n_on = 0.0, 0.0, 0
-    for c in range(e.shape[0]):
-        if status[c] != OPEN:
-            sum_e += e[c]
-            sum_R += R[c]
-            n_on += 1
-    floor = RESOLVED * np.finfo(np.float64).eps * sum_R / sum_e
-    return max(np.sqrt(fmax) / mean_force, Mmax / (mean_force * radii.mean())), floor
+    return equilibrium_residual(f, M, mean_force, count, e, status, R, radii)
 
 
 @njit(cache=True)
@@ -384,7 +371,7 @@ def run(cell, springs, F, w, th, inc, settings, counts, kernel=None, max_steps=N
     kernel = newton_entry if kernel is None else kernel
     max_steps = settings.max_iterations if max_steps is None else max_steps
     F = np.ascontiguousarray(F, dtype=np.float64)
-    F_smin = float(singular_values_2x2(F[None])[1][0])
+    F_smin = float(smallest_stretch(F))
     history = np.empty(HAND_BACKS * (max_steps + 1))
     tally = np.zeros(4, np.int64)
     need = cell.visited(F, w)  # (grows the list where it must)

@@ -52,23 +52,24 @@ class Chain:
         return self.Dft, self.Dmr
 
 
+@njit(cache=True)
 def stretch_derivative(F: np.ndarray) -> np.ndarray:
     """dU/dF (4, 4) of the right stretch U = (C + s I) / t (:func:`~dolfinx_granular.laws.
     relaxed.path.stretch`; C = F^T F, s = det F > 0, t = (tr C + 2 s)^(1/2)), both flattened
     row-major."""
     C = F.T @ F
-    s = np.linalg.det(F)
-    t = np.sqrt(np.trace(C) + 2.0 * s)
+    s = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    t = np.sqrt(C[0, 0] + C[1, 1] + 2.0 * s)
     U = (C + s * np.eye(2)) / t
-    Finv = np.linalg.inv(F)
+    # (d det F = s tr(F^-1 dF) = cof(F) : dF)
+    cof = np.array([[F[1, 1], -F[1, 0]], [-F[0, 1], F[0, 0]]])
     out = np.empty((4, 4))
     for p in range(4):
-        dF = np.zeros(4)
-        dF[p] = 1.0
-        dF = dF.reshape(2, 2)
+        dF = np.zeros((2, 2))
+        dF[p // 2, p % 2] = 1.0
         dC = dF.T @ F + F.T @ dF
-        ds = s * np.trace(Finv @ dF)
-        dt = (np.trace(dC) + 2.0 * ds) / (2.0 * t)
+        ds = cof[p // 2, p % 2]
+        dt = (dC[0, 0] + dC[1, 1] + 2.0 * ds) / (2.0 * t)
         out[:, p] = ((dC + ds * np.eye(2)) / t - U * dt / t).ravel()
     return out
 
