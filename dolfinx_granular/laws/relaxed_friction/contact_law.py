@@ -178,14 +178,13 @@ def local(F, qx, qy, lx, ly, d, e, ft, fstar, status, R, ri, rj, kn, kt, mu, tan
 
 
 @njit(cache=True, inline="always")
-def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de):
+def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de, s, G):
     """:func:`local`'s Kuu (6, 6) into K and de/du (6,) into ``de``, written out: B = [-F, 0,
     F, 0] makes each 2 x 2 block of B^T H B F^T H F up to its sign (the same products and sums
     as :func:`local`'s, bit for bit; its scratch arrays, zeros and calls cost 5 times as much
-    in the Newton loop)."""
+    in the Newton loop). s (6,) and G (2, 2): work arrays (allocated once for all contacts)."""
     nx, ny, tx, ty, fn, lever = _frame(lx, ly, d, e, R, kn)
     h00, h01, h11 = _hessian(nx, ny, tx, ty, fn, ft, lever, d, kn)
-    s = np.empty(6)
     for b in range(2):  # (the translations of j: B's columns F[:, b]; i's: their negatives)
         s[3 + b] = lever * (F[0, b] * tx + F[1, b] * ty)
         de[3 + b] = -(F[0, b] * nx + F[1, b] * ny)
@@ -197,7 +196,6 @@ def jacobian(F, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, K, de):
     else:
         k = mu * kn if ft >= 0.0 else -mu * kn
         df = de
-    G = np.empty((2, 2))
     for a in range(2):
         a0 = F[0, a] * h00 + F[1, a] * h01
         a1 = F[0, a] * h01 + F[1, a] * h11
@@ -253,10 +251,11 @@ def _entry(b1, b2, h00, h01, h11, s1, df2):
 
 @njit(cache=True)
 def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF, KFu, KuF,
-                deF):  # fmt: skip
+                deF, work):  # fmt: skip
     """:func:`local`'s KFF (4, 4), KFu (4, 6) and KuF (6, 4) into the arrays given, and de/dF
     (4,) into ``deF``: the same products and sums, bit for bit, with B's and B_F's columns as
-    tuples (the condensed tangent's mixed terms, without Kuu)."""
+    tuples (the condensed tangent's mixed terms, without Kuu). ``work``: :func:`mixed_work`
+    (allocated once for all contacts: 5 allocations a contact cost as much as its sums)."""
     nx, ny, tx, ty, fn, lever = _frame(lx, ly, d, e, R, kn)
     gx = -fn * nx + ft * lever * tx
     gy = -fn * ny + ft * lever * ty
@@ -264,7 +263,7 @@ def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF,
     B = ((-F[0, 0], -F[1, 0]), (-F[0, 1], -F[1, 1]), (0.0, 0.0), (F[0, 0], F[1, 0]),
          (F[0, 1], F[1, 1]), (0.0, 0.0))  # fmt: skip
     BF = ((qx, 0.0), (qy, 0.0), (0.0, qx), (0.0, qy))
-    s, de, df, sF, dfF = np.empty(6), np.empty(6), np.empty(6), np.empty(4), np.empty(4)
+    s, de, df, sF, dfF = work
     k = kt if status == STICK else (mu * kn if ft >= 0.0 else -mu * kn)
     for u in range(6):
         s[u] = lever * (B[u][0] * tx + B[u][1] * ty)
@@ -285,6 +284,12 @@ def mixed_terms(F, qx, qy, lx, ly, d, e, ft, status, R, ri, rj, kn, kt, mu, KFF,
             KFu[u, v] = _entry(BF[u], B[v], h00, h01, h11, sF[u], df[v])
             KuF[v, u] = _entry(B[v], BF[u], h00, h01, h11, s[v], dfF[u])
     _add_branch_terms(KFu, KuF, gx, gy)
+
+
+@njit(cache=True)
+def mixed_work():
+    """The work arrays of :func:`mixed_terms`: ``(s, de, df (6,), sF, dfF (4,))``."""
+    return np.empty(6), np.empty(6), np.empty(6), np.empty(4), np.empty(4)
 
 
 @njit(cache=True)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .contact_law import OPEN, SLIP, STICK, jacobian, local, mixed_terms, scratch
+from .contact_law import OPEN, SLIP, STICK, jacobian, local, mixed_terms, mixed_work, scratch
 from .rolling import add_jacobian, add_mixed, add_rolling, radius, stiffness
 
 #: how a contact enters the Jacobian (:func:`equations`)
@@ -132,12 +132,12 @@ def jacobian_blocks(F, lx, ly, d, e, ft, status, mr, rstatus, pi, pj, R, radii, 
     assembly (:func:`.contact_law.jacobian`, :func:`.rolling.add_jacobian`), bit for bit,
     without its coordinates and residual."""
     K = np.empty((contacts.shape[0], 6, 6))
-    Kc, de = np.empty((6, 6)), np.empty(6)
+    Kc, de, work, G = np.empty((6, 6)), np.empty(6), np.empty(6), np.empty((2, 2))
     for t in range(contacts.shape[0]):
         c = contacts[t]
         i, j = pi[c], pj[c]
         jacobian(F, lx[c], ly[c], d[c], e[c], ft[c], status[c], R[c], radii[i], radii[j], kn, kt,
-                 mu, Kc, de)  # fmt: skip
+                 mu, Kc, de, work, G)  # fmt: skip
         if rstatus[c] != OPEN:
             add_jacobian(mr[c], rstatus[c], radii[i], radii[j], kn, kr, mu_r, de, Kc)
         for u in range(6):
@@ -155,12 +155,13 @@ def mixed(F, qx, qy, lx, ly, d, e, ft, fstar, status, mr, mstar, rstatus, pi, pj
     KFq = np.zeros((4, 3 * n_disks))
     KqF = np.zeros((3 * n_disks, 4))
     kFF, kFu, kuF, deF = np.empty((4, 4)), np.empty((4, 6)), np.empty((6, 4)), np.empty(4)
+    work = mixed_work()
     for c in range(e.shape[0]):
         if status[c] == OPEN or not use[c]:
             continue
         i, j = pi[c], pj[c]
         mixed_terms(F, qx[c], qy[c], lx[c], ly[c], d[c], e[c], ft[c], status[c], R[c], radii[i],
-                    radii[j], kn, kt, mu, kFF, kFu, kuF, deF)  # fmt: skip
+                    radii[j], kn, kt, mu, kFF, kFu, kuF, deF, work)  # fmt: skip
         if rstatus[c] != OPEN:
             add_mixed(mr[c], rstatus[c], radii[i], radii[j], kn, mu_r, deF, kuF)
         idx = (3 * i, 3 * i + 1, 3 * i + 2, 3 * j, 3 * j + 1, 3 * j + 2)
