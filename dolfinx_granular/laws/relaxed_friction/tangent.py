@@ -22,6 +22,10 @@ from .newton import factorise
 from .path_tangent import Chain, force_derivatives, history_terms
 from .system import mixed
 
+#: dG/dF of a path's last substep (G = F): :func:`path_condensation` skips its products
+IDENTITY = np.eye(4)
+IDENTITY.flags.writeable = False
+
 
 def condensation(
     cell: Cell, springs: Springs, F, s: CellState, free_rotation: float = 1.0
@@ -34,7 +38,7 @@ def condensation(
     KFF, KFq, KqF, lu, held = _parts(cell, springs, F, s, free_rotation)
     X = _solve(lu, held, KqF)
     A = (KFF - KFq @ X).reshape(2, 2, 2, 2)
-    return A, _predictor(cell, s, -X)
+    return A, _predictor(cell, s, -X, ~s.held_rotations(cell))
 
 
 def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increment,
@@ -49,7 +53,7 @@ def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increm
     arrays = (s.qx, s.qy, s.lx, s.ly, s.d, s.e, s.ft, s.fstar, s.status)
     if chain is None:  # (no history terms: K_qq^-1 (K_qF DG) = (K_qq^-1 K_qF) DG)
         X = _solve(lu, held, KqF)
-        X = np.hstack([X, X @ DG])
+        X = np.hstack([X, X if DG is IDENTITY else X @ DG])
         Ph, dfh, dmh = 0.0, np.zeros((m, 4)), np.zeros((m, 4))
     else:
         Dft0, Dmr0 = chain.forces(cell.pi.shape[0])
@@ -59,10 +63,13 @@ def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increm
             Dft0, chain.DF0, Dmr0,
         )  # fmt: skip
         X = _solve(lu, held, np.hstack([KqF, KqF @ DG + Rh]))
+    free = ~s.held_rotations(cell)
     total = -X[:, 4:].reshape(N, 3, 4)
-    total[~s.held_rotations(cell), 2] = 0.0  # (as the predictor's: not set by F)
-    A = (KFF @ DG + KFq @ total.reshape(3 * N, 4) + Ph).reshape(2, 2, 2, 2)
-    dq = _predictor(cell, s, -X[:, :4])
+    total[free, 2] = 0.0  # (as the predictor's: not set by F)
+    A = ((KFF if DG is IDENTITY else KFF @ DG) + KFq @ total.reshape(3 * N, 4) + Ph).reshape(
+        2, 2, 2, 2
+    )
+    dq = _predictor(cell, s, -X[:, :4], free)
     if not chained:
         return A, dq, None
     Dft, Dmr = np.zeros((cell.pi.shape[0], 4)), np.zeros((cell.pi.shape[0], 4))
@@ -99,9 +106,10 @@ def _solve(lu, held, B):
     return X
 
 
-def _predictor(cell, s, dq):
-    """dq (3N, 4) as (N, 3, 4), a rotation no sticking contact holds zeroed: it is not set by
-    F (its column of K_qq is zero, its entry scales with the arbitrary diagonal)."""
+def _predictor(cell, s, dq, free):
+    """dq (3N, 4) as (N, 3, 4), the rotations ``free`` (N,) of disks no sticking contact holds
+    zeroed: they are not set by F (their column of K_qq is zero, their entry scales with the
+    arbitrary diagonal)."""
     dq = dq.reshape(cell.n_disks, 3, 4)
-    dq[~s.held_rotations(cell), 2] = 0.0
+    dq[free, 2] = 0.0
     return dq
