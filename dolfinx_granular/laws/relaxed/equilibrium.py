@@ -90,7 +90,7 @@ def _newton(cell, F, w, settings, budget, counts, stall=True):
     positive definite."""
     F = np.ascontiguousarray(F, dtype=np.float64)
     w = np.array(w, dtype=np.float64)
-    s_min = float(smallest_stretch(np.ascontiguousarray(F, dtype=np.float64)))
+    s_min = float(smallest_stretch(F))
     solver = np.array([0.0, np.inf, 0.0, np.inf])
     counts[0] = 0  # the step budget is per start; the other counts add up
     key = np.zeros(cell.n_disks, np.bool_)

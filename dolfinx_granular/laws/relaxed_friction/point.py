@@ -23,7 +23,7 @@ from .fire import fire, settle
 from .newton import Counts, solve
 from .path_tangent import Chain, stretch_derivative
 from .settings import Settings
-from .tangent import IDENTITY, path_condensation
+from .tangent import path_condensation
 
 #: the shortest substep, relative to ``Settings.substep``
 MIN_SUBSTEP = 1e-2
@@ -187,7 +187,7 @@ def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> E
     committed one (a contact at the cone sticks there)."""
     s = CellState(cell, springs, F, inc.w0, inc.th0, inc)
     residual, _ = s.residual(cell)
-    eq = finish(cell, springs, F, IDENTITY, inc, inc.w0, inc.th0, s, residual, Counts(),
+    eq = finish(cell, springs, F, np.eye(4), inc, inc.w0, inc.th0, s, residual, Counts(),
                 tangent)  # fmt: skip
     eq.rested = True
     return eq
@@ -229,7 +229,7 @@ def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settin
         eq = relax(cell, springs, Uk, k / (len(stretches) + 1) * dU, inc, dq, settings, CHAINED)
         dissipated += eq.dissipated
         inc, dq = committed(cell, eq, Uk), eq.sensitivity
-    eq = relax(cell, springs, F, IDENTITY, inc, dq, settings, tangent)
+    eq = relax(cell, springs, F, np.eye(4), inc, dq, settings, tangent)
     return eq, dissipated + eq.dissipated
 
 

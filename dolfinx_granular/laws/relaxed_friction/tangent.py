@@ -22,10 +22,6 @@ from .newton import factorise
 from .path_tangent import Chain, force_derivatives, history_terms
 from .system import mixed
 
-#: dG/dF of a path's last substep (G = F): :func:`path_condensation` skips its products
-IDENTITY = np.eye(4)
-IDENTITY.flags.writeable = False
-
 
 def condensation(
     cell: Cell, springs: Springs, F, s: CellState, free_rotation: float = 1.0
@@ -53,7 +49,7 @@ def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increm
     arrays = (s.qx, s.qy, s.lx, s.ly, s.d, s.e, s.ft, s.fstar, s.status)
     if chain is None:  # (no history terms: K_qq^-1 (K_qF DG) = (K_qq^-1 K_qF) DG)
         X = _solve(lu, held, KqF)
-        X = np.hstack([X, X if DG is IDENTITY else X @ DG])
+        X = np.hstack([X, X @ DG])
         Ph, dfh, dmh = 0.0, np.zeros((m, 4)), np.zeros((m, 4))
     else:
         Dft0, Dmr0 = chain.forces(cell.pi.shape[0])
@@ -66,9 +62,7 @@ def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increm
     free = ~s.held_rotations(cell)
     total = -X[:, 4:].reshape(N, 3, 4)
     total[free, 2] = 0.0  # (as the predictor's: not set by F)
-    A = ((KFF if DG is IDENTITY else KFF @ DG) + KFq @ total.reshape(3 * N, 4) + Ph).reshape(
-        2, 2, 2, 2
-    )
+    A = (KFF @ DG + KFq @ total.reshape(3 * N, 4) + Ph).reshape(2, 2, 2, 2)
     dq = _predictor(cell, s, -X[:, :4], free)
     if not chained:
         return A, dq, None
