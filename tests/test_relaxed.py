@@ -15,8 +15,15 @@ from dolfinx_granular import (
     TaylorRVE,
     generate_packing,
 )
-from dolfinx_granular.laws.relaxed import RelaxedRVE, RelaxedState, RigidityLostError, relax
+from dolfinx_granular.laws.relaxed import (
+    RelaxationError,
+    RelaxedRVE,
+    RelaxedState,
+    RigidityLostError,
+    relax,
+)
 from dolfinx_granular.laws.relaxed.contact_state import ContactState
+from dolfinx_granular.laws.relaxed.fire import FIRE_CHUNK
 from dolfinx_granular.laws.relaxed.path import predicted, substeps
 from dolfinx_granular.packings.reference_packing import reference_packing
 
@@ -311,6 +318,25 @@ def test_where_newton_fails_from_fires_positions_fire_goes_closer():
     p = rve.packing
     f, mean = net_forces(p, (p.centers + eq.w) @ F.T, F)
     assert np.linalg.norm(f, axis=1).max() <= 1e-9 * mean
+
+
+def test_where_fire_runs_out_of_steps_newton_takes_the_last_try():
+    """The 70 kicked disks above, Newton given 3 steps and FIRE 200 (too few to relax them):
+    Newton from where FIRE stopped, without the stall limit, reaches the equilibrium (brute
+    force over pairs and images). Given 3 steps there too, the error names both. (FIRE runs out
+    of steps where it lingers near a saddle of the energy, as 70 frictionless disks at p / k_n
+    = 1e-3 did in biaxial compression.)"""
+    rve = RelaxedRVE(generate_packing(70, seed=1), 1e8)
+    settings = replace(rve.settings, max_iterations=3, fire_steps=FIRE_CHUNK)
+    F = 0.99 * np.eye(2)
+    w0 = np.random.default_rng(0).uniform(-1, 1, (70, 2)) * 0.02 * rve.cell.R.min()
+    eq = relax(rve.cell, F, w0, False, settings)
+    assert eq.fire_steps == FIRE_CHUNK and eq.residual <= settings.force_tol
+    p = rve.packing
+    f, mean = net_forces(p, (p.centers + eq.w) @ F.T, F)
+    assert np.linalg.norm(f, axis=1).max() <= 1e-9 * mean
+    with pytest.raises(RelaxationError, match="FIRE did not relax the cell in 200 steps, nor"):
+        relax(rve.cell, F, w0, False, replace(settings, final_iterations=3))
 
 
 def test_a_big_step_follows_the_quasi_static_path():

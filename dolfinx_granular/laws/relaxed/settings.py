@@ -15,7 +15,9 @@ class Settings:
             where that is larger (overlaps below ~1e-5 of the radii).
         max_iterations: Newton steps before FIRE takes over (and again after it).
         fire_tol, fire_steps: FIRE stops at this largest net force relative to the mean
-            contact force, or fails after that many steps.
+            contact force, or stops after that many steps.
+        final_iterations: Newton steps, without a stall limit, from where FIRE stopped
+            when it ran out of steps (the micro solver's last try).
         rattler_shift: least extra diagonal of the rattlers' unknowns, relative to K (a
             rattler without contacts stays where it is).
         chord_rate: a factorisation is reused while the largest force falls at least by this
@@ -26,5 +28,6 @@ class Settings:
     max_iterations: int = 60
     fire_tol: float = 1e-5
     fire_steps: int = 100_000
+    final_iterations: int = 1000
     rattler_shift: float = 1e-8
     chord_rate: float = 0.2
