@@ -167,43 +167,33 @@ FIRE_ROUNDS = 3
 
 def _fire_rounds(cell, F, w, settings, counts) -> tuple:
     """FIRE from w, then Newton, :data:`FIRE_ROUNDS` times: ``(w, state, residual, FIRE
-    steps)``; the last round's RelaxationError where all fail. Where FIRE runs out of steps,
-    Newton takes its last try from there (:func:`_newton_past_fire`)."""
+    steps)``; the last round's RelaxationError where all fail.
+
+    Where FIRE runs out of steps, Newton takes its last try from there, without the stall
+    limit and for ``settings.final_iterations`` steps: FIRE runs out where it lingers near a
+    saddle of the energy (a network that buckles in a rearrangement: 70 disks at p / k_n =
+    1e-3, the net forces 2e-5 of the mean for 100,000 steps), whose unstable mode is too soft
+    for damped dynamics to leave in time; Newton's shifted steps, doubled while the energy
+    falls, leave it along that mode."""
     tol, fire_steps = settings.fire_tol, 0
     for k in range(FIRE_ROUNDS):
         w, steps, converged = fire(cell, F, w, replace(settings, fire_tol=tol))
         fire_steps += steps
-        if not converged:
-            return (*_newton_past_fire(cell, F, w, settings, counts, fire_steps), fire_steps)
+        budget = settings.max_iterations if converged else settings.final_iterations
         try:
-            return (*_newton(cell, F, w, settings, settings.max_iterations, counts, False),
-                    fire_steps)  # fmt: skip
+            return (*_newton(cell, F, w, settings, budget, counts, False), fire_steps)
         except RigidityLostError:
             raise
-        except RelaxationError:
+        except RelaxationError as err:
+            if not converged:
+                raise RelaxationError(
+                    f"FIRE did not relax the cell in {fire_steps} steps, nor Newton from where "
+                    f"it stopped: {err}"
+                ) from None
             if k == FIRE_ROUNDS - 1:
                 raise
             tol = max(1e-3 * tol, settings.force_tol)
     raise AssertionError("unreachable")
-
-
-def _newton_past_fire(cell, F, w, settings, counts, fire_steps) -> tuple:
-    """Newton from w, where FIRE stopped without converging, for ``settings.final_iterations``
-    steps and without the stall limit: ``(w, state, residual)``, else RelaxationError.
-
-    FIRE runs out of steps where it lingers near a saddle of the energy (a network that buckles
-    in a rearrangement: 70 disks at p / k_n = 1e-3, the net forces 2e-5 of the mean for 100,000
-    steps), whose unstable mode is too soft for damped dynamics to leave in time; Newton's
-    shifted steps, doubled while the energy falls, leave it along that mode."""
-    try:
-        return _newton(cell, F, w, settings, settings.final_iterations, counts, False)
-    except RigidityLostError:
-        raise
-    except RelaxationError as err:
-        raise RelaxationError(
-            f"FIRE did not relax the cell in {fire_steps} steps, nor Newton from where it "
-            f"stopped: {err}"
-        ) from None
 
 
 def _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps=0):
