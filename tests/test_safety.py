@@ -17,6 +17,7 @@ from dolfinx_granular.slope.safety import (
 )
 from dolfinx_granular.slope.safety_strength import Strength
 
+import numpy as np
 import pytest
 
 P = 1e-2  # p / k_n
@@ -119,6 +120,22 @@ def test_without_a_pass_the_answer_is_an_upper_bound():
 def test_angles_missing_away_from_mu_narrow_the_search():
     rows = curve([0.1, 0.2, 0.3, 0.5, 1.0], phi=lambda m: math.nan if m in (0.1, 1.0) else 30.0)
     assert Strength(rows, P, 0.3).mu_range == (0.2, 0.5)
+
+
+def test_a_curve_that_falls_is_read_on_its_nondecreasing_fit():
+    """Three packings' means can fall from one mu to the next (here phi_cs 30 -> 26 degrees
+    from mu = 0.25 to 0.5); read as measured, the slope that stands at mu would have FS < 1
+    at every mu_f in between. On the fit FS is 1 there and falls nowhere as mu_f rises."""
+    rows = curve([0.0, 0.25, 0.5], phi=lambda m: {0.0: 10.0, 0.25: 30.0, 0.5: 26.0}[m])
+    strength = Strength(rows, P, 0.5)
+    assert strength.falls("cs") == [(0.25, 0.5, 30.0, 26.0)] and strength.falls("peak") == [
+        (0.25, 0.5, 32.0, 28.0)
+    ]
+    assert strength.phi(0.5, monotone=False) == 26.0 and strength.phi(0.5) == 28.0
+    assert strength.factor_of_safety(0.3) == pytest.approx(1.0, rel=1e-15)
+    fs = [strength.factor_of_safety(m) for m in np.linspace(0.01, 0.5, 50)]
+    assert all(f >= 1.0 - 1e-15 for f in fs) and np.all(np.diff(fs) <= 1e-15)
+    assert Strength(curve(grid(0.5)), P, 0.5).falls("cs") == []
 
 
 def test_the_search_stays_inside_the_curve():

@@ -5,6 +5,7 @@ axial strain to 1-2 % in 2-4 steps."""
 import contextlib
 import csv
 import io
+import itertools
 import json
 import math
 
@@ -12,7 +13,7 @@ from dolfinx_granular import friction_angle, generate_packing, strength_curve
 from dolfinx_granular.__main__ import main
 from dolfinx_granular.drivers import element_tests as et
 from dolfinx_granular.drivers.element_cache import ElementTestCache
-from dolfinx_granular.drivers.strength import COLUMNS
+from dolfinx_granular.drivers.strength import COLUMNS, nondecreasing
 from dolfinx_granular.io.strength_table import read_curve
 
 import numpy as np
@@ -247,6 +248,52 @@ def test_friction_angle_errors_where_no_angle_was_measured():
     with pytest.raises(ValueError, match="stop_reasons"):
         friction_angle(curve, 0.25, P)
     assert friction_angle(curve, 0.0, P) == 10.0  # (a tabulated mu needs only its own value)
+
+
+@pytest.mark.parametrize(
+    "values, weights, fit",
+    [
+        ([1.0, 3.0, 2.0, 4.0], [1, 1, 1, 1], [1.0, 2.5, 2.5, 4.0]),
+        ([1.0, 3.0, 2.0, 4.0], [1, 1, 3, 1], [1.0, 2.25, 2.25, 4.0]),
+        ([5.0, 4.0, 3.0], [1, 1, 2], [3.75, 3.75, 3.75]),
+        ([1.0, math.nan, 0.5, 2.0], [1, 1, 1, 1], [0.75, math.nan, 0.75, 2.0]),
+    ],
+)
+def test_nondecreasing_pools_adjacent_violators(values, weights, fit):
+    assert np.allclose(nondecreasing(values, weights), fit, rtol=1e-15, equal_nan=True)
+
+
+def test_nondecreasing_is_the_least_squares_fit(rng):
+    """Against every split of 7 values into consecutive runs whose weighted means do not fall:
+    the best of them (the least squares over non-decreasing fits is one of these) is the fit,
+    and a non-decreasing input comes back bit for bit."""
+    for _ in range(20):
+        values, weights = rng.normal(size=7), rng.uniform(0.5, 3.0, size=7)
+        best, cost = None, math.inf
+        for cuts in itertools.product((0, 1), repeat=6):
+            ends = [k + 1 for k, c in enumerate(cuts) if c] + [7]
+            starts = [0, *ends[:-1]]
+            means = [np.average(values[a:b], weights=weights[a:b]) for a, b in zip(starts, ends)]
+            if np.all(np.diff(means) >= 0.0):
+                f = np.concatenate([np.full(b - a, m) for a, b, m in zip(starts, ends, means)])
+                if (c := np.sum(weights * (f - values) ** 2)) < cost:
+                    best, cost = f, c
+        fit = nondecreasing(values, weights)
+        assert np.all(np.diff(fit) >= 0.0) and np.allclose(fit, best, rtol=1e-13, atol=1e-15)
+        ordered = np.sort(values)
+        assert np.array_equal(nondecreasing(ordered, weights), ordered)
+
+
+def test_friction_angle_on_the_monotone_fit_of_a_falling_curve():
+    """phi_cs 10, 30, 26 degrees at mu 0, 0.5, 1 (3 seeds each): the fit pools 0.5 and 1 at
+    28; a curve that does not fall reads the same either way."""
+    falling = [dict(r, seeds=3) for r in CURVE[:3]]
+    falling[2]["phi_cs_deg_mean"] = 26.0
+    assert friction_angle(falling, 0.5, P) == 30.0
+    assert friction_angle(falling, 0.5, P, monotone=True) == pytest.approx(28.0, rel=1e-15)
+    assert friction_angle(falling, 0.25, P, monotone=True) == pytest.approx(19.0, rel=1e-15)
+    for mu in (0.1, 0.5, 0.9):
+        assert friction_angle(CURVE, mu, P, monotone=True) == friction_angle(CURVE, mu, P)
 
 
 def test_friction_angle_of_the_commands_csv(command):

@@ -8,7 +8,8 @@ pressure p / k_n and packing seed, each once (:class:`~.element_cache.ElementTes
 largest over the test) and at the critical state (the mean over the last quarter of the strain
 reached), phi in degrees and tan phi, as the mean and standard deviation over the seeds, with
 how far the tests got and why any stopped. :func:`friction_angle` reads phi off the curve,
-linear in mu (the factor of safety's tan phi(mu)).
+linear in mu (the factor of safety's tan phi(mu)), or off its non-decreasing fit
+(:func:`nondecreasing`).
 """
 
 from __future__ import annotations
@@ -192,14 +193,40 @@ def on_line(row, rolling_ratio: float) -> bool:
     return math.isclose(mu_r, rolling_ratio * float(row["mu"]), rel_tol=1e-9, abs_tol=1e-12)
 
 
+def nondecreasing(values, weights) -> np.ndarray:
+    """The weighted least-squares non-decreasing fit of ``values`` (n,) with ``weights`` (n,)
+    > 0, by pooling adjacent violators: where a value falls below the one before, both become
+    their weighted mean, until none falls. Non-finite values are left out and stay as they are;
+    a non-decreasing input comes back unchanged."""
+    values = np.asarray(values, dtype=np.float64)
+    weights = np.asarray(weights, dtype=np.float64)
+    fitted = values.copy()
+    finite = np.flatnonzero(np.isfinite(values))
+    blocks = []  # [sum of w v, sum of w, members] per pooled run
+    for k in finite:
+        blocks.append([weights[k] * values[k], weights[k], [k]])
+        while len(blocks) > 1 and blocks[-2][0] * blocks[-1][1] > blocks[-1][0] * blocks[-2][1]:
+            total, weight, members = blocks.pop()
+            blocks[-1][0] += total
+            blocks[-1][1] += weight
+            blocks[-1][2] += members
+    for total, weight, members in blocks:
+        if len(members) > 1:  # (a single value is kept bit for bit)
+            fitted[members] = total / weight
+    return fitted
+
+
 def friction_angle(curve, mu: float, p_over_kn: float, which: str = "cs", law=None,
-                   rolling_ratio: float = 0.0) -> float:  # fmt: skip
+                   rolling_ratio: float = 0.0, monotone: bool = False) -> float:  # fmt: skip
     """The friction angle phi (degrees) of ``curve`` (rows of :func:`strength_curve`, or of
     its CSV) at contact friction ``mu``, linear in mu between the tabulated values, at the
     tabulated confining pressure ``p_over_kn``; ``which``: ``"cs"`` (critical state, mean over
     the seeds) or ``"peak"``; ``law``: the curve's law where it holds several;
     ``rolling_ratio``: the rows with mu_r = rolling_ratio mu (the line the strength reduction
-    follows, both frictions reduced alike; 0: without rolling resistance).
+    follows, both frictions reduced alike; 0: without rolling resistance); ``monotone``: read
+    on the curve's :func:`nondecreasing` fit over mu (each row weighted by its seeds), where
+    the seeds' scatter makes the means fall somewhere though more friction cannot weaken the
+    material.
 
     Raises:
         ValueError: ``which`` unknown, ``p_over_kn`` not tabulated, ``mu`` outside the
@@ -220,6 +247,8 @@ def friction_angle(curve, mu: float, p_over_kn: float, which: str = "cs", law=No
     here.sort(key=lambda r: float(r["mu"]))
     mu_tab = np.array([float(r["mu"]) for r in here])
     phi = np.array([float(r[WHICH[which]]) for r in here])
+    if monotone:
+        phi = nondecreasing(phi, [float(r.get("seeds", 1)) for r in here])
     if not (mu_tab[0] <= mu <= mu_tab[-1]):
         raise ValueError(f"mu = {mu:g} lies outside the curve's mu = {mu_tab[0]:g} to "
                          f"{mu_tab[-1]:g} at p/k_n = {p_over_kn:g}: measure the strength there "

@@ -202,7 +202,21 @@ class SafetyRun:
             f"{self.phi['peak']:.2f}° at p/k_n = {self.strength.p_over_kn:g}; Bishop "
             f"{self.limit['bishop_cs']:.4g} (cs), {self.limit['bishop_peak']:.4g} (peak)"
             f"{_confined(self.limit)}, infinite slope {self.limit['infinite_slope_cs']:.4g} (cs); "
-            f"1:{o.geometry.slope_ratio:g} slope, {o.geometry.n_cells} cells"
+            f"1:{o.geometry.slope_ratio:g} slope, {o.geometry.n_cells} cells{self._falls_note()}"
+        )
+
+    def _falls_note(self):
+        """Where the strength curve falls as mu grows (phi is read on its non-decreasing fit)."""
+        parts = [
+            f"{w} from {a:.2f}° at mu = {m:g} to {b:.2f}° at {n:g}"
+            for w in ("cs", "peak")
+            for m, n, a, b in self.strength.falls(w)
+        ]
+        if not parts:
+            return ""
+        return (
+            "; the curve falls (the seeds' scatter: measure more of them) where phi is read on "
+            f"its non-decreasing fit: {', '.join(parts)}"
         )
 
     def continuation(self, finished: Sequence[Trial] = ()) -> tuple[list[Trial], bool]:
@@ -326,6 +340,7 @@ class SafetyRun:
             "phi_peak": self.phi["peak"],
             "phi_f_cs": phi_f["cs"],
             "phi_f_peak": phi_f["peak"],
+            "curve_falls": {w: self.strength.falls(w) for w in ("cs", "peak")},
             "p_over_kn": self.strength.p_over_kn,
             **self.limit,
             "geometry": dataclasses.asdict(g),

@@ -2,25 +2,32 @@
 
 A factor of safety needs phi at the user's mu and at every friction mu_f the strength reduction
 tries (:mod:`.safety`). A user's curve (``python -m dolfinx_granular strength``'s CSV) is read
-as it is, phi linear in mu between its rows
-(:func:`~dolfinx_granular.drivers.strength.friction_angle`; the search stays inside it). Without
-one, :class:`Strength` measures phi at exactly mu and at each mu_f before its trial
+with phi linear in mu between its rows
+(:func:`~dolfinx_granular.drivers.strength.friction_angle`; the search stays inside it).
+Without one, :class:`Strength` measures phi at exactly mu and at each mu_f before its trial
 (:func:`measured_rows`: the biaxial tests of
 :func:`~dolfinx_granular.drivers.strength.strength_curve`, each cached, on the slope's own
 packings: its particle count, seeds ``seed`` to ``seed + seeds - 1``, jammed at its p / k_n),
-so that a trial's FS is that of its own friction, and the answer, between the bracket's ends,
-is interpolated between two measured rows. Measuring only what the search asks for saves the
-tests at the frictions it never tries: one test of 70 disks to 5 % took 90 s at mu = 0.008.
-With rolling resistance, mu_r = r mu, the strength reduction divides both alike: phi is read
-(and measured) on the curve's line mu_r = r mu.
+and the answer, between the bracket's ends, is interpolated between two measured rows.
+Measuring only what the search asks for saves the tests at the frictions it never tries: one
+test of 70 disks to 5 % took 90 s at mu = 0.008. With rolling resistance, mu_r = r mu, the
+strength reduction divides both alike: phi is read (and measured) on the curve's line mu_r = r
+mu.
+
+Either curve is read on its non-decreasing fit in mu (:meth:`Strength.phi`): more friction
+cannot weaken the material, but a few packings' means can fall from one mu to the next (by
+2.6° from mu = 0.3 to 0.5 on three packings of 70 disks), and a curve that falls would give a
+slope that stands a factor of safety below 1. A measured curve is fitted again as its rows
+come in, so a trial's FS is read on the rows measured so far.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import TYPE_CHECKING
 
-from ..drivers.strength import friction_angle, on_line, strength_curve
+from ..drivers.strength import WHICH, friction_angle, on_line, strength_curve
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -158,10 +165,19 @@ class Strength:
         angles = (float(row["phi_cs_deg_mean"]), float(row["phi_peak_deg_mean"]))
         return all(0.0 < a < 90.0 for a in angles)
 
-    def phi(self, mu_f: float, which: str = "cs") -> float:
-        """phi (degrees) at ``mu_f``: critical state (``"cs"``) or ``"peak"``."""
+    def phi(self, mu_f: float, which: str = "cs", monotone: bool = True) -> float:
+        """phi (degrees) at ``mu_f``: critical state (``"cs"``) or ``"peak"``; on the curve's
+        non-decreasing fit (``monotone``), else on its measured means."""
         return friction_angle(self.curve, mu_f, self.p_over_kn, which,
-                              rolling_ratio=self.rolling_ratio)  # fmt: skip
+                              rolling_ratio=self.rolling_ratio, monotone=monotone)  # fmt: skip
+
+    def falls(self, which: str = "cs") -> list[tuple[float, float, float, float]]:
+        """Where the measured curve falls as mu grows, so that :meth:`phi` pools it: (mu,
+        the next mu, phi at each) per such pair of rows, in degrees."""
+        rows = sorted((r for r in self.curve if self._here(r)), key=lambda r: float(r["mu"]))
+        pairs = [(float(a["mu"]), float(b["mu"]), float(a[WHICH[which]]), float(b[WHICH[which]]))
+                 for a, b in itertools.pairwise(rows)]  # fmt: skip
+        return [p for p in pairs if p[3] < p[2]]
 
     def factor_of_safety(self, mu_f: float, which: str = "cs") -> float:
         """tan phi(mu) / tan phi(mu_f)."""
