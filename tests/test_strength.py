@@ -13,8 +13,8 @@ from dolfinx_granular import friction_angle, generate_packing, strength_curve
 from dolfinx_granular.__main__ import main
 from dolfinx_granular.drivers import element_tests as et
 from dolfinx_granular.drivers.element_cache import ElementTestCache
-from dolfinx_granular.drivers.strength import COLUMNS, nondecreasing
-from dolfinx_granular.io.strength_table import read_curve
+from dolfinx_granular.drivers.strength import COLUMNS, falls, nondecreasing
+from dolfinx_granular.io.strength_table import falling_lines, read_curve
 
 import numpy as np
 import pytest
@@ -294,6 +294,25 @@ def test_friction_angle_on_the_monotone_fit_of_a_falling_curve():
     assert friction_angle(falling, 0.25, P, monotone=True) == pytest.approx(19.0, rel=1e-15)
     for mu in (0.1, 0.5, 0.9):
         assert friction_angle(CURVE, mu, P, monotone=True) == friction_angle(CURVE, mu, P)
+
+
+def test_the_falls_of_a_curve_are_named_per_line():
+    """phi_cs 30 -> 26 degrees from mu 0.5 to 1 on the line without rolling friction, and
+    peak 42 -> 40 from 0.5 to 1 on mu_r = 0.2 mu (sharing the row at mu = 0): one line each;
+    the other pressure's rows, on their own, do not fall."""
+    rows = [dict(r, mu_r=0.0) for r in CURVE]
+    rows[2]["phi_cs_deg_mean"] = 26.0
+    rows += [
+        dict(law="relaxed", mu=m, mu_r=0.2 * m, p_over_kn=P, phi_cs_deg_mean=phi,
+             phi_peak_deg_mean=peak)
+        for m, phi, peak in ((0.5, 30.0, 42.0), (1.0, 31.0, 40.0))
+    ]  # fmt: skip
+    assert falls(rows[:3], "cs") == [(0.5, 1.0, 30.0, 26.0)] and falls(rows[:3], "peak") == []
+    lines = falling_lines(rows)
+    assert len(lines) == 2, lines
+    assert "p/kn 0.01 mu_r/mu 0: phi_cs 30.0 deg at mu 0.5 > 26.0 deg at mu 1 " in lines[0]
+    assert "p/kn 0.01 mu_r/mu 0.2: phi_peak 42.0 deg at mu 0.5 > 40.0 deg at mu 1 " in lines[1]
+    assert falling_lines([dict(r, mu_r=0.0) for r in CURVE]) == []
 
 
 def test_friction_angle_of_the_commands_csv(command):

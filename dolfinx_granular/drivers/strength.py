@@ -216,6 +216,16 @@ def nondecreasing(values, weights) -> np.ndarray:
     return fitted
 
 
+def falls(rows, which: str = "cs") -> list[tuple[float, float, float, float]]:
+    """Where phi (``which``: ``"cs"`` or ``"peak"``, degrees) falls as mu grows along ``rows``
+    (one line of a curve: one law, mu_r / mu and p / k_n): (mu, the next mu, phi at each) per
+    such pair of neighbours in mu; the pairs that :func:`nondecreasing` pools."""
+    rows = sorted(rows, key=lambda r: float(r["mu"]))
+    pairs = [(float(a["mu"]), float(b["mu"]), float(a[WHICH[which]]), float(b[WHICH[which]]))
+             for a, b in itertools.pairwise(rows)]  # fmt: skip
+    return [p for p in pairs if p[3] < p[2]]
+
+
 def friction_angle(curve, mu: float, p_over_kn: float, which: str = "cs", law=None,
                    rolling_ratio: float = 0.0, monotone: bool = False) -> float:  # fmt: skip
     """The friction angle phi (degrees) of ``curve`` (rows of :func:`strength_curve`, or of

@@ -14,7 +14,7 @@ import io
 import math
 from typing import TYPE_CHECKING
 
-from ..drivers.strength import COLUMNS
+from ..drivers.strength import COLUMNS, falls, on_line
 from .runwriter import atomic_write
 
 if TYPE_CHECKING:
@@ -84,4 +84,24 @@ def curve_lines(curve: list[dict]) -> list[str]:
         )
     lines += [f"  stopped: {r['law']} mu {r['mu']:g} mu_r {r['mu_r']:g} p/kn {r['p_over_kn']:g}: "
               f"{r['stop_reasons'][:300]}" for r in curve if r["stopped"]]  # fmt: skip
+    return lines + falling_lines(curve)
+
+
+def falling_lines(curve: list[dict]) -> list[str]:
+    """A line per pair of neighbours in mu on one line of the curve (law, p / k_n, mu_r / mu)
+    whose mean phi falls as mu grows: the seeds' scatter, which the factor of safety's reading
+    pools (:func:`~dolfinx_granular.drivers.strength.nondecreasing`)."""
+    lines = []
+    for law, p in dict.fromkeys((r["law"], r["p_over_kn"]) for r in curve):
+        here = [r for r in curve if r["law"] == law and r["p_over_kn"] == p]
+        ratios = dict.fromkeys(r["mu_r"] / r["mu"] for r in here if r["mu"] > 0) or {0.0: None}
+        for ratio in ratios:
+            for which in ("peak", "cs"):
+                for mu_a, mu_b, a, b in falls([r for r in here if on_line(r, ratio)], which):
+                    lines.append(
+                        f"  falls: {law} p/kn {p:g} mu_r/mu {ratio:g}: phi_{which} {a:.1f} deg "
+                        f"at mu {mu_a:g} > {b:.1f} deg at mu {mu_b:g} (the seeds' scatter: more "
+                        "seeds narrow it; the factor of safety reads the curve's non-decreasing "
+                        "fit)"
+                    )
     return lines

@@ -23,11 +23,10 @@ come in, so a trial's FS is read on the rows measured so far.
 
 from __future__ import annotations
 
-import itertools
 import math
 from typing import TYPE_CHECKING
 
-from ..drivers.strength import WHICH, friction_angle, on_line, strength_curve
+from ..drivers.strength import falls, friction_angle, on_line, strength_curve
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -174,10 +173,7 @@ class Strength:
     def falls(self, which: str = "cs") -> list[tuple[float, float, float, float]]:
         """Where the measured curve falls as mu grows, so that :meth:`phi` pools it: (mu,
         the next mu, phi at each) per such pair of rows, in degrees."""
-        rows = sorted((r for r in self.curve if self._here(r)), key=lambda r: float(r["mu"]))
-        pairs = [(float(a["mu"]), float(b["mu"]), float(a[WHICH[which]]), float(b[WHICH[which]]))
-                 for a, b in itertools.pairwise(rows)]  # fmt: skip
-        return [p for p in pairs if p[3] < p[2]]
+        return falls([r for r in self.curve if self._here(r)], which)
 
     def factor_of_safety(self, mu_f: float, which: str = "cs") -> float:
         """tan phi(mu) / tan phi(mu_f)."""
