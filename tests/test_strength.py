@@ -313,6 +313,16 @@ def test_the_falls_of_a_curve_are_named_per_line():
     assert "p/kn 0.01 mu_r/mu 0: phi_cs 30.0 deg at mu 0.5 > 26.0 deg at mu 1 " in lines[0]
     assert "p/kn 0.01 mu_r/mu 0.2: phi_peak 42.0 deg at mu 0.5 > 40.0 deg at mu 1 " in lines[1]
     assert falling_lines([dict(r, mu_r=0.0) for r in CURVE]) == []
+    # a line whose mu_r / mu differ in the last bits (0.2 x 0.3 / 0.3 and 0.2 x 0.7 / 0.7):
+    # named once
+    line = [
+        dict(rows[0], mu=m, mu_r=0.2 * m, phi_cs_deg_mean=phi)
+        for m, phi in ((0.3, 30.0), (0.7, 28.0))
+    ]
+    assert len({r["mu_r"] / r["mu"] for r in line}) == 2
+    assert [ln.split("(")[0] for ln in falling_lines([dict(rows[0]), *line])] == [
+        "  falls: relaxed p/kn 0.01 mu_r/mu 0.2: phi_cs 30.0 deg at mu 0.3 > 28.0 deg at mu 0.7 "
+    ]
 
 
 def test_friction_angle_of_the_commands_csv(command):

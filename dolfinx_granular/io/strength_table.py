@@ -94,8 +94,11 @@ def falling_lines(curve: list[dict]) -> list[str]:
     lines = []
     for law, p in dict.fromkeys((r["law"], r["p_over_kn"]) for r in curve):
         here = [r for r in curve if r["law"] == law and r["p_over_kn"] == p]
-        ratios = dict.fromkeys(r["mu_r"] / r["mu"] for r in here if r["mu"] > 0) or {0.0: None}
-        for ratio in ratios:
+        ratios = []  # (mu_r / mu of each line once: 0.2 x 0.3 / 0.3 is not 0.2 in floating point)
+        for r in here:
+            if r["mu"] > 0 and not any(on_line(r, q) for q in ratios):
+                ratios.append(r["mu_r"] / r["mu"])
+        for ratio in ratios or [0.0]:
             for which in ("peak", "cs"):
                 for mu_a, mu_b, a, b in falls([r for r in here if on_line(r, ratio)], which):
                     lines.append(
