@@ -60,12 +60,12 @@ import numpy as np
 
 from ..packings.packing import Packing, require_disks
 from . import friction_kernel as fk
+from .history_methods import HistoryLawMethods
 from .taylor import TaylorRVE
 from .tools import (
     as_batch,
     non_negative,
     output_buffers,
-    push_forward,
     unsupported_deformation,
 )
 
@@ -270,7 +270,7 @@ def _check_outputs(n, tangent, W, P, A):
             raise ValueError(f"out {name} must be a C-contiguous float64 array of shape {shape}")
 
 
-class FrictionalRVE:
+class FrictionalRVE(HistoryLawMethods):
     """Taylor RVE of a periodic disk packing with normal springs and Coulomb friction.
 
     Args:
@@ -431,29 +431,6 @@ class FrictionalRVE:
             state after the step (commit it only once the load step has converged).
         """
         return self._run(F, state, True, out)
-
-    def stress(
-        self, F: ArrayLike, state: FrictionState, out: tuple | None = None
-    ) -> tuple[np.ndarray | float, np.ndarray, FrictionState]:
-        """``(W (n,), P (n, 2, 2), new_state)`` without the tangent; ``out`` may be
-        ``(W, P)`` or ``(W, P, None)``."""
-        if out is not None:
-            out = (out[0], out[1], None)
-        W, P, _, new = self._run(F, state, False, out)
-        return W, P, new
-
-    def cauchy(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
-        """Cauchy stress sigma = P F^T / J (n, 2, 2), in Pa; symmetric (Hill-Mandel)."""
-        Fb, single = as_batch(F)
-        sigma = push_forward(Fb, self._run(Fb, state, False, None)[1], None)[0]
-        return sigma[0] if single else sigma
-
-    def spatial_tangent(self, F: ArrayLike, state: FrictionState) -> np.ndarray:
-        """Spatial tangent a_abcd = F_bB F_dD A_aBcD / J (n, 2, 2, 2, 2), in Pa."""
-        Fb, single = as_batch(F)
-        _, P, A, _ = self._run(Fb, state, True, None)
-        a = push_forward(Fb, P, A)[1]
-        return a[0] if single else a
 
     def small_strain_modulus(self) -> np.ndarray:
         """Stick tangent (2, 2, 2, 2) at F = I from the initial state, in Pa (fully symmetric).

@@ -19,8 +19,9 @@ import numpy as np
 
 from ...packings.packing import Packing, require_disks
 from ..contacts import ContactCandidates
+from ..history_methods import HistoryLawMethods
 from ..taylor import ContactSet
-from ..tools import as_batch, output_buffers, push_forward, to_float
+from ..tools import as_batch, output_buffers, to_float
 from ..tools import normal_stiffness as normal_stiffness_of
 from . import batch, equilibrium, path
 from .cell import Cell, fingerprint
@@ -100,7 +101,7 @@ class RelaxedState:
         )
 
 
-class RelaxedRVE:
+class RelaxedRVE(HistoryLawMethods):
     """Frictionless periodic disk packing relaxed to static equilibrium at every F.
 
     Same contact law and units as :class:`~dolfinx_granular.TaylorRVE`: linear normal springs
@@ -210,25 +211,6 @@ class RelaxedRVE:
         """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F relaxed from
         ``state`` (left untouched); A = dP/dF of the relaxed response."""
         return self._run(F, state, True, out)
-
-    def stress(self, F: ArrayLike, state: RelaxedState, out: tuple | None = None) -> tuple:
-        """``(W, P, trial_state)`` without the tangent."""
-        W, P, _, new = self._run(F, state, False, out)
-        return W, P, new
-
-    def cauchy(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
-        """Cauchy stress (n, 2, 2) of the relaxed state."""
-        Fb, single = as_batch(F)
-        _, P, _, _ = self._run(Fb, state, False)
-        sigma, _ = push_forward(Fb, P, None)
-        return sigma[0] if single else sigma
-
-    def spatial_tangent(self, F: ArrayLike, state: RelaxedState) -> np.ndarray:
-        """Spatial tangent (n, 2, 2, 2, 2) of the relaxed response."""
-        Fb, single = as_batch(F)
-        _, P, A, _ = self._run(Fb, state, True)
-        _, a = push_forward(Fb, P, A)
-        return a[0] if single else a
 
     def small_strain_modulus(self) -> np.ndarray:
         """The relaxed modulus C (2, 2, 2, 2) at F = I: the linear response of the reference

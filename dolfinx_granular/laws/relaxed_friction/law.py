@@ -16,10 +16,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...packings.packing import Packing
+from ..history_methods import HistoryLawMethods
 from ..relaxed.errors import RelaxationError
 from ..relaxed.law import RelaxedRVE, RelaxedState
 from ..taylor import ContactSet
-from ..tools import as_batch, non_negative, output_buffers, push_forward, to_float
+from ..tools import as_batch, non_negative, output_buffers, to_float
 from .cell_state import Increment, Springs
 from .contact_law import SLIP
 from .point import Equilibrium, at_rest, follow, within_cones
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
 
-class FrictionalRelaxedRVE:
+class FrictionalRelaxedRVE(HistoryLawMethods):
     """Periodic disk packing with normal springs, Coulomb friction and rotations, relaxed to
     static equilibrium at every F (a :class:`~dolfinx_granular.HistoryLaw`).
 
@@ -267,26 +268,6 @@ class FrictionalRelaxedRVE:
         """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F from the committed
         ``state`` (left untouched)."""
         return self._run(F, state, True, out)
-
-    def stress(self, F: ArrayLike, state: FrictionalRelaxedState, out: tuple | None = None):
-        """``(W, P, trial_state)`` without the tangent."""
-        if out is not None:
-            out = (out[0], out[1], None)
-        W, P, _, new = self._run(F, state, False, out)
-        return W, P, new
-
-    def cauchy(self, F: ArrayLike, state: FrictionalRelaxedState) -> np.ndarray:
-        """Cauchy stress (n, 2, 2): symmetric where every disk's moments balance."""
-        Fb, single = as_batch(F)
-        sigma, _ = push_forward(Fb, self._run(Fb, state, False)[1], None)
-        return sigma[0] if single else sigma
-
-    def spatial_tangent(self, F: ArrayLike, state: FrictionalRelaxedState) -> np.ndarray:
-        """Spatial tangent (n, 2, 2, 2, 2)."""
-        Fb, single = as_batch(F)
-        _, P, A, _ = self._run(Fb, state, True)
-        _, a = push_forward(Fb, P, A)
-        return a[0] if single else a
 
     def small_strain_modulus(self) -> np.ndarray:
         """The tangent (2, 2, 2, 2) at F = I from the initial state: every reference contact
