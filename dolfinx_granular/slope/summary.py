@@ -102,21 +102,34 @@ def summarise(
     ``probes`` from :class:`~dolfinx_granular.slope.model.SlopeModel`, the figure's time and
     colour range from :func:`draw_figure`, ``path`` from
     :func:`~dolfinx_granular.slope.path.path_summary` (computed here if not given)."""
-    m, comm, stepper, o = run.model, run.comm, run.stepper, run.options
-    _, (vmax, xmax), (vmin, xmin) = extremes
+    o = run.options
+    return {
+        **_how_it_ran(run),
+        **_final_state(run, extremes),
+        **_timings(run, figure_time),
+        "step_info": run.step_info,
+        # the figure's colour bar (MPa), which spans the Gauss-point extremes its markers name
+        "figure_colour_range": colour_range,
+        "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()} for label, xp, Fp, *_ in probes},
+        # path following (SlopeOptions.path_following): the peak, the critical points, the path
+        "path_following": path_summary(
+            run.arclength, run.step_info, o.geometry.footing_load, o.path_following
+        )
+        if path is None
+        else path,
+    }
+
+
+def _how_it_ran(run: Any) -> dict:
+    """The summary's record of the load path: steps, status, failure, cut-backs, options."""
     failed = run.failed
     footing_load = limit_footing_load(failed, run)
     if footing_load is not None:  # the limit load's record with the load carried, in N/m
         failed = {**failed, "limit_load": {**failed["limit_load"], "footing_load": footing_load}}
-    t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in m.solver.timings.items()}
     status = run_status(run)
-    info = run.step_info
-    rve_ranks = comm.allgather(float(m.material.timings["rve"]))
-    rve_cpu = comm.allgather(float(m.material.clock.cpu["rve"]))
-    updates = comm.allgather(m.material.update_seconds)
-    prestress = getattr(run.law, "prestress", None)
+    o = run.options
     return {
-        "ranks": comm.size,
+        "ranks": run.comm.size,
         "steps": run.n_nominal,
         "completed_steps": run.step,
         "status": status,
@@ -125,13 +138,23 @@ def summarise(
         # the signal that stopped an interrupted run (SIGINT, SIGTERM)
         "interrupted_by": signal.Signals(run.interrupted).name if run.interrupted else None,
         "resumed_from": run.resumed_from,
-        "cutbacks": [c.as_dict() for c in stepper.cutbacks],
-        "load_factor": run.options.load_factor,
+        "cutbacks": [c.as_dict() for c in run.stepper.cutbacks],
+        "load_factor": o.load_factor,
         # the slope's run over its rise and its angle (degrees); restart.npz holds the geometry
         "slope_ratio": o.geometry.slope_ratio,
         "slope_angle": o.geometry.slope_angle,
-        "stabilise": run.options.stabilise,
-        "allow_overlaps": run.options.allow_overlaps,
+        "stabilise": o.stabilise,
+        "allow_overlaps": o.allow_overlaps,
+    }
+
+
+def _final_state(run: Any, extremes: tuple) -> dict:
+    """The summary's record of the last converged state (collective) and the material's
+    options."""
+    m, comm, o, info = run.model, run.comm, run.options, run.step_info
+    _, (vmax, xmax), (vmin, xmin) = extremes
+    prestress = getattr(run.law, "prestress", None)
+    return {
         "open_points": m.open_points(),
         # at the last converged step: points whose tangent lost strong ellipticity
         "non_elliptic_points": info[-1].get("non_elliptic_points", 0) if info else 0,
@@ -140,13 +163,13 @@ def summarise(
         "iterations": run.iterations,
         "footing_settlement": m.settlement(),
         "footing_settlement_point": m.edge.tolist(),
-        "friction": run.options.friction,
-        "rolling_friction": run.options.rolling_friction,
-        "rve": run.options.rve,
+        "friction": o.friction,
+        "rolling_friction": o.rolling_friction,
+        "rve": o.rve,
         # Pa: the packing compressed and relaxed to it, held by the boundaries (0: none)
-        "confinement": run.options.confinement,
-        "gravity_steps": run.options.gravity_steps,
-        "unload": run.options.unload,
+        "confinement": o.confinement,
+        "gravity_steps": o.gravity_steps,
+        "unload": o.unload,
         # J per metre of slope: the energy the contacts' sliding dissipated (0 without friction)
         "dissipated_energy": m.material.dissipated_energy(),
         # after the footing load came off again (``--unload``): the settlement it left behind,
@@ -164,6 +187,18 @@ def summarise(
         "prestress_ratio": getattr(run.law, "prestress_ratio", None),
         # where the contact law leaves its range: overlap / smaller radius (validity.py)
         "overlap_validity": _overlap_validity(run),
+    }
+
+
+def _timings(run: Any, figure_time: float) -> dict:
+    """The summary's wall and CPU seconds (collective): the run, the RVEs per rank and their
+    balance, assembly, solve and output."""
+    m, comm = run.model, run.comm
+    t = {k: comm.allreduce(v, op=MPI.MAX) for k, v in m.solver.timings.items()}
+    rve_ranks = comm.allgather(float(m.material.timings["rve"]))
+    rve_cpu = comm.allgather(float(m.material.clock.cpu["rve"]))
+    updates = comm.allgather(m.material.update_seconds)
+    return {
         "wall_time": time.perf_counter() - run.t_start,
         "time_setup": run.setup_time,
         "time_rve": t["rve"],
@@ -181,16 +216,6 @@ def summarise(
         "time_assembly": t["assembly"],
         "time_solve": t["solve"],
         "time_output": run.time_output + figure_time,
-        "step_info": info,
-        # the figure's colour bar (MPa), which spans the Gauss-point extremes its markers name
-        "figure_colour_range": colour_range,
-        "probes": {label: {"point": xp.tolist(), "F": Fp.tolist()} for label, xp, Fp, *_ in probes},
-        # path following (SlopeOptions.path_following): the peak, the critical points, the path
-        "path_following": path_summary(
-            run.arclength, info, o.geometry.footing_load, o.path_following
-        )
-        if path is None
-        else path,
     }
 
 
