@@ -107,6 +107,27 @@ def test_a_curve_that_lacks_the_slope_is_refused(capsys, tmp_path, curve_csv):
     assert code == 2 and "apply to a measured strength curve" in err[0]
 
 
+def test_several_curves_are_merged_and_checked(capsys, tmp_path, curve_csv):
+    """``--strength A B``: B's rows replace A's at the same mu; a row of other particles is
+    refused naming both files, and the merged curve is checked against the slope as one."""
+    from dolfinx_granular.io.strength_table import read_curve, write_curve
+
+    rows = read_curve(curve_csv)
+    bigger = tmp_path / "bigger.csv"
+    write_curve(bigger, [dict(rows[2], particles=200)])
+    out = tmp_path / "out"
+    code, err = main(capsys, "--strength", str(curve_csv), str(bigger), "--out", str(out))
+    assert code == 2 and len(err) == 1 and not out.exists()
+    assert f"--strength {curve_csv} {bigger}: the rows at law relaxed, mu 0.5" in err[0], err[0]
+    assert "differ in particles" in err[0]
+    more = tmp_path / "more.csv"
+    write_curve(more, [dict(rows[2], seeds=9)])
+    code, err = main(
+        capsys, "--strength", str(curve_csv), str(more), "--confinement", "2.8e4", "--out", str(out)
+    )
+    assert code == 2 and "p_over_kn = 0.001 is not in the curve" in err[0] and not out.exists()
+
+
 def test_small_takes_a_given_curve_without_its_own_curves_options(capsys, tmp_path, curve_csv):
     """``demos/slope.py --small --strength CSV``: --small's --strength-seeds and
     --strength-strain (for a curve it measures) are left out, so the run goes on to check the

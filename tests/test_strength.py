@@ -14,7 +14,7 @@ from dolfinx_granular.__main__ import main
 from dolfinx_granular.drivers import element_tests as et
 from dolfinx_granular.drivers.element_cache import ElementTestCache
 from dolfinx_granular.drivers.strength import COLUMNS, falls, nondecreasing
-from dolfinx_granular.io.strength_table import falling_lines, read_curve
+from dolfinx_granular.io.strength_table import falling_lines, merge_curves, read_curve, write_curve
 
 import numpy as np
 import pytest
@@ -294,6 +294,37 @@ def test_friction_angle_on_the_monotone_fit_of_a_falling_curve():
     assert friction_angle(falling, 0.25, P, monotone=True) == pytest.approx(19.0, rel=1e-15)
     for mu in (0.1, 0.5, 0.9):
         assert friction_angle(CURVE, mu, P, monotone=True) == friction_angle(CURVE, mu, P)
+
+
+def _curve_file(path, rows):
+    """``rows`` (mu, phi_cs, seeds, particles) at p / k_n = P written as a curve's CSV and read
+    back."""
+    full = []
+    for mu, phi, seeds, particles in rows:
+        row = dict.fromkeys(COLUMNS, 0.0)
+        row.update(law="relaxed", mu=mu, p_over_kn=P, seeds=seeds, particles=particles,
+                   k_n=2.8e7, k_t=2.8e7, phi_cs_deg_mean=phi, phi_peak_deg_mean=phi + 2.0,
+                   stop_reasons="")  # fmt: skip
+        full.append(row)
+    write_curve(path, full)
+    return read_curve(path)
+
+
+def test_merged_curves_take_a_later_curves_rows(tmp_path):
+    """3 packings at mu 0, 0.5, 1 (phi_cs falling from 30 to 26); 9 at 0.5 and a new 0.25: the
+    later rows replace the earlier ones at the same mu, in their place, and add the others."""
+    three = [(0.0, 10.0, 3, 70), (0.5, 30.0, 3, 70), (1.0, 26.0, 3, 70)]
+    three = _curve_file(tmp_path / "a.csv", three)
+    nine = _curve_file(tmp_path / "b.csv", [(0.5, 24.0, 9, 70), (0.25, 18.0, 9, 70)])
+    merged = merge_curves([three, nine])
+    assert [(r["mu"], r["seeds"]) for r in merged] == [(0.0, 3), (0.5, 9), (1.0, 3), (0.25, 9)]
+    assert merged[1] is nine[0] and merged[0] is three[0]
+    assert friction_angle(merged, 0.5, P) == 24.0 and friction_angle(merged, 0.75, P) == 25.0
+    assert falls(merged, "cs") == [] and falls(three, "cs") == [(0.5, 1.0, 30.0, 26.0)]
+    assert merge_curves([three]) == three and merge_curves([nine, three])[0]["seeds"] == 3
+    other = _curve_file(tmp_path / "c.csv", [(0.5, 24.0, 3, 200)])
+    with pytest.raises(ValueError, match=r"differ in particles \(70 and 200\)"):
+        merge_curves([three, other])
 
 
 def test_the_falls_of_a_curve_are_named_per_line():

@@ -4,6 +4,7 @@ table.
 :func:`write_curve` writes :data:`~dolfinx_granular.drivers.strength.COLUMNS` (floats as their
 shortest round-trip repr, NaN as an empty cell) atomically; :func:`read_curve` reads it back
 with numbers as numbers, for :func:`~dolfinx_granular.drivers.strength.friction_angle`;
+:func:`merge_curves` makes one curve of several (more seeds at some frictions);
 :func:`curve_lines` is the table the ``strength`` command prints.
 """
 
@@ -24,6 +25,10 @@ if TYPE_CHECKING:
 TEXT = ("law", "stop_reasons")
 #: columns a curve written by an older version may lack, with their value there
 OPTIONAL = {"mu_r": 0.0}
+#: the columns that name a row: a later curve's row with the same values replaces it
+ROW_KEY = ("law", "mu", "mu_r", "p_over_kn")
+#: what a replacing row must share with the row it replaces (the same material, measured again)
+SAME_MATERIAL = ("particles", "k_n", "k_t")
 
 
 def _cell(v):
@@ -59,6 +64,28 @@ def read_curve(path: str | PathLike[str]) -> list[dict]:
                 v = r[k]
                 r[k] = math.nan if v == "" else (int(v) if v.lstrip("-").isdigit() else float(v))
     return rows
+
+
+def merge_curves(curves: list[list[dict]]) -> list[dict]:
+    """One curve from several (each :func:`read_curve`'s rows, in order): a row of a later curve
+    replaces the one of an earlier curve with the same law, mu, mu_r and p / k_n, in its place
+    (e.g. those frictions measured again with more seeds); the other rows are kept. ValueError
+    where the two rows were measured with other particles, k_n or k_t."""
+    merged: dict[tuple, dict] = {}
+    for rows in curves:
+        for r in rows:
+            key = tuple(r[k] for k in ROW_KEY)
+            old = merged.get(key)
+            other = [k for k in SAME_MATERIAL if old is not None and old[k] != r[k]]
+            if other:
+                raise ValueError(
+                    f"the rows at law {r['law']}, mu {r['mu']:g}, mu_r {r['mu_r']:g}, p/kn "
+                    f"{r['p_over_kn']:g} differ in {', '.join(other)} "
+                    f"({', '.join(f'{old[k]:g} and {r[k]:g}' for k in other)}): merge curves "
+                    "measured with the same particles and stiffnesses"
+                )
+            merged[key] = r
+    return list(merged.values())
 
 
 def curve_lines(curve: list[dict]) -> list[str]:

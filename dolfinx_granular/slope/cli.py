@@ -359,8 +359,11 @@ def _add_safety(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--strength",
         metavar="CSV",
+        nargs="+",
         help="the strength curve from this CSV ('python -m dolfinx_granular strength' wrote "
-        "it; it must cover mu at the slope's p/k_n); default: measured with the slope's RVE",
+        "it; it must cover mu at the slope's p/k_n), or from several: a later file's row "
+        "replaces an earlier file's at the same mu, mu_r and p/k_n (more seeds there); "
+        "default: measured with the slope's RVE",
     )
     g.add_argument(
         "--strength-seeds",

@@ -19,7 +19,7 @@ import os
 from typing import TYPE_CHECKING
 
 from ..io.outfolder import OutFolderError, claim_out
-from ..io.strength_table import read_curve
+from ..io.strength_table import merge_curves, read_curve
 from ..packings.packing import PackingFileError
 from .arguments import UserError, make_packing, options_of
 from .interrupt import RunInterrupted
@@ -144,7 +144,9 @@ def _new(a, comm, stop, say, started):
     except OutFolderError as err:
         raise UserError(f"{err} (or continue it: --factor-of-safety --resume {a.out})") from None
     packing = _on_rank0(comm, stop, lambda: _packing(a, options))
-    source, measure = {"source": a.strength}, None
+    # safety.json's source: the user's file, or their list where several were merged
+    files = a.strength or []
+    source, measure = {"source": files[0] if len(files) == 1 else files}, None
     if curve is None:
         seeds = list(range(a.seed, a.seed + a.strength_seeds))
         source = {
@@ -201,13 +203,14 @@ def _measurer(source, options, comm, stop, say):
     return measure
 
 
-def _read(path, p_over_kn, mu, rolling_ratio):
-    """The rows of the user's curve, checked against the slope (UserError naming the fix)."""
+def _read(paths, p_over_kn, mu, rolling_ratio):
+    """The rows of the user's curve (its files merged in order), checked against the slope
+    (UserError naming the fix)."""
     try:
-        curve = read_curve(path)
+        curve = merge_curves([read_curve(p) for p in paths])
         Strength(curve, p_over_kn, mu, rolling_ratio=rolling_ratio)
     except (OSError, ValueError) as err:
-        raise UserError(f"--strength {path}: {err}") from None
+        raise UserError(f"--strength {' '.join(paths)}: {err}") from None
     return curve
 
 
