@@ -15,6 +15,7 @@ import sys
 from collections import namedtuple
 
 from dolfinx_granular import Packing
+from dolfinx_granular.laws.relaxed.errors import RigidityLostError
 
 import numpy as np
 
@@ -205,6 +206,74 @@ def granular_column(
         residual, material.jacobian_form(du, v), u, bcs, material, prefix=prefix, **solver_kwargs
     )
     return Column(solver, material, u, p)
+
+
+# -- laws of one point with a jump (the material-point driver's tests) -----------------------------
+
+
+class LinearLaw:
+    """P = lam tr(H) I + mu (H + H^T), H = F - I: linear in F, its tangent constant (Pa)."""
+
+    dim = 2
+
+    def __init__(self, lam=2e6, mu=1e6):
+        self.lam, self.mu = lam, mu
+        I = np.eye(2)
+        self.A = lam * np.einsum("ij,kl->ijkl", I, I) + mu * (
+            np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)
+        )
+
+    def evaluate(self, F):
+        H = np.asarray(F) - np.eye(2)
+        P = np.einsum("ijkl,kl->ij", self.A, H)
+        return 0.5 * np.sum(P * H), P, self.A
+
+
+class JumpLaw(LinearLaw):
+    """LinearLaw's P plus ``jump`` (Pa) on P11 where F11 > 1 + ``at``: a stress with no F
+    between two branches (a relaxed RVE that rearranges), its tangent the linear one's times
+    ``stiff`` (a tangent that overestimates the slope: Newton crawls)."""
+
+    def __init__(self, jump=0.0, at=1e-3, stiff=1.0):
+        super().__init__()
+        self.jump, self.at, self.stiff = jump, at, stiff
+
+    def evaluate(self, F):
+        W, P, A = super().evaluate(F)
+        P = P.copy()
+        if F[0, 0] > 1.0 + self.at:
+            P[0, 0] += self.jump
+        return W, P, self.stiff * A
+
+
+class UnjamLaw(LinearLaw):
+    """LinearLaw whose cell comes apart (RigidityLostError, as a relaxed RVE's) where F11 >
+    ``edge``, its tangent the linear one's times ``stiff`` (< 1: Newton overshoots)."""
+
+    def __init__(self, stiff=0.3, edge=1.0):
+        super().__init__()
+        self.stiff, self.edge = stiff, edge
+
+    def evaluate(self, F):
+        if F[0, 0] > self.edge:
+            raise RigidityLostError("no disk has 2 contacts or more (all are rattlers)")
+        W, P, A = super().evaluate(F)
+        return W, P, self.stiff * A
+
+
+class CollapsingLaw(UnjamLaw):
+    """UnjamLaw held at ``hold`` Pa more compression in P11 while it holds (F11 <= 1): at
+    F11 = 1 it jumps from P11 = hold to apart, as a loose cell that collapses when dilated."""
+
+    def __init__(self, hold):
+        super().__init__(stiff=1.0)
+        self.hold = hold
+
+    def evaluate(self, F):
+        W, P, A = super().evaluate(F)
+        P = P.copy()
+        P[0, 0] += self.hold
+        return W, P, A
 
 
 # -- the Taylor test -------------------------------------------------------------------------------

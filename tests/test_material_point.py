@@ -15,6 +15,8 @@ from dolfinx_granular.laws.relaxed.errors import RigidityLostError
 import numpy as np
 import pytest
 
+from helpers import CollapsingLaw, JumpLaw, LinearLaw, UnjamLaw
+
 K_N, PRESSURE, RTOL = 2.8e7, 1e5, 1e-10
 
 
@@ -72,24 +74,6 @@ def test_cauchy_tangent_is_the_derivative_of_the_cauchy_stress(packing):
         dF[k, l] = h
         fd = (rve.cauchy(F + dF) - rve.cauchy(F - dF)) / (2 * h)
         np.testing.assert_allclose(T[:, :, k, l], fd, rtol=1e-5, atol=1e-5 * np.abs(T).max())
-
-
-class LinearLaw:
-    """P = lam tr(H) I + mu (H + H^T), H = F - I: linear in F, its tangent constant (Pa)."""
-
-    dim = 2
-
-    def __init__(self, lam=2e6, mu=1e6):
-        self.lam, self.mu = lam, mu
-        I = np.eye(2)
-        self.A = lam * np.einsum("ij,kl->ijkl", I, I) + mu * (
-            np.einsum("ik,jl->ijkl", I, I) + np.einsum("il,jk->ijkl", I, I)
-        )
-
-    def evaluate(self, F):
-        H = np.asarray(F) - np.eye(2)
-        P = np.einsum("ijkl,kl->ij", self.A, H)
-        return 0.5 * np.sum(P * H), P, self.A
 
 
 def test_pure_stress_control_of_a_linear_law_is_its_closed_form():
@@ -196,23 +180,6 @@ def test_bad_control_is_refused_in_one_line(kwargs, words):
     assert words in str(err.value) and "\n" not in str(err.value)
 
 
-class JumpLaw(LinearLaw):
-    """LinearLaw's P plus ``jump`` (Pa) on P11 where F11 > 1 + ``at``: a stress with no F
-    between two branches (a relaxed RVE that rearranges), its tangent the linear one's times
-    ``stiff`` (a tangent that overestimates the slope: Newton crawls)."""
-
-    def __init__(self, jump=0.0, at=1e-3, stiff=1.0):
-        super().__init__()
-        self.jump, self.at, self.stiff = jump, at, stiff
-
-    def evaluate(self, F):
-        W, P, A = super().evaluate(F)
-        P = P.copy()
-        if F[0, 0] > 1.0 + self.at:
-            P[0, 0] += self.jump
-        return W, P, self.stiff * A
-
-
 def test_a_stress_that_jumps_across_its_target_is_named_or_taken_at_the_nearer_side():
     law = JumpLaw(jump=3e3)  # (P11 rises by 3 kPa as F11 passes 1.001)
     below = (law.lam + 2 * law.mu) * 1e-3  # P11 just below the jump (F22 = 1, F12 = F21 = 0)
@@ -225,21 +192,6 @@ def test_a_stress_that_jumps_across_its_target_is_named_or_taken_at_the_nearer_s
     assert step.control_error == pytest.approx(-1e3, rel=1e-6)  # (the nearer side: below)
     with pytest.raises(ControlError, match="jumps"):  # (a miss beyond accept_jump)
         solve_point(law, np.eye(2), {(0, 0): target}, measure="piola", accept_jump=0.1)
-
-
-class UnjamLaw(LinearLaw):
-    """LinearLaw whose cell comes apart (RigidityLostError, as a relaxed RVE's) where F11 > 1,
-    its tangent the linear one's times ``stiff`` (< 1: Newton overshoots)."""
-
-    def __init__(self, stiff=0.3):
-        super().__init__()
-        self.stiff = stiff
-
-    def evaluate(self, F):
-        if F[0, 0] > 1.0:
-            raise RigidityLostError("no disk has 2 contacts or more (all are rattlers)")
-        W, P, A = super().evaluate(F)
-        return W, P, self.stiff * A
 
 
 def test_an_iterate_that_unjams_bounds_a_compressive_target_from_the_dilated_side():
@@ -259,19 +211,18 @@ def test_an_iterate_that_unjams_bounds_a_compressive_target_from_the_dilated_sid
         solve_point(UnjamLaw(), F, {(0, 0): 1e2}, measure="piola", stress_scale=1.0)
 
 
-class CollapsingLaw(UnjamLaw):
-    """UnjamLaw held at ``hold`` Pa more compression in P11 while it holds (F11 <= 1): at
-    F11 = 1 it jumps from P11 = hold to apart, as a loose cell that collapses when dilated."""
-
-    def __init__(self, hold):
-        super().__init__(stiff=1.0)
-        self.hold = hold
-
-    def evaluate(self, F):
-        W, P, A = super().evaluate(F)
-        P = P.copy()
-        P[0, 0] += self.hold
-        return W, P, A
+def test_iterates_that_keep_coming_apart_move_ever_further_into_compression():
+    """A cell that holds only 5 % more compressed than the guess (a collapsed loose cell that
+    re-jams further on): the moves double from max_increment (1e-3: 1.0, 0.999, 0.997, ...,
+    0.937), so the root F11 = 0.94 is found in a score of iterations (Newton's steps capped at
+    1e-3 too), not after 50 moves of 1e-3 that come apart."""
+    law = UnjamLaw(stiff=1.0, edge=0.95)
+    target = -(law.lam + 2 * law.mu) * 0.06
+    step = solve_point(law, np.eye(2), {(0, 0): target}, measure="piola", max_increment=1e-3,
+                       max_iter=30)  # fmt: skip
+    assert step.F[0, 0] == pytest.approx(0.94, rel=1e-12) and step.control_error == 0.0
+    assert step.residuals[:6] == pytest.approx((-target,) * 6)  # (1.0 ... 0.969: apart)
+    assert step.residuals[6] == pytest.approx(target / 0.06 * 0.003)  # (0.937: holds)
 
 
 def test_where_a_jammed_cell_collapses_beyond_a_round_off_the_jammed_side_is_taken():
@@ -289,6 +240,18 @@ def test_where_a_jammed_cell_collapses_beyond_a_round_off_the_jammed_side_is_tak
         with pytest.raises(ControlError, match="jumps"):
             solve_point(law, F, {(0, 0): target}, measure="piola", accept_jump=accept,
                         accept_unjammed=unjammed)  # fmt: skip
+
+
+def test_a_bracket_shrunk_by_an_iterate_that_came_apart_ends_the_search_there():
+    """Bisecting onto the edge of jamming, the iterate that shrinks the bracket to round-off
+    may be one that came apart: the jammed end is taken then (39 evaluations here), not after
+    more bisections that cannot narrow it."""
+    k = CollapsingLaw(0.0).lam + 2 * CollapsingLaw(0.0).mu
+    law = CollapsingLaw(-2e-3 * k)
+    step = solve_point(law, np.diag([0.99, 1.0]), {(0, 0): -1e-3 * k}, measure="piola",
+                       accept_unjammed=2.0, max_iter=38)  # fmt: skip
+    assert step.F[0, 0] == pytest.approx(1.0, abs=1e-12)
+    assert step.control_error == pytest.approx(-1e-3 * k, rel=1e-9)
 
 
 def test_a_crawling_newton_is_bisected_in_its_bracket():

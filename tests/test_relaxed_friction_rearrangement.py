@@ -2,16 +2,18 @@
 point.py ``rearranged``): where an increment has no equilibrium that Newton, the continuation
 and FIRE find, the cell rearranges with the friction law step by step and comes to rest in an
 equilibrium (brute force), its forces in their cones, having dissipated; Newton finishes
-there and its tangent is the derivative of P at the rearranged history."""
+there and its tangent is the derivative of P at the rearranged history. A cell that comes
+apart floats: no stress, and the path goes on from where its disks are."""
 
 from dataclasses import replace
 
 from dolfinx_granular import ContactSet, FrictionalRelaxedRVE, generate_packing
 from dolfinx_granular.drivers import element_tests as et
+from dolfinx_granular.laws.relaxed.errors import CameApart, RigidityLostError
 from dolfinx_granular.laws.relaxed_friction.cell_state import CellState
 from dolfinx_granular.laws.relaxed_friction.contact_law import OPEN, SLIP
-from dolfinx_granular.laws.relaxed_friction.fire import settle
-from dolfinx_granular.laws.relaxed_friction.point import predicted, relax
+from dolfinx_granular.laws.relaxed_friction.fire import fire, settle
+from dolfinx_granular.laws.relaxed_friction.point import follow, predicted, relax
 
 import numpy as np
 import pytest
@@ -133,3 +135,43 @@ def test_a_biaxial_test_goes_on_through_its_rearrangements():
     misses = np.array([r["control_error_Pa"] for r in rows])
     assert np.abs(misses).max() <= et.ACCEPT_JUMP * p
     assert all(r["q_over_p"] > 0.0 for r in rows[1:])
+
+
+#: F1 dilated by 3 %: past the packing's reference, every contact opens
+APART = 1.03 * F1
+
+
+def test_an_increment_that_takes_the_cell_apart_floats_without_stress(committed):
+    """relax to a dilated F: the disks float (no disk keeps two contacts, no overlap beyond
+    round-off by brute force), P of round-off against the committed state's, no tangent; the
+    path to it (``follow``) and the law raise RigidityLostError, as a cell come apart does."""
+    rve, state, inc = committed
+    eq = relax(rve.cell, rve.springs, APART, np.eye(4), inc, state.sensitivity[0], rve.settings,
+               True)  # fmt: skip
+    assert eq.floating and eq.A is None and eq.state.keep.sum() < 2
+    P1 = rve.evaluate(F1, rve.initial_state(1))[1]
+    assert np.abs(eq.P).max() <= 1e-9 * np.abs(P1).max()
+    assert np.abs(eq.sensitivity).max() == 0.0 and eq.chain is None
+    x = (rve.packing.centers + eq.w) @ APART.T
+    gap = np.inf
+    for a in range(len(x)):
+        for b in range(a + 1, len(x)):
+            d = x[b] - x[a]
+            box = APART @ np.diag(rve.packing.box)
+            d -= box @ np.round(np.linalg.solve(box, d))  # (the nearest image)
+            gap = min(gap, np.linalg.norm(d) - rve.packing.radii[a] - rve.packing.radii[b])
+    assert gap >= -1e-12 * rve.packing.radii.mean()
+    with pytest.raises(RigidityLostError, match="come apart"):
+        follow(rve.cell, rve.springs, APART, inc, state.sensitivity[0], rve.settings, True)
+    with pytest.raises(RigidityLostError):
+        rve.evaluate(APART, state)
+
+
+def test_damped_motion_that_takes_the_cell_apart_says_where_the_disks_are(committed):
+    rve, state, inc = committed
+    w, th = predicted(inc.w0, inc.th0, state.sensitivity[0], inc.F0, APART)
+    with pytest.raises(CameApart) as apart:
+        fire(rve.cell, rve.springs, APART, w, th, inc, rve.settings)
+    assert apart.value.w.shape == w.shape and apart.value.th.shape == th.shape
+    s = CellState(rve.cell, rve.springs, APART, apart.value.w, apart.value.th, inc)
+    assert not s.on.any()  # (no two disks touch there)

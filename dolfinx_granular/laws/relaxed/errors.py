@@ -1,5 +1,6 @@
 """The relaxed RVE's errors: a point the micro solver could not relax, a cell that lost its
-rigidity (both :class:`~dolfinx_granular.LawEvaluationError`, so that load stepping cuts back)."""
+rigidity (both :class:`~dolfinx_granular.LawEvaluationError`, so that load stepping cuts back),
+one whose disks came apart while they moved."""
 
 from ..protocol import LawEvaluationError
 
@@ -13,3 +14,12 @@ class RigidityLostError(RelaxationError):
     """The relaxed cell has no rigid contact network left: no non-rattler disk, or a stiffness
     of the non-rattlers (one disk pinned) that is not positive definite (tension, a buckled
     network)."""
+
+
+class CameApart(RigidityLostError):
+    """No two disks touch any more where the solver's motion got to: ``w`` (N, 2) and ``th``
+    (N,), the fluctuations and rotations there (a loose frictional cell that collapsed)."""
+
+    def __init__(self, message: str, w, th) -> None:
+        super().__init__(message)
+        self.w, self.th = w, th

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from ..relaxed.cell import Cell
-from ..relaxed.errors import RelaxationError, RigidityLostError
+from ..relaxed.errors import CameApart, RelaxationError
 from .cell_state import CellState, Increment, Springs
 from .contact_law import return_map
 from .settings import Settings
@@ -128,7 +128,7 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
         )  # fmt: skip
         steps += taken
         if status == UNJAMMED:
-            raise RigidityLostError("the cell unjammed: relaxation opens its contacts")
+            raise CameApart("the cell unjammed: relaxation opens its contacts", u @ Finv.T, th)
         w = u @ Finv.T
         if status == CONVERGED and cell.visited(F, w) == m:  # (no contact unseen)
             return w, th, steps, True

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.sparse.linalg import splu
 
 from ..relaxed.cell import Cell
-from ..relaxed.errors import RelaxationError, RigidityLostError
+from ..relaxed.errors import CameApart, RelaxationError
 from ..tools import chunks
 from . import newton_kernel, pseudo_time
 from .block_lu import BlockLU
@@ -104,7 +104,7 @@ def solve(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Sett
         code, why, w, th = newton_kernel.run(cell, springs, F, w, th, inc, settings, counts)
     counts.newton_seconds += time.perf_counter() - t0
     if code == newton_kernel.RIGIDITY_LOST:
-        raise RigidityLostError("no two disks touch (the cell has come apart)")
+        raise CameApart("no two disks touch (the cell has come apart)", w, th)
     if code == newton_kernel.FAILED:
         last = history[-1] if len(history) > start else np.inf
         what = "pseudo-transient continuation: " if pseudo else ""

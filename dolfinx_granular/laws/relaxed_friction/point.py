@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..relaxed.cell import Cell
-from ..relaxed.errors import RelaxationError, RigidityLostError
+from ..relaxed.errors import CameApart, RelaxationError, RigidityLostError
 from ..relaxed.path import stretches_between
 from .cell_state import CellState, Increment, Springs, overlap_ratio
 from .fire import fire, settle
@@ -54,6 +54,9 @@ class Equilibrium:
         contact force (and radius); counts: the solver's :class:`Counts`; chain: the
         solution's derivatives with respect to the path's end (with A; :mod:`.path_tangent`);
         rested: the committed state itself (:func:`at_rest`), nothing solved.
+        floating: the cell has come apart (no disk keeps two contacts): its disks float at P
+            of round-off, A None, no sensitivities, no chain (:func:`follow` goes on from it
+            along the path, and raises where the path ends in it).
     """
 
     w: np.ndarray
@@ -68,6 +71,7 @@ class Equilibrium:
     counts: Counts
     chain: Chain | None = None
     rested: bool = False
+    floating: bool = False
 
 
 def polar_angle(F) -> float:
@@ -96,27 +100,61 @@ def relax(cell: Cell, springs: Springs, G, DG, inc: Increment, dq, settings: Set
     path's end): Newton from the predicted start. Where it fails, pseudo-transient
     continuation (:mod:`.pseudo_time`: implicit damped steps that lower the increment's
     potential) from the committed positions and rotations carried to G (turned by its polar
-    rotation), then from the predicted start; where that fails too, FIRE relaxes the cell under
-    the same increment from there to ``settings.fire_tol`` and Newton goes on; where Newton fails
-    again, FIRE goes on (to a thousandth of its tolerance where it reached it),
+    rotation), then from the predicted start; where that fails too, FIRE relaxes the cell
+    under the same increment from there to ``settings.fire_tol`` and Newton goes on; where
+    Newton fails again, FIRE goes on (to a thousandth of its tolerance where it reached it),
     :data:`FIRE_ROUNDS` times in all. The fallbacks solve the same increment: they do not
     change the path, so the answer stays the model's (a halved increment would commit a
     midpoint, another path, and make P jump with F where Newton's success does). Where the
     increment has no equilibrium they find, the cell rearranges (:func:`rearranged`): a dynamic
-    event, the friction integrated along it."""
+    event, the friction integrated along it.
+
+    A cell may come apart (a loose frictional cell that collapses: no disk keeps two
+    contacts). Where Newton from the predicted start ends so, only the continuation from the
+    committed positions is believed; where that or the damped motion ends so, the result is
+    ``floating`` (:class:`Equilibrium`): the disks where the motion left them, no stress."""
     counts = Counts()
+    try:
+        done, start = _solved(cell, springs, G, DG, inc, dq, settings, tangent, counts)
+        if done is not None:
+            return done
+        return _damped(cell, springs, G, DG, inc, *start, settings, tangent, counts)
+    except CameApart as apart:
+        s = CellState(cell, springs, G, apart.w, apart.th, inc)
+        return finish(cell, springs, G, DG, inc, apart.w, apart.th, s, 0.0, counts, tangent)
+
+
+def _solved(cell, springs, G, DG, inc, dq, settings, tangent, counts) -> tuple:
+    """Newton from the predicted start, then the continuation from the committed positions
+    carried to G and from the predicted start: ``(Equilibrium or None, the (w, th) FIRE
+    starts from where none was found)``."""
     w, th = predicted(inc.w0, inc.th0, dq, inc.F0, G)
-    done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
-    if done is not None:
-        return done
     # (the continuation relaxes the cell first from its last equilibrium carried to G: the
     # predictor extrapolates soft modes far, and damped motion from there is the physical
     # relaxation; then from the predicted start)
-    start = (w, th)
-    for w, th in (carried(inc.w0, inc.th0, inc.F0, G), start):
+    starts = [carried(inc.w0, inc.th0, inc.F0, G), (w, th)]
+    lost = False
+    try:
+        done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent)
+    except RigidityLostError:
+        done, lost = None, True
+    if done is not None and not done.floating:
+        return done, None
+    if lost or done is not None:
+        # (next to a jump the sensitivities are huge: the predicted start can lie so far off
+        # that Newton ends in a cell come apart; only damped motion from the committed
+        # positions tells whether it does)
+        starts = starts[:1]
+    for w, th in starts:
         done = _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, True)
         if done is not None:
-            return done
+            return done, None
+    return None, (w, th)
+
+
+def _damped(cell, springs, G, DG, inc, w, th, settings, tangent, counts) -> Equilibrium:
+    """FIRE from (w, th) and Newton from where it stops, :data:`FIRE_ROUNDS` times; then the
+    rearrangement."""
     tol = settings.fire_tol
     for _ in range(FIRE_ROUNDS):
         w, th, steps, converged = fire(
@@ -175,6 +213,9 @@ def _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, pseudo=
 def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Equilibrium:
     """The :class:`Equilibrium` at the solved state s of the increment to G."""
     A, dq, chain = None, np.zeros((cell.n_disks, 3, 4)), None
+    if s.keep.sum() < 2:  # (come apart: no network to condense, the disks float)
+        W, D = s.energies(cell, springs)
+        return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, floating=True)
     if tangent:
         A, dq, chain = path_condensation(cell, springs, G, s, inc, inc.chain, DG,
                                          chained=tangent == CHAINED)  # fmt: skip
@@ -230,6 +271,9 @@ def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settin
         dissipated += eq.dissipated
         inc, dq = committed(cell, eq, Uk), eq.sensitivity
     eq = relax(cell, springs, F, np.eye(4), inc, dq, settings, tangent)
+    if eq.floating:
+        raise RigidityLostError("no disk has 2 contacts or more (all are rattlers): the cell "
+                                "has come apart")  # fmt: skip
     return eq, dissipated + eq.dissipated
 
 

@@ -1,0 +1,86 @@
+"""The element tests' servo: a step whose held stress jumps across -p beyond the driver's limits
+is taken on its last halving at the jump's side (as a DEM cell's servo-controlled wall lags or
+overshoots), the measures read only the steps that held p, and a test whose steps stop holding
+p stops. Linear laws with a jump (helpers) and hand-made rows."""
+
+import math
+
+from dolfinx_granular.drivers import element_tests as et
+from dolfinx_granular.drivers.material_point import ControlError, MaterialPoint
+
+import numpy as np
+import pytest
+
+from helpers import CollapsingLaw, JumpLaw
+
+K = CollapsingLaw(0.0).lam + 2 * CollapsingLaw(0.0).mu  # P11 / H11 at F22 = 1 (Pa)
+
+
+@pytest.mark.parametrize("hold", [2.5, 4.0])
+def test_a_collapse_beyond_the_limits_is_taken_on_the_jammed_side_only_as_the_servo(hold):
+    """Jammed, the cell holds hold x p (beyond ACCEPT_UNJAMMED's miss) and a round-off further
+    it comes apart: no F holds p. Without the servo the step is refused; with it, it is taken
+    at the jammed side and its row records the miss."""
+    law, p = CollapsingLaw(-hold * 1e-3 * K), 1e-3 * K
+    assert hold - 1.0 > et.ACCEPT_UNJAMMED
+    point = MaterialPoint(law)
+    F = np.diag([0.99, 1.0])
+    with pytest.raises(ControlError, match="jumps"):
+        et.hold_step(point, F, (0, 0), p, 1e-3)
+    assert np.array_equal(point.F, np.eye(2))  # (nothing committed)
+    # (the Cauchy stress: F22 = 1, so sigma11 = P11 F11 / det F = P11)
+    r = et.hold_step(point, F, (0, 0), p, 1e-3, servo=True)
+    assert r.F[0, 0] == pytest.approx(1.0, abs=1e-12)
+    assert r.control_error == pytest.approx(-(hold - 1.0) * p, rel=1e-9)
+    assert np.array_equal(point.F, r.F)  # (committed)
+
+
+def test_a_jump_between_two_jammed_states_is_taken_at_its_nearer_side_by_the_servo():
+    law = JumpLaw(jump=0.5e-3 * K)  # (P11 rises by 0.5e-3 K as F11 passes 1.001)
+    target = 1.3e-3 * K  # (in the gap: 0.3e-3 K above the lower branch, 0.2e-3 K below the upper)
+    F = np.eye(2)
+    with pytest.raises(ControlError, match="jumps"):  # (both sides miss by more than 10 %)
+        et.hold_step(MaterialPoint(law), F, (0, 0), -target, 1e-3)
+    r = et.hold_step(MaterialPoint(law), F, (0, 0), -target, 1e-3, servo=True)
+    assert r.control_error == pytest.approx(0.2e-3 * K, rel=1e-9)  # (the upper branch)
+    assert r.F[0, 0] == pytest.approx(1.001, abs=1e-12)
+
+
+def _rows(misses, qp, p=1e4):
+    """Hand-made biaxial rows: eps1 0, 1, 2, ... %, the misses (parts of p) and q/p given."""
+    return [
+        {"eps1": 0.01 * k, "q_over_p": q, "volumetric_strain": 0.0, "control_error_Pa": m * p,
+         "p_Pa": p, "z": 4.0, "sliding_share": 0.1, "tau_over_p": q, "dissipation_Pa": 0.0}
+        for k, (m, q) in enumerate(zip(misses, qp))
+    ]  # fmt: skip
+
+
+def test_the_measures_read_only_the_steps_that_held_p():
+    misses = [0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0]
+    qp = [0.0, 0.3, 0.9, 0.4, 0.3, 0.3, 0.2, 0.05, 0.25]
+    m = et.measures(_rows(misses, qp), "", 0.08, et.BIAXIAL)
+    assert m["qp_peak"] == 0.4 and m["eps1_peak"] == pytest.approx(0.03)  # (not the 0.9)
+    # the last quarter: eps1 >= 6 %: 0.2, (0.05 missed p), 0.25
+    assert m["qp_critical_last_quarter"] == pytest.approx(0.225, rel=1e-12)
+    assert m["off_target_steps"] == 2
+    # all held: every step counts
+    m = et.measures(_rows([0.0] * 9, qp), "", 0.08, et.BIAXIAL)
+    assert m["qp_peak"] == 0.9 and m["off_target_steps"] == 0
+    assert m["qp_critical_last_quarter"] == pytest.approx((0.2 + 0.05 + 0.25) / 3, rel=1e-12)
+
+
+def test_no_step_of_the_last_quarter_held_p_leaves_the_critical_state_unmeasured():
+    m = et.measures(_rows([0.0, 0.0, 0.0, 0.5, 0.5], [0.0, 0.3, 0.4, 0.2, 0.1]), "", 0.04,
+                    et.BIAXIAL)  # fmt: skip
+    assert math.isnan(m["qp_critical_last_quarter"]) and m["qp_peak"] == 0.4
+
+
+def test_a_test_whose_steps_stop_holding_p_stops():
+    n = et.MAX_OFF_TARGET
+    rows = _rows([0.0] + [0.0] + [0.3] * (n - 1), [0.1] * (n + 1))
+    assert et.off_target(rows, 1e4) == ""  # (n - 1 steps in a row missed)
+    rows = _rows([0.0] + [0.3, -0.2] + [0.5] * (n - 2), [0.1] * (n + 1))
+    stop = et.off_target(rows, 1e4)
+    assert stop.startswith(f"stopped: {n} steps in a row missed p") and "+0.30, -0.20" in stop
+    rows = _rows([0.0] + [0.3] * (n - 1) + [0.05], [0.1] * (n + 1))
+    assert et.off_target(rows, 1e4) == ""  # (the last one held p again)
