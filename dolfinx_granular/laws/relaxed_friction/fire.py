@@ -106,7 +106,9 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
     steps, converged)``. After ``budget`` steps (default ``settings.fire_steps``; where a disk
     keeps sliding in its cage or bouncing about it) the positions of the smallest residual
     seen at the end of a chunk, converged False, for Newton to try from. ``stepwise``: the
-    friction law step by step, ``inc`` updated in place (its F0 must be F; :func:`settle`)."""
+    friction law step by step, ``inc`` updated in place (its F0 must be F; :func:`settle`).
+    :class:`~dolfinx_granular.laws.relaxed.errors.CameApart` where no two disks touch, or
+    where, at the end of a chunk of :data:`CHUNK` steps, no disk keeps two contacts."""
     Finv = np.linalg.inv(F)
     u = np.ascontiguousarray(w @ F.T)
     th = np.array(th, dtype=np.float64)
@@ -132,9 +134,14 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
         w = u @ Finv.T
         if status == CONVERGED and cell.visited(F, w) == m:  # (no contact unseen)
             return w, th, steps, True
+        s = CellState(cell, springs, F, w, th, inc)
+        if s.keep.sum() < 2:
+            # (a collapsed loose cell: its disks fly about and only collide, with no network
+            # to stop them, so damped motion does not come to rest)
+            raise CameApart("the cell came apart: no disk keeps two contacts", w, th)
         if stepwise:
             continue
-        residual = CellState(cell, springs, F, w, th, inc).residual(cell)[0]
+        residual = s.residual(cell)[0]
         if residual < best[0]:
             best = (residual, w, th.copy())
     if stepwise:
