@@ -142,8 +142,8 @@ def solve_point(
             relaxed RVE dilated past jamming) counts as stress-free, the bracket's dilated end
             (before an iterate held more than the target, the next one lies ``max_increment``
             more compressed, twice as far after each further iterate that came apart, up to
-            :data:`UNJAMMED_GROWTH` times: a loose frictional cell that collapsed may re-jam
-            only some percent more compressed).
+            :data:`UNJAMMED_GROWTH` times: a loose frictional cell that collapsed may jam
+            again only further in).
         accept_unjammed: where the bracket has shrunk between such an iterate and one that
             holds (a cell jammed on one side of a round-off, come apart on the other: no F
             between holds the target), the jammed end is the answer if it misses by at most
@@ -217,9 +217,9 @@ def _unjammed_next(bracket, x, keys, targets, residuals, max_increment):
 
 
 #: the largest factor on ``max_increment`` of the moves towards compression while iterates
-#: come apart (doubled from 1: 1, 2, 4, ... 64): a loose frictional cell of 70 disks at
-#: p / k_n = 1e-3 that collapsed in biaxial compression held nothing over 5 % more lateral
-#: compression in steps of 1e-3
+#: come apart (doubled from 1: 1, 2, 4, ... 64): where a collapsed loose cell jams again only
+#: further in, the search gets there in a few iterations, not in 50 moves of ``max_increment``
+#: (p / k_n in the element tests)
 UNJAMMED_GROWTH = 64.0
 
 #: a bracket narrower than this (in F_ij, times max(1, |F_ij - delta_ij|)) has shrunk to
