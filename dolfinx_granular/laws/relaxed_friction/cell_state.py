@@ -90,7 +90,8 @@ class CellState:
     Attributes:
         m: candidates visited; qx ... status, mr, mstar, rstatus: the return map's arrays
             (m,) (the rolling moments', :mod:`.rolling`).
-        keep: (N,) the non-rattlers; network: (m,) contacts between two of them.
+        keep: (N,) the non-rattlers; network: (m,) contacts between two of them;
+            :attr:`apart`: no disk keeps two contacts.
         f, M: (N, 2), (N,) net force and moment on each disk (N, N m per unit thickness).
         mean_force: mean normal force over the contacts; count: their number.
         r: (N, 3) the equations' residual (gradient of the incremental potential, per area);
@@ -118,6 +119,11 @@ class CellState:
             self.mr, self.rstatus, cell.pi, cell.pj, cell.R, cell.radii, sp.kn, sp.inv_area,
             cell.n_disks,
         )  # fmt: skip
+
+    @property
+    def apart(self) -> bool:
+        """The cell has come apart: fewer than two disks are no rattlers (no network)."""
+        return bool(self.keep.sum() < 2)
 
     def equations(self, cell, springs, F, mode, jacobian):
         """``(r (N, 3), P (2, 2), (rows, cols, values))`` (:func:`system.equations`; the

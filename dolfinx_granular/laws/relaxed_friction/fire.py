@@ -135,7 +135,7 @@ def fire(cell: Cell, springs: Springs, F, w, th, inc: Increment, settings: Setti
         if status == CONVERGED and cell.visited(F, w) == m:  # (no contact unseen)
             return w, th, steps, True
         s = CellState(cell, springs, F, w, th, inc)
-        if s.keep.sum() < 2:
+        if s.apart:
             # (a collapsed loose cell: its disks fly about and only collide, with no network
             # to stop them, so damped motion does not come to rest)
             raise CameApart("the cell came apart: no disk keeps two contacts", w, th)

@@ -213,7 +213,7 @@ def _newton(cell, springs, G, DG, inc, w, th, settings, counts, tangent, pseudo=
 def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Equilibrium:
     """The :class:`Equilibrium` at the solved state s of the increment to G."""
     A, dq, chain = None, np.zeros((cell.n_disks, 3, 4)), None
-    if s.keep.sum() < 2:  # (come apart: no network to condense, the disks float)
+    if s.apart:  # (no network to condense: the disks float)
         W, D = s.energies(cell, springs)
         return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, floating=True)
     if tangent:

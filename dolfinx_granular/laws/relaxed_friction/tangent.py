@@ -76,7 +76,7 @@ def path_condensation(cell: Cell, springs: Springs, G, s: CellState, inc: Increm
 
 def _parts(cell, springs, F, s, free_rotation):
     """``(K_FF, K_Fq, K_qF, lu, held)`` over the network at s."""
-    if s.keep.sum() < 2:
+    if s.apart:
         raise RigidityLostError("no disk has 2 contacts or more (all are rattlers)")
     sp = springs
     KFF, KFq, KqF = mixed(
