@@ -237,19 +237,16 @@ def load_test(
 
 def hold_step(point, F, held_ij, P, pressure, servo=False):
     """The step to F holding sigma[held_ij] = -P (Pa) with the jumps :data:`ACCEPT_JUMP` and
-    :data:`ACCEPT_UNJAMMED` allow; ``servo``: where it meets a larger jump, once more taking
-    the jump's nearer (or jammed) side whatever it misses (:data:`MAX_OFF_TARGET`)."""
+    :data:`ACCEPT_UNJAMMED` allow; ``servo``: a larger jump too, at its nearer (or jammed)
+    side whatever it misses (:data:`MAX_OFF_TARGET`)."""
+    # (the limits decide only what a jump's end is taken: the iterates, and a step that
+    # meets no jump beyond them, are the same under the servo's)
+    accept = math.inf if servo else ACCEPT_JUMP
     # (Newton's steps on y capped at p / k_n: a trial F far off the path takes the
     # path-dependent micro solver there, and it fails more often; with 10 p / k_n,
     # 200 disks at p / k_n = 1e-2, mu = 0.5 stopped at gamma = 0.8 %, not 6.8 %)
-    options = dict(max_increment=pressure, accept_jump=ACCEPT_JUMP,
-                   accept_unjammed=ACCEPT_UNJAMMED)  # fmt: skip
-    try:
-        return point.step(F, {held_ij: -P}, **options)
-    except ControlError:
-        if not servo:
-            raise
-    return point.step(F, {held_ij: -P}, **dict(options, accept_jump=math.inf))
+    return point.step(F, {held_ij: -P}, max_increment=pressure, accept_jump=accept,
+                      accept_unjammed=ACCEPT_UNJAMMED)  # fmt: skip
 
 
 def holds_p(row, P) -> bool:
