@@ -15,7 +15,7 @@ import sys
 from collections import namedtuple
 
 from dolfinx_granular import Packing
-from dolfinx_granular.laws.relaxed.errors import RigidityLostError
+from dolfinx_granular.laws.relaxed.errors import CellFloats, RigidityLostError
 
 import numpy as np
 
@@ -274,6 +274,36 @@ class CollapsingLaw(UnjamLaw):
         P = P.copy()
         P[0, 0] += self.hold
         return W, P, A
+
+
+class CollapsingHistoryLaw(LinearLaw):
+    """A history law of one point: jammed, its cell holds ``hold`` Pa more compression in P11
+    than LinearLaw's (F11 <= 1), and a round-off further it comes apart, raising
+    :class:`CellFloats` with the state it came apart in, as the frictional relaxed RVE's loose
+    cell does. Committed there, the cell jams again ``further`` in F11: P11 rises from 0 at
+    F11 = 1 - further with LinearLaw's stiffness. Its state (n,): that shift of the jammed
+    branch (0 before the collapse)."""
+
+    def __init__(self, hold, further=2e-3):
+        super().__init__()
+        self.hold, self.further = hold, further
+
+    def initial_state(self, n):
+        return np.zeros(n)
+
+    def evaluate(self, F, state):
+        shift = float(state[0])
+        if F[0, 0] > 1.0 - shift:
+            apart = (0.0, np.zeros((2, 2)), np.zeros((2, 2, 2, 2)), np.array([self.further]))
+            raise CellFloats("no disk has 2 contacts or more: the cell has come apart",
+                             np.array([0]), apart)  # fmt: skip
+        moved = np.array(F, dtype=float)
+        moved[0, 0] += shift
+        W, P, A = super().evaluate(moved)
+        P = P.copy()
+        if shift == 0.0:
+            P[0, 0] += self.hold
+        return W, P, A, state.copy()
 
 
 # -- the Taylor test -------------------------------------------------------------------------------

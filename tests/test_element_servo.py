@@ -11,7 +11,7 @@ from dolfinx_granular.drivers.material_point import ControlError, MaterialPoint
 import numpy as np
 import pytest
 
-from helpers import CollapsingLaw, JumpLaw
+from helpers import CollapsingHistoryLaw, CollapsingLaw, JumpLaw
 
 K = CollapsingLaw(0.0).lam + 2 * CollapsingLaw(0.0).mu  # P11 / H11 at F22 = 1 (Pa)
 
@@ -33,6 +33,33 @@ def test_a_collapse_beyond_the_limits_is_taken_on_the_jammed_side_only_as_the_se
     assert r.F[0, 0] == pytest.approx(1.0, abs=1e-12)
     assert r.control_error == pytest.approx(-(hold - 1.0) * p, rel=1e-9)
     assert np.array_equal(point.F, r.F)  # (committed)
+
+
+def test_a_cell_that_holds_too_much_collapses_and_jams_again_at_p():
+    """Jammed, the cell holds 2.5 p, and a round-off further it comes apart with its state
+    (CellFloats): the step commits that state and holds p again from it, in the same step,
+    where the collapsed cell jams 2e-3 further in (F11 = 1 - 2e-3 - 1e-3); its iterations
+    count both solves."""
+    law, p = CollapsingHistoryLaw(-2.5e-3 * K), 1e-3 * K
+    point = MaterialPoint(law)
+    r = et.hold_step(point, np.diag([0.99, 1.0]), (0, 0), p, 1e-3)
+    assert not r.floating and r.control_error == 0.0
+    assert r.F[0, 0] == pytest.approx(1.0 - law.further - 1e-3, rel=1e-12)
+    assert r.sigma[0, 0] == pytest.approx(-p, rel=1e-9)
+    assert point.state[0] == law.further and np.array_equal(point.F, r.F)
+    alone = MaterialPoint(law, state=np.array([law.further]))  # (from the collapsed state)
+    again = alone.step(r.F, {(0, 0): -p}, max_increment=1e-3)
+    assert r.iterations > again.iterations
+
+
+def test_a_step_that_fails_after_a_collapse_takes_the_collapse_back():
+    """The collapsed cell never jams again (its state comes apart everywhere): the step fails,
+    and the point is as it was before the step, not in the collapsed state."""
+    law, p = CollapsingHistoryLaw(-2.5e-3 * K, further=np.inf), 1e-3 * K
+    point = MaterialPoint(law)
+    with pytest.raises(ControlError):
+        et.hold_step(point, np.diag([0.99, 1.0]), (0, 0), p, 1e-3)
+    assert point.state[0] == 0.0 and np.array_equal(point.F, np.eye(2)) and point.last is None
 
 
 def test_a_jump_between_two_jammed_states_is_taken_at_its_nearer_side_by_the_servo():

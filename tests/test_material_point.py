@@ -15,7 +15,7 @@ from dolfinx_granular.laws.relaxed.errors import RigidityLostError
 import numpy as np
 import pytest
 
-from helpers import CollapsingLaw, JumpLaw, LinearLaw, UnjamLaw
+from helpers import CollapsingHistoryLaw, CollapsingLaw, JumpLaw, LinearLaw, UnjamLaw
 
 K_N, PRESSURE, RTOL = 2.8e7, 1e5, 1e-10
 
@@ -240,6 +240,31 @@ def test_where_a_jammed_cell_collapses_beyond_a_round_off_the_jammed_side_is_tak
         with pytest.raises(ControlError, match="jumps"):
             solve_point(law, F, {(0, 0): target}, measure="piola", accept_jump=accept,
                         accept_unjammed=unjammed)  # fmt: skip
+
+
+def test_with_collapse_the_state_the_cell_came_apart_in_is_taken_beyond_accept_jump():
+    """Jammed at 2.5 p, apart a round-off further, the law giving that state (CellFloats):
+    with ``collapse`` the end come apart is the answer (floating, stress-free, its miss the
+    whole target); the jammed end only where it misses by at most accept_jump; without
+    ``collapse`` accept_unjammed decides as before, and a law that gives no state (UnjamLaw's
+    RigidityLostError) keeps to it too."""
+    k = CollapsingHistoryLaw(0.0).lam + 2 * CollapsingHistoryLaw(0.0).mu
+    law, target, F = CollapsingHistoryLaw(-2.5e-3 * k), -1e-3 * k, np.diag([0.99, 1.0])
+    state = law.initial_state(1)
+    step = solve_point(law, F, {(0, 0): target}, state, "piola", accept_jump=0.1,
+                       accept_unjammed=1e3, collapse=True)  # fmt: skip
+    assert step.floating and step.F[0, 0] == pytest.approx(1.0, abs=1e-12)
+    assert step.control_error == -target and not step.P.any()
+    assert step.state[0] == law.further  # (the state it came apart in)
+    step = solve_point(law, F, {(0, 0): target}, state, "piola", accept_jump=2.0,
+                       collapse=True)  # fmt: skip
+    assert not step.floating and step.control_error == pytest.approx(-1.5e-3 * k, rel=1e-9)
+    step = solve_point(law, F, {(0, 0): target}, state, "piola", accept_jump=0.1,
+                       accept_unjammed=1e3)  # fmt: skip
+    assert not step.floating and step.control_error == pytest.approx(-1.5e-3 * k, rel=1e-9)
+    step = solve_point(CollapsingLaw(-2.5e-3 * k), F, {(0, 0): target}, measure="piola",
+                       accept_jump=0.1, accept_unjammed=1e3, collapse=True)  # fmt: skip
+    assert not step.floating and step.control_error == pytest.approx(-1.5e-3 * k, rel=1e-9)
 
 
 def test_a_bracket_shrunk_by_an_iterate_that_came_apart_ends_the_search_there():

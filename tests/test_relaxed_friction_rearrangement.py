@@ -9,7 +9,7 @@ from dataclasses import replace
 
 from dolfinx_granular import ContactSet, FrictionalRelaxedRVE, generate_packing
 from dolfinx_granular.drivers import element_tests as et
-from dolfinx_granular.laws.relaxed.errors import CameApart, RigidityLostError
+from dolfinx_granular.laws.relaxed.errors import CameApart, CellFloats, RigidityLostError
 from dolfinx_granular.laws.relaxed_friction.cell_state import CellState
 from dolfinx_granular.laws.relaxed_friction.contact_law import OPEN, SLIP
 from dolfinx_granular.laws.relaxed_friction.fire import fire, settle
@@ -144,7 +144,9 @@ APART = 1.03 * F1
 def test_an_increment_that_takes_the_cell_apart_floats_without_stress(committed):
     """relax to a dilated F: the disks float (no disk keeps two contacts, no overlap beyond
     round-off by brute force), P of round-off against the committed state's, no tangent; the
-    path to it (``follow``) and the law raise RigidityLostError, as a cell come apart does."""
+    path to it (``follow``) ends so, and the law raises CellFloats (a RigidityLostError) with
+    its outputs there: the state the disks float in, which floats at rest, and jams again
+    compressed back to F1, in equilibrium (brute force)."""
     rve, state, inc = committed
     eq = relax(rve.cell, rve.springs, APART, np.eye(4), inc, state.sensitivity[0], rve.settings,
                True)  # fmt: skip
@@ -161,10 +163,21 @@ def test_an_increment_that_takes_the_cell_apart_floats_without_stress(committed)
             d -= box @ np.round(np.linalg.solve(box, d))  # (the nearest image)
             gap = min(gap, np.linalg.norm(d) - rve.packing.radii[a] - rve.packing.radii[b])
     assert gap >= -1e-12 * rve.packing.radii.mean()
-    with pytest.raises(RigidityLostError, match="come apart"):
-        follow(rve.cell, rve.springs, APART, inc, state.sensitivity[0], rve.settings, True)
-    with pytest.raises(RigidityLostError):
+    eq = follow(rve.cell, rve.springs, APART, inc, state.sensitivity[0], rve.settings, True)[0]
+    assert eq.floating and np.abs(eq.P).max() <= 1e-9 * np.abs(P1).max()
+    with pytest.raises(CellFloats, match="come apart") as floats:
         rve.evaluate(APART, state)
+    assert isinstance(floats.value, RigidityLostError) and list(floats.value.points) == [0]
+    W, P, A, floating = floats.value.outputs
+    assert np.abs(P).max() <= 1e-9 * np.abs(P1).max() and not A.any()
+    assert np.array_equal(floating.F[0], APART) and floating.w.shape == state.w.shape
+    with pytest.raises(CellFloats):  # (at rest where it floats)
+        rve.evaluate(APART, floating)
+    P, jammed = rve.evaluate(F1, floating)[1::2]
+    assert np.abs(P).max() > 0.5 * np.abs(P1).max()
+    f, M, mean = frictional_balance(rve.packing, F1, jammed.w[0], rve.contacts(F1, jammed))
+    assert np.abs(f).max() <= 1e-9 * mean
+    assert np.abs(M).max() <= 1e-9 * mean * rve.packing.radii.mean()
 
 
 def test_damped_motion_that_takes_the_cell_apart_says_where_the_disks_are(committed):

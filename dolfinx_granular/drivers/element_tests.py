@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -170,7 +170,8 @@ ACCEPT_JUMP = 0.1
 #: that collapses when dilated: measured at p / k_n = 1e-3 with 70 disks, the jammed side held
 #: 1.32-1.54 p), the step takes the jammed side if it misses p by at most this part, as a
 #: servo-controlled wall overshoots while a collapsing DEM cell re-jams; the next step holds p
-#: again
+#: again (where the law gives the state its cell came apart in, a miss beyond ACCEPT_JUMP
+#: collapses the cell instead: :data:`MAX_COLLAPSES`)
 ACCEPT_UNJAMMED = 1.0
 #: steps in a row that may miss p by more than ACCEPT_JUMP: where a step's every halving meets
 #: a jump beyond the limits above (near jamming a 70-disk cell gives way at once: at p / k_n =
@@ -235,18 +236,42 @@ def load_test(
     return rows, stop
 
 
+#: collapses a step may take: where the cell comes apart a round-off beyond a jammed trial F
+#: that misses p by more than ACCEPT_JUMP and the law gives the state it came apart in (the
+#: frictional relaxed RVE's loose cell), the step commits that state and holds p again from
+#: it, at the same prescribed strain: a servo-controlled wall that retreats lets its cell
+#: collapse, and the cell jams again further in
+MAX_COLLAPSES = 3
+
+
 def hold_step(point, F, held_ij, P, pressure, servo=False):
     """The step to F holding sigma[held_ij] = -P (Pa) with the jumps :data:`ACCEPT_JUMP` and
-    :data:`ACCEPT_UNJAMMED` allow; ``servo``: a larger jump too, at its nearer (or jammed)
-    side whatever it misses (:data:`MAX_OFF_TARGET`)."""
+    :data:`ACCEPT_UNJAMMED` allow, through up to :data:`MAX_COLLAPSES` collapses; ``servo``: a
+    larger jump too, at its nearer (or jammed) side whatever it misses
+    (:data:`MAX_OFF_TARGET`). Its ``iterations`` count every solve's; where it fails, the
+    point is as before it (a collapse it committed taken back)."""
     # (the limits decide only what a jump's end is taken: the iterates, and a step that
     # meets no jump beyond them, are the same under the servo's)
     accept = math.inf if servo else ACCEPT_JUMP
-    # (Newton's steps on y capped at p / k_n: a trial F far off the path takes the
-    # path-dependent micro solver there, and it fails more often; with 10 p / k_n,
-    # 200 disks at p / k_n = 1e-2, mu = 0.5 stopped at gamma = 0.8 %, not 6.8 %)
-    return point.step(F, {held_ij: -P}, max_increment=pressure, accept_jump=accept,
-                      accept_unjammed=ACCEPT_UNJAMMED)  # fmt: skip
+
+    def solve(F, collapse):
+        # (Newton's steps on y capped at p / k_n: a trial F far off the path takes the
+        # path-dependent micro solver there, and it fails more often; with 10 p / k_n,
+        # 200 disks at p / k_n = 1e-2, mu = 0.5 stopped at gamma = 0.8 %, not 6.8 %)
+        return point.step(F, {held_ij: -P}, max_increment=pressure, accept_jump=accept,
+                          accept_unjammed=ACCEPT_UNJAMMED, collapse=collapse)  # fmt: skip
+
+    before = (point.state, point.F, point.last)
+    try:
+        r, collapses, iterations = solve(F, True), 0, 0
+        while r.floating:  # (committed where the cell came apart: p held again from there)
+            collapses += 1
+            iterations += r.iterations
+            r = solve(point.F.copy(), collapses < MAX_COLLAPSES)
+    except (ControlError, LawEvaluationError):
+        point.state, point.F, point.last = before
+        raise
+    return replace(r, iterations=iterations + r.iterations)
 
 
 def holds_p(row, P) -> bool:

@@ -49,6 +49,7 @@ class PointResult:
         residuals: per iterate, the stress residual of largest magnitude (signed, Pa).
         control_error: where the stress jumps across its target (``accept_jump``), how far it
             is from it (Pa, signed); 0 otherwise.
+        floating: the law's cell came apart at F (``collapse``): P is round-off.
     """
 
     F: np.ndarray
@@ -59,6 +60,7 @@ class PointResult:
     iterations: int
     residuals: tuple
     control_error: float = 0.0
+    floating: bool = False
 
 
 def _evaluate(law, F, state):
@@ -118,6 +120,7 @@ def solve_point(
     max_increment=0.02,
     accept_jump=0.0,
     accept_unjammed=0.0,
+    collapse=False,
 ):
     """Solve the unknown components of F so that the stress meets its targets, from ``state``.
 
@@ -148,6 +151,11 @@ def solve_point(
             holds (a cell jammed on one side of a round-off, come apart on the other: no F
             between holds the target), the jammed end is the answer if it misses by at most
             this times the stress scale (0: only as ``accept_jump`` allows).
+        collapse: there, where the jammed end misses by more than ``accept_jump`` and the law
+            gave the state of its cell come apart
+            (:class:`~dolfinx_granular.laws.relaxed.errors.CellFloats`), that end is the answer
+            (``PointResult.floating``, its miss the whole target): committed, it lets the cell
+            collapse, as a servo-controlled wall that retreats does, to jam again further in.
 
     Returns:
         :class:`PointResult`. Raises :class:`ControlError` (with the residual history) when not
@@ -167,12 +175,13 @@ def solve_point(
             F[idx] = one + x
         try:
             W, P, A, new = _evaluate(law, F, state)
-        except RigidityLostError:
-            x = _unjammed_next(bracket, x, keys, targets, residuals, max_increment)
+        except RigidityLostError as err:
+            floated = _floated(F, err, it, residuals, targets)
+            x = _unjammed_next(bracket, x, keys, targets, residuals, max_increment, floated)
             if x is None:
                 raise
             if bracket.shrunk():  # (bisected onto the edge of jamming from the dilated side)
-                return bracket.jump(accept_jump, scale, keys[0], accept_unjammed)
+                return bracket.jump(accept_jump, scale, keys[0], accept_unjammed, collapse)
             continue
         sigma = P @ F.T / np.linalg.det(F)
         if idx is None:
@@ -189,7 +198,7 @@ def solve_point(
             continue
         bracket.add(x[0], r[0], result)
         if bracket.shrunk():
-            return bracket.jump(accept_jump, scale, keys[0], accept_unjammed)
+            return bracket.jump(accept_jump, scale, keys[0], accept_unjammed, collapse)
         x = np.array([bracket.next(x[0], step[0], residuals, max_increment)])
     raise ControlError(
         f"material point: |s - target| = {abs(residuals[-1]):.3e} Pa > {rtol:.0e} x "
@@ -198,17 +207,32 @@ def solve_point(
     )
 
 
-def _unjammed_next(bracket, x, keys, targets, residuals, max_increment):
+def _floated(F, err, it, residuals, targets):
+    """The :class:`PointResult` (``floating``) of iterate ``it`` at F, where the law's cell came
+    apart and ``err`` carries the law's outputs there
+    (:class:`~dolfinx_granular.laws.relaxed.errors.CellFloats`); else None."""
+    outputs = getattr(err, "outputs", None)
+    if outputs is None or targets.size != 1:
+        return None
+    W, P, _, new = outputs
+    d = F.shape[0]
+    P = np.reshape(P, (d, d))
+    sigma = P @ F.T / np.linalg.det(F)
+    return PointResult(F, float(np.ravel(W)[0]), P, sigma, new, it,
+                       (*residuals, -float(targets[0])), floating=True)  # fmt: skip
+
+
+def _unjammed_next(bracket, x, keys, targets, residuals, max_increment, floated=None):
     """The next iterate where the iterate x (1,) of one diagonal unknown F_ij, held to a
     compressive target, lost its contact network (a relaxed cell dilated past jamming carries
     no stress: residual = -target): x bounds the root from the dilated side, and the next
     iterate bisects the bracket, or before an iterate held more than the target, lies
     ``max_increment`` more compressed, doubled for every iterate before it that came apart
     (at most :data:`UNJAMMED_GROWTH` times). None where x tells nothing (the caller
-    re-raises)."""
+    re-raises). ``floated``: the iterate's result where the law gave its state (else None)."""
     if x is None or x.size != 1 or keys[0][0] != keys[0][1] or not targets[0] < 0.0:
         return None
-    bracket.add(x[0], -float(targets[0]), None)
+    bracket.add(x[0], -float(targets[0]), floated, apart=True)
     residuals.append(-float(targets[0]))
     if bracket.found():
         return np.array([0.5 * (bracket.lo + bracket.hi)])
@@ -235,15 +259,15 @@ class _Bracket:
 
     def __init__(self):
         self.lo, self.hi = -np.inf, np.inf
-        self.ends = {}
+        self.ends = {}  # "lo", "hi": (residual, result or None, the cell came apart there)
         self.move = 0.0
         self.apart = 0  # iterates that came apart before a bracket was found
 
-    def add(self, x, r, result):
+    def add(self, x, r, result, apart=False):
         if r < 0.0:
-            self.lo, self.ends["lo"] = x, (r, result)
+            self.lo, self.ends["lo"] = x, (r, result, apart)
         else:
-            self.hi, self.ends["hi"] = x, (r, result)
+            self.hi, self.ends["hi"] = x, (r, result, apart)
 
     def found(self) -> bool:
         """Both ends exist: the root lies between them."""
@@ -270,16 +294,21 @@ class _Bracket:
         self.move = step
         return x + step
 
-    def jump(self, accept, scale, key, accept_unjammed=0.0):
+    def jump(self, accept, scale, key, accept_unjammed=0.0, collapse=False):
         """The result at the end nearer the target, where it misses by at most ``accept`` x
-        ``scale``; where the other end came apart (its result None), the jammed end, where it
-        misses by at most the larger of ``accept`` and ``accept_unjammed`` x ``scale``; else
+        ``scale``; where the other end came apart, the jammed end, where it misses by at most
+        ``accept`` x ``scale``, else (``collapse``) the end come apart where it has a result,
+        else the jammed end where it misses by at most ``accept_unjammed`` x ``scale``; else
         ControlError."""
-        (r_lo, lo), (r_hi, hi) = self.ends["lo"], self.ends["hi"]
+        (r_lo, lo, lo_apart), (r_hi, hi, hi_apart) = self.ends["lo"], self.ends["hi"]
         r, result = (r_lo, lo) if -r_lo <= r_hi else (r_hi, hi)
         limit = accept
-        if lo is None or hi is None:
-            r, result = (r_hi, hi) if lo is None else (r_lo, lo)
+        if lo_apart or hi_apart:
+            (r, result), (r_apart, apart) = (
+                ((r_hi, hi), (r_lo, lo)) if lo_apart else ((r_lo, lo), (r_hi, hi))
+            )
+            if collapse and apart is not None and not abs(r) <= accept * scale:
+                return replace(apart, control_error=float(r_apart))
             limit = max(accept, accept_unjammed)
         if result is not None and abs(r) <= limit * scale:
             return replace(result, control_error=float(r))

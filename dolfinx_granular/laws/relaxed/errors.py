@@ -1,6 +1,6 @@
 """The relaxed RVE's errors: a point the micro solver could not relax, a cell that lost its
 rigidity (both :class:`~dolfinx_granular.LawEvaluationError`, so that load stepping cuts back),
-one whose disks came apart while they moved."""
+one whose disks came apart while they moved, and a path that ended in such a cell."""
 
 from ..protocol import LawEvaluationError
 
@@ -23,3 +23,17 @@ class CameApart(RigidityLostError):
     def __init__(self, message: str, w, th) -> None:
         super().__init__(message)
         self.w, self.th = w, th
+
+
+class CellFloats(RigidityLostError):
+    """The quasi-static path ended in a cell that came apart: no disk keeps two contacts at the
+    evaluated F (a loose frictional cell that collapsed). ``outputs`` is what ``evaluate``
+    would have returned there, ``(W, P, A, trial_state)``: P of round-off, A zero, and the
+    trial state with the disks where their motion left them. A stress-controlled driver may
+    commit it, as a servo-controlled wall that retreats lets its cell collapse, to jam again
+    further in (:func:`~dolfinx_granular.drivers.material_point.solve_point`'s ``collapse``);
+    every other caller treats it as the :class:`RigidityLostError` it is."""
+
+    def __init__(self, message: str, points=None, outputs=None) -> None:
+        super().__init__(message, points)
+        self.outputs = outputs

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...packings.packing import Packing
 from ..history_methods import HistoryLawMethods
-from ..relaxed.errors import RelaxationError
+from ..relaxed.errors import CellFloats, RelaxationError
 from ..relaxed.law import RelaxedRVE, RelaxedState
 from ..taylor import ContactSet
 from ..tools import as_batch, non_negative, output_buffers, to_float
@@ -202,7 +202,7 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
         W, P, A = output_buffers(n, tangent, out)
         w, th = np.empty_like(state.w), state.theta.copy()
         dq, D = np.empty_like(state.sensitivity), state.dissipation.copy()
-        keys, forces, sliding, moments = [], [], [], []
+        keys, forces, sliding, moments, floating = [], [], [], [], []
         for q in range(n):
             try:
                 if self._without_friction:
@@ -222,6 +222,9 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
                         eq.sensitivity,
                     )
                     D[q] += dissipated
+                    if eq.floating:  # (no network: no tangent; raised below)
+                        floating.append(q)
+                        a = np.zeros((2, 2, 2, 2))
                     k, f, slips, mr = self._history(eq, state, q)
                     keys.append(k)
                     forces.append(f)
@@ -241,9 +244,13 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
             np.concatenate(sliding) if sliding else np.zeros(0, bool),
             np.concatenate(moments) if moments else np.zeros(0),
         )  # fmt: skip
-        if single:
-            return W[0], P[0], (A[0] if tangent else None), new
-        return W, P, A, new
+        out = (W[0], P[0], (A[0] if tangent else None), new) if single else (W, P, A, new)
+        if floating:
+            raise CellFloats(
+                f"point {floating[0]}: no disk has 2 contacts or more (all are rattlers): the "
+                "cell has come apart", np.array(floating), out,
+            )  # fmt: skip
+        return out
 
     def _history(self, eq: Equilibrium, state, q) -> tuple:
         """``(keys, tangential forces, sliding, rolling moments)`` of the contacts of an
@@ -266,7 +273,9 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
 
     def evaluate(self, F: ArrayLike, state: FrictionalRelaxedState, out: tuple | None = None):
         """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F from the committed
-        ``state`` (left untouched)."""
+        ``state`` (left untouched). Where a point's path ends in a cell that came apart, raises
+        :class:`~dolfinx_granular.laws.relaxed.errors.CellFloats` with these outputs (that
+        point's P of round-off, its A zero) after every point was evaluated."""
         return self._run(F, state, True, out)
 
     def small_strain_modulus(self) -> np.ndarray:

@@ -56,7 +56,7 @@ class Equilibrium:
         rested: the committed state itself (:func:`at_rest`), nothing solved.
         floating: the cell has come apart (no disk keeps two contacts): its disks float at P
             of round-off, A None, no sensitivities, no chain (:func:`follow` goes on from it
-            along the path, and raises where the path ends in it).
+            along the path; the law raises where the path ends in it).
     """
 
     w: np.ndarray
@@ -262,7 +262,9 @@ def committed(cell: Cell, eq: Equilibrium, F) -> Increment:
 def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settings,
            tangent: bool) -> tuple[Equilibrium, float]:  # fmt: skip
     """The equilibrium at F reached from ``inc`` along the quasi-static path, and the energy
-    dissipated on the way (Pa); its A is the derivative of P at F through the path."""
+    dissipated on the way (Pa); its A is the derivative of P at F through the path. Where the
+    path ends in a cell come apart, the equilibrium is ``floating`` (the law raises
+    :class:`~dolfinx_granular.laws.relaxed.errors.CellFloats` on it)."""
     dissipated = 0.0
     stretches = stretches_between(inc.F0, F, substep(cell, springs, inc, F, settings))
     dU = stretch_derivative(F) if len(stretches) else None  # (one substep: not needed)
@@ -271,9 +273,6 @@ def follow(cell: Cell, springs: Springs, F, inc: Increment, dq, settings: Settin
         dissipated += eq.dissipated
         inc, dq = committed(cell, eq, Uk), eq.sensitivity
     eq = relax(cell, springs, F, np.eye(4), inc, dq, settings, tangent)
-    if eq.floating:
-        raise RigidityLostError("no disk has 2 contacts or more (all are rattlers): the cell "
-                                "has come apart")  # fmt: skip
     return eq, dissipated + eq.dissipated
 
 
