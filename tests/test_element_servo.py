@@ -29,7 +29,8 @@ def test_a_collapse_beyond_the_limits_is_taken_on_the_jammed_side_only_as_the_se
         et.hold_step(point, F, (0, 0), p, 1e-3)
     assert np.array_equal(point.F, np.eye(2))  # (nothing committed)
     # (the Cauchy stress: F22 = 1, so sigma11 = P11 F11 / det F = P11)
-    r = et.hold_step(point, F, (0, 0), p, 1e-3, servo=True)
+    r, collapses = et.hold_step(point, F, (0, 0), p, 1e-3, servo=True)
+    assert collapses == 0  # (a law that gives no state does not collapse)
     assert r.F[0, 0] == pytest.approx(1.0, abs=1e-12)
     assert r.control_error == pytest.approx(-(hold - 1.0) * p, rel=1e-9)
     assert np.array_equal(point.F, r.F)  # (committed)
@@ -42,7 +43,8 @@ def test_a_cell_that_holds_too_much_collapses_and_jams_again_at_p():
     count both solves."""
     law, p = CollapsingHistoryLaw(-2.5e-3 * K), 1e-3 * K
     point = MaterialPoint(law)
-    r = et.hold_step(point, np.diag([0.99, 1.0]), (0, 0), p, 1e-3)
+    r, collapses = et.hold_step(point, np.diag([0.99, 1.0]), (0, 0), p, 1e-3)
+    assert collapses == 1
     assert not r.floating and r.control_error == 0.0
     assert r.F[0, 0] == pytest.approx(1.0 - law.further - 1e-3, rel=1e-12)
     assert r.sigma[0, 0] == pytest.approx(-p, rel=1e-9)
@@ -68,7 +70,7 @@ def test_a_jump_between_two_jammed_states_is_taken_at_its_nearer_side_by_the_ser
     F = np.eye(2)
     with pytest.raises(ControlError, match="jumps"):  # (both sides miss by more than 10 %)
         et.hold_step(MaterialPoint(law), F, (0, 0), -target, 1e-3)
-    r = et.hold_step(MaterialPoint(law), F, (0, 0), -target, 1e-3, servo=True)
+    r = et.hold_step(MaterialPoint(law), F, (0, 0), -target, 1e-3, servo=True)[0]
     assert r.control_error == pytest.approx(0.2e-3 * K, rel=1e-9)  # (the upper branch)
     assert r.F[0, 0] == pytest.approx(1.001, abs=1e-12)
 
@@ -89,7 +91,11 @@ def test_the_measures_read_only_the_steps_that_held_p():
     assert m["qp_peak"] == 0.4 and m["eps1_peak"] == pytest.approx(0.03)  # (not the 0.9)
     # the last quarter: eps1 >= 6 %: 0.2, (0.05 missed p), 0.25
     assert m["qp_critical_last_quarter"] == pytest.approx(0.225, rel=1e-12)
-    assert m["off_target_steps"] == 2
+    assert m["off_target_steps"] == 2 and m["collapses"] == 0  # (rows without the column)
+    rows = _rows(misses, qp)
+    for row, n in zip(rows, [0, 0, 0, 2, 0, 1, 0, 0, 0]):
+        row["collapses"] = n
+    assert et.measures(rows, "", 0.08, et.BIAXIAL)["collapses"] == 3
     # all held: every step counts
     m = et.measures(_rows([0.0] * 9, qp), "", 0.08, et.BIAXIAL)
     assert m["qp_peak"] == 0.9 and m["off_target_steps"] == 0

@@ -128,9 +128,10 @@ def confine(law, pressure):
     return point
 
 
-def step_row(loading, law, mu, Fc, Dc, r, before, seconds):
+def step_row(loading, law, mu, Fc, Dc, r, before, seconds, collapses=0):
     """A step's row (the result ``r``); ``Dc``: the confined state's dissipation; ``before``: the
-    committed state before the step (None: the confined state, no step: no sliding share)."""
+    committed state before the step (None: the confined state, no step: no sliding share);
+    ``collapses``: the step's (:func:`hold_step`)."""
     lam = Fc[0, 0]
     x, y = loading.strains(r.F, lam)
     p, qp, taup = ratios(r.sigma)
@@ -154,6 +155,7 @@ def step_row(loading, law, mu, Fc, Dc, r, before, seconds):
         "dissipation_Pa": float(r.state.dissipation[0]) - Dc,
         "newton_iterations": r.iterations,
         "control_error_Pa": r.control_error,
+        "collapses": collapses,
         "wall_s": seconds,
     }
 
@@ -217,7 +219,7 @@ def load_test(
             F[loading.held_ij] = lam * (1.0 + b[y] + rate * (targets[0] - b[x]))
         before = point.state
         try:
-            r = hold_step(point, F, loading.held_ij, P, pressure, servo=cuts == MAX_CUTS)
+            r, collapses = hold_step(point, F, loading.held_ij, P, pressure, cuts == MAX_CUTS)
         except (ControlError, LawEvaluationError) as err:
             if cuts == MAX_CUTS:
                 stop = f"stopped: {err}"[:300]
@@ -228,7 +230,8 @@ def load_test(
         done = targets.pop(0)
         if len(targets) < left:  # one of the targets reached: the next gets its halvings
             left, cuts = len(targets), 0
-        rows.append(step_row(loading, law, mu, Fc, Dc, r, before, time.perf_counter() - t_step))
+        seconds = time.perf_counter() - t_step
+        rows.append(step_row(loading, law, mu, Fc, Dc, r, before, seconds, collapses))
         t_step = time.perf_counter()
         stop = off_target(rows, P)
         if stop:
@@ -248,8 +251,9 @@ def hold_step(point, F, held_ij, P, pressure, servo=False):
     """The step to F holding sigma[held_ij] = -P (Pa) with the jumps :data:`ACCEPT_JUMP` and
     :data:`ACCEPT_UNJAMMED` allow, through up to :data:`MAX_COLLAPSES` collapses; ``servo``: a
     larger jump too, at its nearer (or jammed) side whatever it misses
-    (:data:`MAX_OFF_TARGET`). Its ``iterations`` count every solve's; where it fails, the
-    point is as before it (a collapse it committed taken back)."""
+    (:data:`MAX_OFF_TARGET`): ``(result, collapses taken)``, the result's ``iterations``
+    those of every solve. Where it fails, the point is as before it (a collapse it committed
+    taken back)."""
     # (the limits decide only what a jump's end is taken: the iterates, and a step that
     # meets no jump beyond them, are the same under the servo's)
     accept = math.inf if servo else ACCEPT_JUMP
@@ -271,7 +275,7 @@ def hold_step(point, F, held_ij, P, pressure, servo=False):
     except (ControlError, LawEvaluationError):
         point.state, point.F, point.last = before
         raise
-    return replace(r, iterations=iterations + r.iterations)
+    return replace(r, iterations=iterations + r.iterations), collapses
 
 
 def holds_p(row, P) -> bool:
@@ -295,7 +299,8 @@ def off_target(rows, P) -> str:
 def measures(rows, stop, target, loading):
     """Scalars of one test: how far it got (x), peak, critical and final q/p (and final tau/p),
     peak and final dilatancy d e_v / d x, final e_v, critical and final z and sliding share,
-    final dissipation, and how many steps missed p (``off_target_steps``). Critical: the mean
+    final dissipation, how many steps missed p (``off_target_steps``) and how many collapses
+    the steps took (``collapses``; rows without the column: none). Critical: the mean
     over the steps with x >= CRITICAL x_reached. The peak and the critical means read only the
     steps that held p (:func:`holds_p`; p: the confined row 0's)."""
     x_name = loading.drive
@@ -337,5 +342,6 @@ def measures(rows, stop, target, loading):
         "sliding_final": last["sliding_share"],
         "dissipation_final_Pa": last["dissipation_Pa"],
         "off_target_steps": int((~held).sum()),
+        "collapses": int(sum(r.get("collapses", 0) for r in rows)),
     })  # fmt: skip
     return out
