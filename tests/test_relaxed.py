@@ -23,6 +23,7 @@ from dolfinx_granular.laws.relaxed import (
     relax,
 )
 from dolfinx_granular.laws.relaxed.contact_state import ContactState
+from dolfinx_granular.laws.relaxed.errors import CellFloats
 from dolfinx_granular.laws.relaxed.fire import FIRE_CHUNK
 from dolfinx_granular.laws.relaxed.path import predicted, substeps
 from dolfinx_granular.packings.reference_packing import reference_packing
@@ -222,6 +223,33 @@ def test_tension_loses_rigidity_and_names_the_point(rve):
         rve.evaluate(F, rve.initial_state(2))
     assert isinstance(err.value, LawEvaluationError)
     np.testing.assert_array_equal(err.value.points, [1])
+
+
+def test_a_cell_dilated_past_jamming_floats_and_jams_again(packing, rve, relaxed):
+    """Point 0 (confined at F_TEST[0]) dilated by 3 %: its path ends in a cell come apart, and
+    the law raises CellFloats (a RigidityLostError) with its outputs there: no stress, A zero,
+    the disks where they float (no two overlap, brute force). That state floats at rest too,
+    and compressed back to F_TEST[0] jams again, every disk in equilibrium (brute force)."""
+    F0, state = F_TEST[0], relaxed[3].take([0])
+    with pytest.raises(CellFloats, match="point 0: the cell has come apart") as floats:
+        rve.evaluate(1.03 * F0, state)
+    assert isinstance(floats.value, RigidityLostError)
+    W, P, A, floating = floats.value.outputs
+    assert W == 0.0 and not P.any() and not A.any()
+    x = rve.positions(1.03 * F0, floating)[0]
+    a = 1.03 * F0 @ np.diag(packing.box)
+    for sx in (-1, 0, 1):
+        for sy in (-1, 0, 1):
+            d = np.linalg.norm(x[None] + a @ [sx, sy] - x[:, None], axis=2)
+            if sx == 0 and sy == 0:
+                np.fill_diagonal(d, np.inf)
+            assert (d >= packing.radii[:, None] + packing.radii[None]).all()
+    with pytest.raises(CellFloats):
+        rve.evaluate(1.03 * F0, floating)
+    P, jammed = rve.evaluate(F0, floating)[1::2]
+    assert np.abs(P).max() > 0.5 * np.abs(relaxed[1][0]).max()
+    f, mean = net_forces(packing, rve.positions(F0, jammed)[0], F0)
+    assert np.linalg.norm(f, axis=1).max() <= 1e-9 * mean
 
 
 def test_the_small_strain_modulus_is_symmetric_and_below_taylors(packing, rve):

@@ -13,6 +13,7 @@ from dolfinx_granular import (
     RelaxedRVE,
     generate_packing,
 )
+from dolfinx_granular.laws.relaxed.errors import CellFloats
 from dolfinx_granular.laws.relaxed.path import stretch, stretches_between
 from dolfinx_granular.laws.relaxed_friction import contact_law, point, system
 from dolfinx_granular.laws.relaxed_friction.cell_state import Increment
@@ -206,6 +207,15 @@ def test_without_friction_it_is_the_frictionless_relaxed_rve(packing):
     assert not state.theta.any() and state.keys.size == 0 and not state.dissipation.any()
     c = frictional.contacts(F_TWO, state.take([1]))
     assert not c.tangential.any() and not c.sliding.any()
+    # a cell come apart floats as the frictionless one's: the same outputs, in its own state
+    apart = 1.03 * F_ONE
+    with pytest.raises(CellFloats) as mine:
+        frictional.evaluate(apart, state.take([0]))
+    with pytest.raises(CellFloats) as theirs:
+        frictionless.evaluate(apart, state0.take([0]))
+    (W, P, A, floating), (W0, P0, A0, floating0) = mine.value.outputs, theirs.value.outputs
+    assert W == W0 and np.array_equal(P, P0) and not A.any() and not A0.any()
+    assert isinstance(floating, type(state)) and np.array_equal(floating.w, floating0.w)
 
 
 def test_every_disk_is_in_equilibrium_of_forces_and_moments(packing, rve, sheared):

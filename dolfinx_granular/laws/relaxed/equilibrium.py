@@ -21,7 +21,7 @@ import numpy as np
 from . import newton as rn
 from .cell import SKIN, Cell, smallest_stretch
 from .contact_state import ContactState
-from .errors import RelaxationError, RigidityLostError
+from .errors import CameApart, RelaxationError, RigidityLostError
 from .fire import fire
 from .settings import Settings
 from .tangent import condensation, stress
@@ -42,7 +42,7 @@ class Equilibrium:
         mean contact force. numeric_factorisations: every factorisation done, the shifted
         tries and the tangent's included; solves: solves for a Newton direction (the
         tangent's one solve for its 4 right-hand sides not counted); trial_states: contact
-        states of the line searches.
+        states of the line searches. floating: the cell has come apart (:func:`floating`).
     """
 
     w: np.ndarray
@@ -60,6 +60,7 @@ class Equilibrium:
     numeric_factorisations: int = 0
     solves: int = 0
     trial_states: int = 0
+    floating: bool = False
 
 
 #: the compiled loop's counts (:func:`~dolfinx_granular.laws.relaxed.newton.newton`), by their
@@ -119,7 +120,7 @@ def _newton(cell, F, w, settings, budget, counts, stall=True):
         s = ContactState(cell, F, w, int(request[1]))
         return w, s, float(solver[3])
     if status == rn.NO_CONTACT:
-        raise RigidityLostError("no two disks touch (the cell has come apart)")
+        raise CameApart("no two disks touch (the cell has come apart)", w, None)
     if status == rn.NO_EQUILIBRIUM:
         residual = _residual(cell, F, ContactState(cell, F, w))
         raise RelaxationError(
@@ -141,21 +142,42 @@ def relax(
 ) -> Equilibrium:
     """Relax one cell at F (2, 2) from the fluctuations w0 (N, 2): an :class:`Equilibrium`.
     Where Newton stalls, it starts again from ``fallback`` (N, 2) if given, and then FIRE
-    relaxes the cell from there (from w0 without it) before Newton takes up again."""
+    relaxes the cell from there (from w0 without it) before Newton takes up again. Where the
+    cell comes apart (FIRE opens its contacts, or no disk keeps 3 contacts where Newton
+    converged), the result is :func:`floating`."""
     w0 = np.array(w0, dtype=np.float64)
     fire_steps, counts, steps = 0, np.zeros(len(_COUNTS), np.int64), 0
     starts = [w0] if fallback is None else [w0, np.array(fallback, dtype=np.float64)]
-    for start in starts:
-        try:
-            w, s, residual = _newton(cell, F, start, settings, settings.max_iterations, counts)
-            break
-        except RelaxationError:
-            steps += int(counts[0])
-            continue
-    else:  # FIRE from where Newton last started, not from where it strayed
-        w, s, residual, fire_steps = _fire_rounds(cell, F, starts[-1], settings, counts)
-    counts[0] += steps
-    return _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps)
+    try:
+        for start in starts:
+            try:
+                w, s, residual = _newton(cell, F, start, settings, settings.max_iterations,
+                                         counts)  # fmt: skip
+                break
+            except RelaxationError:
+                steps += int(counts[0])
+                continue
+        else:  # FIRE from where Newton last started, not from where it strayed
+            w, s, residual, fire_steps = _fire_rounds(cell, F, starts[-1], settings, counts)
+        counts[0] += steps
+        return _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps)
+    except CameApart as apart:
+        return floating(cell, F, apart.w, counts)
+
+
+def floating(cell: Cell, F: np.ndarray, w: np.ndarray, counts: np.ndarray) -> Equilibrium:
+    """The cell come apart at F (a loose cell that collapsed): its disks at w (N, 2) where the
+    motion left them, W and P of the overlaps left there (round-off), no tangent, no
+    sensitivities (zero: the path goes on from w as it is), no network. A quasi-static path
+    goes on from it (:func:`~dolfinx_granular.laws.relaxed.path.follow`); the law raises
+    :class:`~dolfinx_granular.laws.relaxed.errors.CellFloats` where the path ends in it."""
+    w = np.array(w, dtype=np.float64)
+    W, P = stress(cell, F, ContactState(cell, F, w))
+    n = dict(zip(_COUNTS, (int(c) for c in counts)))
+    return Equilibrium(
+        w, W, P, None, np.zeros((cell.n_disks, 2, 4)), np.zeros(0, np.int64), cell.n_disks,
+        fire_steps=0, residual=0.0, floating=True, **n,
+    )  # fmt: skip
 
 
 #: rounds of FIRE, then Newton: where Newton fails from FIRE's positions (a nearly floppy
@@ -200,7 +222,7 @@ def _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps=0):
     """The :class:`Equilibrium` at the contact state s (``counts``: see :data:`_COUNTS`,
     the tangent's factorisation added here)."""
     if not s.keep.any():
-        raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
+        raise CameApart("no disk has 3 contacts or more (all are rattlers)", w, None)
     A, dw = condensation(cell, F, s, counts) if tangent else (None, None)
     W, P = stress(cell, F, s)
     network = np.flatnonzero(s.network)
@@ -216,8 +238,11 @@ def at_rest(cell: Cell, F: np.ndarray, w: np.ndarray, tangent: bool) -> Equilibr
     committed equilibrium at the same F, or the stress-free packing at F = I (whose contacts
     have overlaps of ~1e-11 of a diameter that mark them, not forces in balance)."""
     s = ContactState(cell, F, w)
-    if not s.on.any():
-        raise RigidityLostError("no two disks touch (the cell has come apart)")
     w = np.array(w, dtype=np.float64)
     counts = np.zeros(len(_COUNTS), np.int64)
-    return _equilibrium(cell, F, w, s, tangent, _residual(cell, F, s), counts)
+    try:
+        if not s.on.any():
+            raise CameApart("no two disks touch (the cell has come apart)", w, None)
+        return _equilibrium(cell, F, w, s, tangent, _residual(cell, F, s), counts)
+    except CameApart:  # (a cell committed where it came apart floats there)
+        return floating(cell, F, w, counts)

@@ -18,7 +18,8 @@ class RigidityLostError(RelaxationError):
 
 class CameApart(RigidityLostError):
     """No two disks touch any more where the solver's motion got to: ``w`` (N, 2) and ``th``
-    (N,), the fluctuations and rotations there (a loose frictional cell that collapsed)."""
+    (N,), the fluctuations and rotations there (None without rotations: the frictionless
+    cell), a cell that collapsed."""
 
     def __init__(self, message: str, w, th) -> None:
         super().__init__(message)

@@ -9,7 +9,7 @@ from numba import njit
 
 from .cell import Cell
 from .contact_state import ContactState, contact_state, energy, forces
-from .errors import RigidityLostError
+from .errors import CameApart
 from .settings import Settings
 
 #: FIRE counts the cell as unjammed once its energy falls below this part of the start's
@@ -81,7 +81,7 @@ def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
     params = np.array([0.1 / np.sqrt(cell.K), 0.1, 0.0, 1.0 / np.sqrt(cell.K)])
     s = ContactState(cell, F, w)
     if not s.on.any():
-        raise RigidityLostError("the cell unjammed: relaxation opens its contacts")
+        raise CameApart("the cell unjammed: relaxation opens its contacts", w, None)
     E0, steps = s.energy(cell, s.on), 0
     while steps < settings.fire_steps:
         m = cell.visited(F, u @ Finv.T)
@@ -91,8 +91,9 @@ def fire(cell: Cell, F: np.ndarray, w: np.ndarray, settings: Settings) -> tuple:
             settings.fire_tol, E0, UNJAMMED,
         )  # fmt: skip
         steps += taken
-        if status == FIRE_UNJAMMED:
-            raise RigidityLostError("the cell unjammed: relaxation opens its contacts")
+        if status == FIRE_UNJAMMED:  # (the disks float where the motion left them)
+            raise CameApart("the cell unjammed: relaxation opens its contacts", u @ Finv.T,
+                            None)  # fmt: skip
         if status == FIRE_CONVERGED:
             return u @ Finv.T, steps, True
     return u @ Finv.T, steps, False

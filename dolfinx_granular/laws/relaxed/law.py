@@ -26,7 +26,7 @@ from ..tools import normal_stiffness as normal_stiffness_of
 from . import batch, equilibrium, path
 from .cell import Cell, fingerprint
 from .contact_state import ContactState
-from .errors import RelaxationError
+from .errors import CellFloats, RelaxationError
 from .settings import Settings
 
 if TYPE_CHECKING:
@@ -166,11 +166,12 @@ class RelaxedRVE(HistoryLawMethods):
         if state.n_points != n:
             raise ValueError(f"state has {state.n_points} points, F has {n}")
         res = batch.Outputs(n, self.cell.n_disks)
-        q = 0
+        q, floating = 0, []
         while q < n:  # the points in compiled code, one that needs more on its own path
             q = batch.relax_points(self.cell, self.settings, F, state, tangent, q, res)
             if q < n:
-                self._one_point(F, state, q, tangent, res)
+                if self._one_point(F, state, q, tangent, res):
+                    floating.append(q)
                 q += 1
         W, P, A = output_buffers(n, tangent, out)
         W[:], P[:] = res.W, res.P
@@ -178,23 +179,30 @@ class RelaxedRVE(HistoryLawMethods):
             A[:] = res.A
         rearranged = res.network != state.network
         new = RelaxedState(res.w, F.copy(), res.moved, rearranged, res.network, res.dw)
-        if single:
-            return W[0], P[0], (A[0] if tangent else None), new
-        return W, P, A, new
+        out = (W[0], P[0], (A[0] if tangent else None), new) if single else (W, P, A, new)
+        if floating:
+            raise CellFloats(
+                f"point {floating[0]}: the cell has come apart (all its disks are rattlers)",
+                np.array(floating), out,
+            )  # fmt: skip
+        return out
 
-    def _one_point(self, F, state, q, tangent, res):
-        """Point q on the Python path (:meth:`equilibrium`) into the outputs ``res``."""
+    def _one_point(self, F, state, q, tangent, res) -> bool:
+        """Point q on the Python path (:meth:`equilibrium`) into the outputs ``res``: True
+        where its path ended in a cell come apart (A and the sensitivities zero)."""
         try:
             eq = self.equilibrium(F[q], state, q, tangent)
         except RelaxationError as err:
             raise type(err)(f"point {q}: {err}", np.array([q])) from None
         res.W[q], res.P[q], res.w[q] = eq.W, eq.P, eq.w
         if tangent:
-            res.A[q], res.dw[q] = eq.A, eq.sensitivity
+            res.A[q] = 0.0 if eq.floating else eq.A
+            res.dw[q] = eq.sensitivity
         u = eq.w @ F[q].T
         res.moved[q] = np.sqrt((u * u).sum(axis=1).mean()) / float(self.packing.radii.mean())
         c = self.cell
         res.network[q] = fingerprint(c.pi, c.pj, c.shift, eq.network, c.n_disks)
+        return eq.floating
 
     def equilibrium(
         self, F: np.ndarray, state: RelaxedState, q: int, tangent: bool = True
@@ -209,7 +217,10 @@ class RelaxedRVE(HistoryLawMethods):
 
     def evaluate(self, F: ArrayLike, state: RelaxedState, out: tuple | None = None) -> tuple:
         """``(W (n,), P (n, 2, 2), A (n, 2, 2, 2, 2), trial_state)`` at F relaxed from
-        ``state`` (left untouched); A = dP/dF of the relaxed response."""
+        ``state`` (left untouched); A = dP/dF of the relaxed response. Where a point's path
+        ends in a cell that came apart, raises
+        :class:`~dolfinx_granular.laws.relaxed.errors.CellFloats` with these outputs (that
+        point's P of round-off, its A zero) after every point was evaluated."""
         return self._run(F, state, True, out)
 
     def small_strain_modulus(self) -> np.ndarray:

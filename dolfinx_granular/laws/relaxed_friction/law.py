@@ -180,15 +180,33 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
         return follow(self.cell, self.springs, F, inc, dq, self.settings, tangent)
 
     def _frictionless_point(self, F, state, q, tangent):
-        """Point q by the frictionless relaxed RVE (mu = 0): ``(W, P, A, w, dq)``."""
+        """Point q by the frictionless relaxed RVE (mu = 0): ``(W, P, A, w, dq, floating)``,
+        floating where its path ended in a cell come apart (A zero)."""
         one = RelaxedState(
             state.w[q : q + 1], state.F[q : q + 1], state.fluctuation[q : q + 1],
             np.zeros(1, bool), np.zeros(1, np.uint64), state.sensitivity[q : q + 1, :, :2],
         )  # fmt: skip
-        W, P, A, new = self._frictionless._run(F[None], one, tangent)
+        try:
+            W, P, A, new = self._frictionless._run(F[None], one, tangent)
+            floating = False
+        except CellFloats as err:
+            (W, P, A, new), floating = err.outputs, True
         dq = np.zeros((self.cell.n_disks, 3, 4))
         dq[:, :2] = new.sensitivity[0]
-        return W[0], P[0], (A[0] if tangent else None), new.w[0], dq
+        return W[0], P[0], (A[0] if tangent else None), new.w[0], dq, floating
+
+    def _point(self, F, state, q, tangent) -> tuple:
+        """Point q of ``state`` at F (2, 2): ``(W, P, A (zero where floating; None without
+        tangent), w, theta, dq, dissipated, (keys, tangential forces, sliding, rolling
+        moments), floating)``, floating where its path ended in a cell come apart."""
+        if self._without_friction:
+            W, P, a, w, dq, floats = self._frictionless_point(F, state, q, tangent)
+            none = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool), np.zeros(0))
+            return W, P, a, w, state.theta[q], dq, 0.0, none, floats
+        eq, dissipated = self.equilibrium(F, state, q, tangent)
+        a = np.zeros((2, 2, 2, 2)) if eq.floating and tangent else eq.A
+        history = self._history(eq, state, q)
+        return eq.W, eq.P, a, eq.w, eq.theta, eq.sensitivity, dissipated, history, eq.floating
 
     # -- the law ---------------------------------------------------------------------------------
 
@@ -202,38 +220,21 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
         W, P, A = output_buffers(n, tangent, out)
         w, th = np.empty_like(state.w), state.theta.copy()
         dq, D = np.empty_like(state.sensitivity), state.dissipation.copy()
-        keys, forces, sliding, moments, floating = [], [], [], [], []
+        histories, floating = [], []
         for q in range(n):
             try:
-                if self._without_friction:
-                    W[q], P[q], a, w[q], dq[q] = self._frictionless_point(F[q], state, q, tangent)
-                    keys.append(np.zeros(0, np.int64))
-                    forces.append(np.zeros(0))
-                    sliding.append(np.zeros(0, bool))
-                    moments.append(np.zeros(0))
-                else:
-                    eq, dissipated = self.equilibrium(F[q], state, q, tangent)
-                    W[q], P[q], a, w[q], th[q], dq[q] = (
-                        eq.W,
-                        eq.P,
-                        eq.A,
-                        eq.w,
-                        eq.theta,
-                        eq.sensitivity,
-                    )
-                    D[q] += dissipated
-                    if eq.floating:  # (no network: no tangent; raised below)
-                        floating.append(q)
-                        a = np.zeros((2, 2, 2, 2))
-                    k, f, slips, mr = self._history(eq, state, q)
-                    keys.append(k)
-                    forces.append(f)
-                    sliding.append(slips)
-                    moments.append(mr)
+                W[q], P[q], a, w[q], th[q], dq[q], dissipated, history, floats = self._point(
+                    F[q], state, q, tangent
+                )
             except RelaxationError as err:
                 raise type(err)(f"point {q}: {err}", np.array([q])) from None
+            D[q] += dissipated
+            histories.append(history)
+            if floats:
+                floating.append(q)
             if tangent:
                 A[q] = a
+        keys, forces, sliding, moments = (list(h) for h in zip(*histories)) if n else ([],) * 4
         moved = np.sqrt((np.einsum("qab,qnb->qna", F, w) ** 2).sum(axis=2).mean(axis=1))
         off = np.zeros(n + 1, np.int64)
         np.cumsum([k.size for k in keys], out=off[1:])
@@ -247,8 +248,8 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
         out = (W[0], P[0], (A[0] if tangent else None), new) if single else (W, P, A, new)
         if floating:
             raise CellFloats(
-                f"point {floating[0]}: no disk has 2 contacts or more (all are rattlers): the "
-                "cell has come apart", np.array(floating), out,
+                f"point {floating[0]}: the cell has come apart (all its disks are rattlers)",
+                np.array(floating), out,
             )  # fmt: skip
         return out
 
