@@ -120,7 +120,7 @@ def _newton(cell, F, w, settings, budget, counts, stall=True):
         s = ContactState(cell, F, w, int(request[1]))
         return w, s, float(solver[3])
     if status == rn.NO_CONTACT:
-        raise CameApart("no two disks touch (the cell has come apart)", w, None)
+        raise RigidityLostError("no two disks touch (the cell has come apart)")
     if status == rn.NO_EQUILIBRIUM:
         residual = _residual(cell, F, ContactState(cell, F, w))
         raise RelaxationError(
@@ -143,26 +143,30 @@ def relax(
     """Relax one cell at F (2, 2) from the fluctuations w0 (N, 2): an :class:`Equilibrium`.
     Where Newton stalls, it starts again from ``fallback`` (N, 2) if given, and then FIRE
     relaxes the cell from there (from w0 without it) before Newton takes up again. Where the
-    cell comes apart (FIRE opens its contacts, or no disk keeps 3 contacts where Newton
-    converged), the result is :func:`floating`."""
+    cell comes apart there (FIRE opens its contacts, or no disk keeps 3 contacts where it and
+    Newton came to rest), the result is :func:`floating`. Newton alone is not believed where
+    it ends without a network (its steps can carry the disks far, next to a jump): the damped
+    motion from the committed positions decides."""
     w0 = np.array(w0, dtype=np.float64)
     fire_steps, counts, steps = 0, np.zeros(len(_COUNTS), np.int64), 0
     starts = [w0] if fallback is None else [w0, np.array(fallback, dtype=np.float64)]
-    try:
-        for start in starts:
-            try:
-                w, s, residual = _newton(cell, F, start, settings, settings.max_iterations,
-                                         counts)  # fmt: skip
+    for start in starts:
+        try:
+            w, s, residual = _newton(cell, F, start, settings, settings.max_iterations, counts)
+            if s.keep.any():
                 break
-            except RelaxationError:
-                steps += int(counts[0])
-                continue
-        else:  # FIRE from where Newton last started, not from where it strayed
+        except RelaxationError:
+            pass
+        steps += int(counts[0])
+    else:  # FIRE from where Newton last started, not from where it strayed
+        try:
             w, s, residual, fire_steps = _fire_rounds(cell, F, starts[-1], settings, counts)
-        counts[0] += steps
-        return _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps)
-    except CameApart as apart:
-        return floating(cell, F, apart.w, counts)
+        except CameApart as apart:
+            return floating(cell, F, apart.w, counts)
+        if not s.keep.any():
+            return floating(cell, F, w, counts)
+    counts[0] += steps
+    return _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps)
 
 
 def floating(cell: Cell, F: np.ndarray, w: np.ndarray, counts: np.ndarray) -> Equilibrium:
@@ -222,7 +226,7 @@ def _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps=0):
     """The :class:`Equilibrium` at the contact state s (``counts``: see :data:`_COUNTS`,
     the tangent's factorisation added here)."""
     if not s.keep.any():
-        raise CameApart("no disk has 3 contacts or more (all are rattlers)", w, None)
+        raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
     A, dw = condensation(cell, F, s, counts) if tangent else (None, None)
     W, P = stress(cell, F, s)
     network = np.flatnonzero(s.network)
