@@ -223,10 +223,9 @@ def _fire_rounds(cell, F, w, settings, counts) -> tuple:
 
 
 def _equilibrium(cell, F, w, s, tangent, residual, counts, fire_steps=0):
-    """The :class:`Equilibrium` at the contact state s (``counts``: see :data:`_COUNTS`,
-    the tangent's factorisation added here)."""
-    if not s.keep.any():
-        raise RigidityLostError("no disk has 3 contacts or more (all are rattlers)")
+    """The :class:`Equilibrium` at the contact state s, which has non-rattlers (where it has
+    none, the callers float: :func:`floating`; ``counts``: see :data:`_COUNTS`, the tangent's
+    factorisation added here)."""
     A, dw = condensation(cell, F, s, counts) if tangent else (None, None)
     W, P = stress(cell, F, s)
     network = np.flatnonzero(s.network)

@@ -2,6 +2,8 @@
 rigidity (both :class:`~dolfinx_granular.LawEvaluationError`, so that load stepping cuts back),
 one whose disks came apart while they moved, and a path that ended in such a cell."""
 
+import numpy as np
+
 from ..protocol import LawEvaluationError
 
 
@@ -38,3 +40,16 @@ class CellFloats(RigidityLostError):
     def __init__(self, message: str, points=None, outputs=None) -> None:
         super().__init__(message, points)
         self.outputs = outputs
+
+
+def evaluated(W, P, A, state, single: bool, floating: list) -> tuple:
+    """A relaxed law's ``evaluate`` return, ``(W, P, A, trial_state)`` (one point's W, P and A
+    where ``single``; A None where not computed), or :class:`CellFloats` with it where the
+    points ``floating`` (their indices) ended in a cell come apart."""
+    out = (W[0], P[0], (None if A is None else A[0]), state) if single else (W, P, A, state)
+    if floating:
+        raise CellFloats(
+            f"point {floating[0]}: the cell has come apart (all its disks are rattlers)",
+            np.array(floating), out,
+        )  # fmt: skip
+    return out

@@ -26,7 +26,7 @@ from ..tools import normal_stiffness as normal_stiffness_of
 from . import batch, equilibrium, path
 from .cell import Cell, fingerprint
 from .contact_state import ContactState
-from .errors import CellFloats, RelaxationError
+from .errors import RelaxationError, evaluated
 from .settings import Settings
 
 if TYPE_CHECKING:
@@ -179,13 +179,7 @@ class RelaxedRVE(HistoryLawMethods):
             A[:] = res.A
         rearranged = res.network != state.network
         new = RelaxedState(res.w, F.copy(), res.moved, rearranged, res.network, res.dw)
-        out = (W[0], P[0], (A[0] if tangent else None), new) if single else (W, P, A, new)
-        if floating:
-            raise CellFloats(
-                f"point {floating[0]}: the cell has come apart (all its disks are rattlers)",
-                np.array(floating), out,
-            )  # fmt: skip
-        return out
+        return evaluated(W, P, A, new, single, floating)
 
     def _one_point(self, F, state, q, tangent, res) -> bool:
         """Point q on the Python path (:meth:`equilibrium`) into the outputs ``res``: True

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...packings.packing import Packing
 from ..history_methods import HistoryLawMethods
-from ..relaxed.errors import CellFloats, RelaxationError
+from ..relaxed.errors import CellFloats, RelaxationError, evaluated
 from ..relaxed.law import RelaxedRVE, RelaxedState
 from ..taylor import ContactSet
 from ..tools import as_batch, non_negative, output_buffers, to_float
@@ -245,13 +245,7 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
             np.concatenate(sliding) if sliding else np.zeros(0, bool),
             np.concatenate(moments) if moments else np.zeros(0),
         )  # fmt: skip
-        out = (W[0], P[0], (A[0] if tangent else None), new) if single else (W, P, A, new)
-        if floating:
-            raise CellFloats(
-                f"point {floating[0]}: the cell has come apart (all its disks are rattlers)",
-                np.array(floating), out,
-            )  # fmt: skip
-        return out
+        return evaluated(W, P, A, new, single, floating)
 
     def _history(self, eq: Equilibrium, state, q) -> tuple:
         """``(keys, tangential forces, sliding, rolling moments)`` of the contacts of an
