@@ -15,7 +15,7 @@ import sys
 from collections import namedtuple
 
 from dolfinx_granular import Packing
-from dolfinx_granular.laws.relaxed.errors import CellFloats, RigidityLostError
+from dolfinx_granular.laws.relaxed.errors import CellFloats, RelaxationError, RigidityLostError
 
 import numpy as np
 
@@ -274,6 +274,21 @@ class CollapsingLaw(UnjamLaw):
         P = P.copy()
         P[0, 0] += self.hold
         return W, P, A
+
+
+class GivingWayLaw(CollapsingLaw):
+    """CollapsingLaw whose micro solver finds no equilibrium (RelaxationError, not a lost
+    network) for F11 in (1, 1 + ``band``], between its jammed branch and its cell come apart,
+    as a relaxed cell at the edge of jamming that does not come to rest."""
+
+    def __init__(self, hold, band=1e-3):
+        super().__init__(hold)
+        self.band = band
+
+    def evaluate(self, F):
+        if 1.0 < F[0, 0] <= 1.0 + self.band:
+            raise RelaxationError("no equilibrium: the cell did not come to rest")
+        return super().evaluate(F)
 
 
 class CollapsingHistoryLaw(LinearLaw):

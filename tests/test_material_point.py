@@ -10,12 +10,19 @@ from dolfinx_granular.drivers.material_point import (
     solve_pressure,
     stress_tangent,
 )
-from dolfinx_granular.laws.relaxed.errors import RigidityLostError
+from dolfinx_granular.laws.relaxed.errors import RelaxationError, RigidityLostError
 
 import numpy as np
 import pytest
 
-from helpers import CollapsingHistoryLaw, CollapsingLaw, JumpLaw, LinearLaw, UnjamLaw
+from helpers import (
+    CollapsingHistoryLaw,
+    CollapsingLaw,
+    GivingWayLaw,
+    JumpLaw,
+    LinearLaw,
+    UnjamLaw,
+)
 
 K_N, PRESSURE, RTOL = 2.8e7, 1e5, 1e-10
 
@@ -240,6 +247,23 @@ def test_where_a_jammed_cell_collapses_beyond_a_round_off_the_jammed_side_is_tak
         with pytest.raises(ControlError, match="jumps"):
             solve_point(law, F, {(0, 0): target}, measure="piola", accept_jump=accept,
                         accept_unjammed=unjammed)  # fmt: skip
+
+
+def test_no_equilibrium_beside_a_cell_that_holds_too_much_counts_as_come_apart():
+    """Jammed at 2 p up to F11 = 1, no equilibrium found in (1, 1.001], apart beyond: an
+    iterate without equilibrium on the dilated side of one that held more than p counts as
+    come apart, so the bracket shrinks onto F11 = 1 and the jammed end is taken (as
+    CollapsingLaw's); where no iterate has held more than p yet, the error is the answer."""
+    k = CollapsingLaw(0.0).lam + 2 * CollapsingLaw(0.0).mu
+    target = -1e-3 * k
+    for start in (0.99, 1.05):  # (Newton from 0.99 overshoots into the band; 1.05: apart)
+        step = solve_point(GivingWayLaw(-2e-3 * k), np.diag([start, 1.0]), {(0, 0): target},
+                           measure="piola", accept_unjammed=2.0)  # fmt: skip
+        assert step.F[0, 0] == pytest.approx(1.0, abs=1e-12)
+        assert step.control_error == pytest.approx(-1e-3 * k, rel=1e-9)
+    with pytest.raises(RelaxationError, match="did not come to rest"):  # (nothing held yet)
+        solve_point(GivingWayLaw(-2e-3 * k), np.diag([1.0005, 1.0]), {(0, 0): target},
+                    measure="piola", accept_unjammed=2.0)  # fmt: skip
 
 
 def test_with_collapse_the_state_the_cell_came_apart_in_is_taken_beyond_accept_jump():
