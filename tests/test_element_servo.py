@@ -117,3 +117,19 @@ def test_a_test_whose_steps_stop_holding_p_stops():
     assert stop.startswith(f"stopped: {n} steps in a row missed p") and "+0.30, -0.20" in stop
     rows = _rows([0.0] + [0.3] * (n - 1) + [0.05], [0.1] * (n + 1))
     assert et.off_target(rows, 1e4) == ""  # (the last one held p again)
+
+
+def test_the_held_strain_is_extrapolated_only_along_a_step_that_held_p_and_did_not_collapse():
+    """The next step's guess of e11 follows the last step's slope where both held p; after a
+    step that missed p or collapsed (its cell jammed again further in) it is the last e11."""
+    p = 1e4
+
+    def row(eps1, e11, miss=0.0, collapses=0):
+        return dict(eps1=eps1, e11=e11, control_error_Pa=miss, collapses=collapses)
+
+    held = [row(0.01, 0.002), row(0.02, 0.005)]
+    assert et.held_guess(held, et.BIAXIAL, 0.03, p) == pytest.approx(0.008, rel=1e-12)
+    for last in (row(0.02, -0.045, miss=-5 * p), row(0.02, -0.045, collapses=1)):
+        assert et.held_guess([held[0], last], et.BIAXIAL, 0.03, p) == -0.045
+    missed_before = [row(0.01, 0.002, miss=2 * p), row(0.02, 0.005)]
+    assert et.held_guess(missed_before, et.BIAXIAL, 0.03, p) == 0.005
