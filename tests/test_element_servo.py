@@ -75,6 +75,17 @@ def test_a_jump_between_two_jammed_states_is_taken_at_its_nearer_side_by_the_ser
     assert r.F[0, 0] == pytest.approx(1.001, abs=1e-12)
 
 
+def test_a_jump_far_from_the_guess_is_reached_and_shrunk_within_the_iterations():
+    """30 moves of p / k_n from the guess to the jump, then about 33 bisections of its bracket
+    to round-off: more than 50 iterations, fewer than MAX_ITERATIONS."""
+    law = JumpLaw(jump=0.5e-3 * K)
+    F = np.diag([1.001 - 30e-3, 1.0])
+    r = et.hold_step(MaterialPoint(law), F, (0, 0), -1.3e-3 * K, 1e-3, servo=True)[0]
+    assert 50 < r.iterations <= et.MAX_ITERATIONS
+    assert r.F[0, 0] == pytest.approx(1.001, abs=1e-12)
+    assert r.control_error == pytest.approx(0.2e-3 * K, rel=1e-9)
+
+
 def _rows(misses, qp, p=1e4):
     """Hand-made biaxial rows: eps1 0, 1, 2, ... %, the misses (parts of p) and q/p given."""
     return [

@@ -260,6 +260,13 @@ def held_guess(rows, loading, target, P) -> float:
 MAX_COLLAPSES = 3
 
 
+#: Newton iterations of a step: a jump's bracket, found within a move of p / k_n, takes about
+#: 33 bisections to shrink to round-off (:data:`~.material_point.JUMP_WIDTH`), and the moves
+#: of p / k_n towards it come first (at p / k_n = 1e-3 a step of mu = 1 stopped after 50: 19
+#: moves from a guess 3.8 p too compressed, then 31 bisections)
+MAX_ITERATIONS = 80
+
+
 def hold_step(point, F, held_ij, P, pressure, servo=False):
     """The step to F holding sigma[held_ij] = -P (Pa) with the jumps :data:`ACCEPT_JUMP` and
     :data:`ACCEPT_UNJAMMED` allow, through up to :data:`MAX_COLLAPSES` collapses; ``servo``: a
@@ -276,7 +283,8 @@ def hold_step(point, F, held_ij, P, pressure, servo=False):
         # path-dependent micro solver there, and it fails more often; with 10 p / k_n,
         # 200 disks at p / k_n = 1e-2, mu = 0.5 stopped at gamma = 0.8 %, not 6.8 %)
         return point.step(F, {held_ij: -P}, max_increment=pressure, accept_jump=accept,
-                          accept_unjammed=ACCEPT_UNJAMMED, collapse=collapse)  # fmt: skip
+                          accept_unjammed=ACCEPT_UNJAMMED, collapse=collapse,
+                          max_iter=MAX_ITERATIONS)  # fmt: skip
 
     before = (point.state, point.F, point.last)
     try:
