@@ -142,11 +142,13 @@ def solve_point(
             ``PointResult.control_error``); 0: never (a :class:`ControlError` names the jump).
             With one unknown held to a compressive target, an iterate at which the law's cell
             comes apart (:class:`~dolfinx_granular.laws.relaxed.errors.RigidityLostError`: a
-            relaxed RVE dilated past jamming) counts as stress-free, the bracket's dilated end
-            (before an iterate held more than the target, the next one lies ``max_increment``
-            more compressed, twice as far after each further iterate that came apart, up to
-            :data:`UNJAMMED_GROWTH` times: a loose frictional cell that collapsed may jam
-            again only further in).
+            relaxed RVE dilated past jamming) counts as stress-free, the bracket's dilated
+            end; so does one at which the micro solver finds no equilibrium
+            (:class:`~dolfinx_granular.laws.relaxed.errors.RelaxationError`) on the dilated
+            side of an iterate that held more than the target. Before an iterate held more
+            than the target, the next one lies ``max_increment`` more compressed, twice as far
+            after each further iterate that came apart, up to :data:`UNJAMMED_GROWTH` times (a
+            loose frictional cell that collapsed may jam again only further in).
         accept_unjammed: where the bracket has shrunk between such an iterate and one that
             holds (a cell jammed on one side of a round-off, come apart on the other: no F
             between holds the target), the jammed end is the answer if it misses by at most
