@@ -178,7 +178,7 @@ def solve_point(
         try:
             W, P, A, new = _evaluate(law, F, state)
         except RelaxationError as err:
-            if not (isinstance(err, RigidityLostError) or _gave_way(bracket, x, keys)):
+            if not (isinstance(err, RigidityLostError) or _gave_way(bracket, x)):
                 raise
             floated = _floated(F, err, it, residuals, targets)
             x = _unjammed_next(bracket, x, keys, targets, residuals, max_increment, floated)
@@ -226,14 +226,14 @@ def _floated(F, err, it, residuals, targets):
                        (*residuals, -float(targets[0])), floating=True)  # fmt: skip
 
 
-def _gave_way(bracket, x, keys) -> bool:
-    """An iterate x (1,) of one diagonal unknown at which the micro solver found no equilibrium
-    lies on the dilated side of an iterate that held more than its compressive target (the
-    bracket's ``lo``): near jamming, where a cell that holds too much on one side gives way on
-    the other (at p / k_n = 1e-3, a frictional cell of 70 disks that jammed at 1.4 p did not
-    come to rest a thousandth of a strain further out), it counts as come apart."""
-    return (x is not None and x.size == 1 and keys[0][0] == keys[0][1]
-            and "lo" in bracket.ends and x[0] > bracket.lo)  # fmt: skip
+def _gave_way(bracket, x) -> bool:
+    """The iterate x (1,) at which the micro solver found no equilibrium lies on the dilated
+    side of an iterate that held more than the target (the bracket's ``lo``; a bracket is kept
+    for one unknown only, and :func:`_unjammed_next` refuses any but a diagonal one held to a
+    compressive target): near jamming, where a cell that holds too much on one side gives way
+    on the other (at p / k_n = 1e-3, a frictional cell of 70 disks that jammed at 1.4 p did
+    not come to rest a thousandth of a strain further out), it counts as come apart."""
+    return "lo" in bracket.ends and x[0] > bracket.lo
 
 
 def _unjammed_next(bracket, x, keys, targets, residuals, max_increment, floated=None):
