@@ -174,7 +174,9 @@ def _add_strength(sub):
     add("--kn", type=stiffness, default=2.8e7, help="k_n in N/m² (default 2.8e7)")
     add("--kt", type=stiffness, default=2.8e7, help="k_t in N/m² (default 2.8e7)")
     add("--substep", type=substep, help="the relaxed RVE's substep (default its own, 1e-3)")
-    add("--budget", type=budget, default=0.0, help="wall seconds per test (default 0: none)")
+    add("--budget", type=budget, default=0.0,
+        help="wall seconds per test (default 0: none); a test stopped by it goes on from its "
+        "last step under a larger one")  # fmt: skip
     add("--cache", metavar="DIR", help="folder of the packings and tests (default: "
         "strength_cache beside the output file; kept by --force)")  # fmt: skip
     add("-o", "--output", default="strength.csv",

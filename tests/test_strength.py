@@ -3,6 +3,7 @@ element tests' cache (drivers/element_cache.py): 70 disks, p / k_n = 1e-2, mu 0 
 axial strain to 1-2 % in 2-4 steps."""
 
 import contextlib
+import copy
 import csv
 import io
 import itertools
@@ -12,6 +13,7 @@ import math
 from dolfinx_granular import friction_angle, generate_packing, strength_curve
 from dolfinx_granular.__main__ import main
 from dolfinx_granular.drivers import element_tests as et
+from dolfinx_granular.drivers import test_progress
 from dolfinx_granular.drivers.element_cache import ElementTestCache
 from dolfinx_granular.drivers.strength import COLUMNS, falls, nondecreasing
 from dolfinx_granular.io.strength_table import falling_lines, merge_curves, read_curve, write_curve
@@ -84,14 +86,82 @@ def test_a_changed_parameter_misses_the_cache(tmp_path, packing, change):
     assert run(cache, packing, **change).cached  # (and is stored under its own key)
 
 
-def test_a_test_stopped_by_its_budget_is_run_again_under_a_larger_one(tmp_path, packing):
+def without_wall_times(rows):
+    return plain([{k: v for k, v in r.items() if k != "wall_s"} for r in rows])
+
+
+def assert_same_rows(a, b):
+    """The rows a and b have the same columns, the same counts, and the same values to
+    round-off (a resumed law builds its candidate contacts afresh, in another order); the wall
+    times aside."""
+    assert [list(r) for r in a] == [list(r) for r in b]
+    for ra, rb in zip(a, b):
+        for k, v in ra.items():
+            if isinstance(v, int):
+                assert v == rb[k], k
+            elif k != "wall_s":
+                np.testing.assert_allclose(v, rb[k], rtol=1e-12, atol=1e-12 * abs(ra["p_Pa"]),
+                                           err_msg=k)  # fmt: skip
+
+
+def test_a_test_stopped_by_its_budget_goes_on_under_a_larger_one(tmp_path, packing):
     cache = ElementTestCache(tmp_path)
     stopped = run(cache, packing, budget=0.0)  # (the budget is spent by the confinement)
     assert stopped.stop.startswith(f"stopped: {et.BUDGET_STOP}") and len(stopped.rows) == 1
+    [progress] = tmp_path.glob("*.progress.npz")  # (kept: the test can go on)
     assert run(cache, packing, budget=0.0).cached
     whole = run(cache, packing, budget=None)
     assert not whole.cached and whole.stop == "" and len(whole.rows) == 3
+    assert whole.seconds > stopped.seconds  # (the confinement's seconds counted once, in both)
+    assert not progress.exists()  # (the test has ended)
     assert run(cache, packing, budget=0.0).cached  # (the whole test serves any budget)
+    # the same rows as the test run in one go (the confinement's row the stopped run's)
+    straight = run(ElementTestCache(tmp_path / "straight"), packing)
+    assert_same_rows(whole.rows, straight.rows)
+    assert plain(whole.rows[0]) == plain(stopped.rows[0])
+
+
+def test_a_killed_test_goes_on_from_its_last_step(tmp_path, packing):
+    cache = ElementTestCache(tmp_path)
+    stopped = run(cache, packing, budget=0.0)
+    [record] = tmp_path.glob("*.json")
+    record.unlink()  # (killed before its rows were written: only its progress is on disk)
+    whole = run(cache, packing)
+    assert not whole.cached and whole.stop == "" and len(whole.rows) == 3
+    assert plain(whole.rows[0]) == plain(stopped.rows[0])  # (its wall time too: not run again)
+
+
+def test_a_test_goes_on_from_any_step_to_the_same_rows(packing):
+    """Resumed from its progress after each step (a fresh law, as a new process has), the test
+    ends with the rows of the run in one go, to round-off: the resumed law builds its candidate
+    contacts afresh, in another order."""
+    kept = []
+    law = et.make_law("relaxed", packing, 0.5)
+    rows, stop = et.load_test(et.BIAXIAL, law, P, TARGETS, keep=lambda at: kept.append(
+        copy.deepcopy(at)))  # fmt: skip
+    assert stop == "" and [len(at.rows) for at in kept] == [1, 2, 3]
+    for at in kept[:2]:
+        again, stop = et.load_test(et.BIAXIAL, et.make_law("relaxed", packing, 0.5), P, TARGETS,
+                                   resume=copy.deepcopy(at))  # fmt: skip
+        assert stop == ""
+        assert without_wall_times(again[: len(at.rows)]) == without_wall_times(at.rows)
+        assert_same_rows(again, rows)
+
+
+def test_the_progress_round_trips_and_refuses_another_key(tmp_path, packing):
+    kept = []
+    law = et.make_law("relaxed", packing, 0.5)
+    et.load_test(et.BIAXIAL, law, P, TARGETS[:1], keep=kept.append)
+    at, key, path = kept[-1], {"test": 1}, tmp_path / "p.npz"
+    test_progress.save(path, at, key)
+    back = test_progress.load(path, key, type(law.initial_state(1)))
+    assert back.state.equals(at.state) and plain(back.rows) == plain(at.rows)
+    assert np.array_equal(back.F, at.F) and np.array_equal(back.Fc, at.Fc)
+    for name in ("targets", "done", "cuts", "left", "dissipation_c", "seconds"):
+        assert getattr(back, name) == getattr(at, name), name
+    assert test_progress.load(path, {"test": 2}, type(law.initial_state(1))) is None
+    path.write_bytes(b"damaged")  # (a run killed while writing, or a file edited by hand)
+    assert test_progress.load(path, key, type(law.initial_state(1))) is None
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,11 @@ substep), k_n, k_t, mu, the rolling friction and stiffness, min_stretch, the pac
 seed and a digest of its disks), p / k_n, the loading and its target strains, the halvings of a
 failed step, and a digest of the sources that compute it (the laws and the material-point
 drivers), so that a changed solver runs its tests afresh.
+
+While a test runs, its progress after every step is kept beside it
+(``..._<digest>.progress.npz``, :mod:`.test_progress`): a test killed, or stopped by its time
+budget and asked for again under a larger one (or none), goes on from its last step rather than
+from the start. The file is removed when the test ends otherwise.
 """
 
 from __future__ import annotations
@@ -25,7 +30,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import test_progress
 from .element_tests import BUDGET_STOP, MAX_CUTS, load_test
+from .test_progress import plain
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -72,20 +79,14 @@ class ElementTestRun:
     cached: bool
 
 
-def _plain(value):
-    """A JSON value of a NumPy scalar (json takes float subclasses, not np.integer or bool_)."""
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"cannot store {type(value).__name__} in the test cache")
-
-
 class ElementTestCache:
     """Results of :func:`~.element_tests.load_test` in ``directory`` (created), one JSON file a
     test.
 
     A test stopped by its time budget is taken from the cache only under a budget no larger than
-    the one it ran under (a larger budget, or none, runs it again); every other stop (the micro
-    solver's or the driver's, where the cell rearranges) is part of the answer and is kept.
+    the one it ran under (under a larger budget, or none, it goes on from its last step); every
+    other stop (the micro solver's or the driver's, where the cell rearranges) is part of the
+    answer and is kept.
     """
 
     def __init__(self, directory: str | PathLike[str]) -> None:
@@ -144,22 +145,38 @@ class ElementTestCache:
             return None
         return ElementTestRun(record["rows"], record["stop"], record["seconds"], True)
 
+    def progress_path(self, key: dict) -> str:
+        """The file of ``key``'s :class:`~.test_progress.Progress` (``.npz`` beside its rows):
+        there while the test runs, and after it stopped on its time budget."""
+        return self.path(key)[: -len(".json")] + ".progress.npz"
+
     def run(self, loading: Loading, law, packing: Packing, seed: int, pressure: float,
             targets: Sequence[float], budget: float | None = None) -> ElementTestRun:  # fmt: skip
         """:func:`~.element_tests.load_test` of ``law`` (an RVE of ``packing``, the packing of
         ``seed``) confined at ``pressure`` (p / k_n) to ``targets``, from the cache or run and
-        stored."""
+        stored. A test that a time budget stopped, or that was killed, goes on from its last
+        step (its progress file), its seconds counted in ``budget``."""
         key = self.key(loading, law, packing, seed, pressure, targets)
         found = self.lookup(key, budget)
         if found is not None:
             return found
+        progress = self.progress_path(key)
+        resume = test_progress.load(progress, key, type(law.initial_state(1)))
+        kept = [resume]
+
+        def keep(at):
+            test_progress.save(progress, at, key)
+            kept[0] = at
+
         t0 = time.perf_counter()
-        rows, stop = load_test(loading, law, pressure, targets, budget)
-        seconds = time.perf_counter() - t0
+        rows, stop = load_test(loading, law, pressure, targets, budget, resume, keep)
+        seconds = kept[0].seconds if kept[0] is not None else time.perf_counter() - t0
         record = dict(key=key, rows=rows, stop=stop, seconds=seconds, budget=budget)
         # imported here: runwriter imports mpi4py (MPI_Init), which the tests do not need
         from ..io.runwriter import atomic_write
 
         # atomic: a study killed while writing leaves no half file to read back
-        atomic_write(self.path(key), json.dumps(record, default=_plain, indent=None))
+        atomic_write(self.path(key), json.dumps(record, default=plain, indent=None))
+        if not stop.startswith(f"stopped: {BUDGET_STOP}") and os.path.exists(progress):
+            os.remove(progress)  # (the test has ended: nothing to go on from)
         return ElementTestRun(rows, stop, seconds, False)

@@ -30,9 +30,10 @@ from ..laws.protocol import LawEvaluationError
 from ..laws.relaxed_friction import FrictionalRelaxedRVE
 from .confinement import compress
 from .material_point import ControlError, MaterialPoint
+from .test_progress import Progress
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     from ..packings.packing import Packing
 
@@ -189,52 +190,78 @@ def load_test(
     pressure: float,
     targets: Sequence[float],
     budget: float | None = None,
+    resume: Progress | None = None,
+    keep: Callable[[Progress], None] | None = None,
 ) -> tuple[list[dict], str]:
     """One test (``loading``) of ``law`` (a :data:`LAWS` RVE, e.g. from :func:`make_law`)
-    confined at ``pressure`` (p / k_n) to the strains ``targets`` (k,): ``(step rows, stop
-    message or "")``. Row 0 is the confined state (x = 0); a test whose confinement failed has
-    no rows. ``budget``: wall seconds, checked before every step (None: no limit)."""
-    mu = law.friction
-    P, t0 = pressure * law.normal_stiffness, time.perf_counter()
-    try:
-        point = confine(law, pressure)
-    except (ControlError, LawEvaluationError) as err:
-        return [], f"stopped: confinement failed: {err}"[:300]
-    Fc = point.F.copy()
-    lam, Dc = Fc[0, 0], float(point.state.dissipation[0])
-    rows = [step_row(loading, law, mu, Fc, Dc, point.last, None, time.perf_counter() - t0)]
-    # each target gets MAX_CUTS halvings in all (those whose midpoints were reached included),
-    # as the driver's ramp
-    targets, done, cuts, stop = list(targets), 0.0, 0, ""
-    left, t_step = len(targets), time.perf_counter()
-    while targets:
+    confined at ``pressure`` (p / k_n, times the law's k_n) to the strains ``targets`` (k,):
+    ``(step rows, stop message or "")``. Row 0 is the confined state (x = 0); a test whose
+    confinement failed has no rows. ``budget``: wall seconds, checked before every step (None:
+    no limit). ``resume``: the :class:`~.test_progress.Progress` of this test after one of its
+    steps (what ``keep`` was given): the test goes on from there, its rows first, its seconds
+    counted in the budget. ``keep`` is called with the progress after the confinement and
+    every step."""
+    t0 = time.perf_counter() - (resume.seconds if resume is not None else 0.0)
+    at = resume
+    if at is None:
+        try:
+            point = confine(law, pressure)
+        except (ControlError, LawEvaluationError) as err:
+            return [], f"stopped: confinement failed: {err}"[:300]
+        Fc, Dc = point.F.copy(), float(point.state.dissipation[0])
+        rows = [step_row(loading, law, law.friction, Fc, Dc, point.last, None,
+                         time.perf_counter() - t0)]  # fmt: skip
+        # each target gets MAX_CUTS halvings in all (those whose midpoints were reached
+        # included), as the driver's ramp
+        at = Progress(rows, point.F, point.state, Fc, Dc, list(targets), 0.0, 0, len(targets), 0.0)
+        _keep(keep, at, point, t0)
+    point = MaterialPoint(law, at.state)
+    point.F = np.array(at.F, dtype=float)
+    stop = off_target(at.rows, pressure * law.normal_stiffness) if len(at.rows) > 1 else ""
+    t_row = time.perf_counter()  # (a row's wall time: since the row before, halvings included)
+    while at.targets and not stop:
         if budget is not None and time.perf_counter() - t0 > budget:
             stop = f"stopped: {BUDGET_STOP} of {budget:g} s reached"
             break
-        F = point.F.copy()
-        F[loading.drive_ij] = lam * (loading.base + loading.sign * targets[0])
-        if len(rows) > 1:
-            F[loading.held_ij] = lam * (1.0 + held_guess(rows, loading, targets[0], P))
-        before = point.state
-        try:
-            r, collapses = hold_step(point, F, loading.held_ij, P, pressure, cuts == MAX_CUTS)
-        except (ControlError, LawEvaluationError) as err:
-            if cuts == MAX_CUTS:
-                stop = f"stopped: {err}"[:300]
-                break
-            targets.insert(0, 0.5 * (done + targets[0]))
-            cuts += 1
-            continue
-        done = targets.pop(0)
-        if len(targets) < left:  # one of the targets reached: the next gets its halvings
-            left, cuts = len(targets), 0
-        seconds = time.perf_counter() - t_step
-        rows.append(step_row(loading, law, mu, Fc, Dc, r, before, seconds, collapses))
-        t_step = time.perf_counter()
-        stop = off_target(rows, P)
-        if stop:
-            break
-    return rows, stop
+        n_rows = len(at.rows)
+        stop = _next_step(loading, law, pressure, at, point, t_row)
+        _keep(keep, at, point, t0)
+        t_row = time.perf_counter() if len(at.rows) > n_rows else t_row
+    return at.rows, stop
+
+
+def _next_step(loading, law, pressure, at: Progress, point: MaterialPoint, t_row: float) -> str:
+    """Try the step to ``at.targets[0]`` from ``point``: on success commit it and append its
+    row (its wall time since ``t_row``), on failure halve it (:data:`MAX_CUTS` times a target);
+    ``at`` updated. Returns the stop message (the failure after the last halving, or
+    :func:`off_target`'s) or ""."""
+    P, lam = pressure * law.normal_stiffness, at.Fc[0, 0]
+    F = point.F.copy()
+    F[loading.drive_ij] = lam * (loading.base + loading.sign * at.targets[0])
+    if len(at.rows) > 1:
+        F[loading.held_ij] = lam * (1.0 + held_guess(at.rows, loading, at.targets[0], P))
+    before = point.state
+    try:
+        r, collapses = hold_step(point, F, loading.held_ij, P, pressure, at.cuts == MAX_CUTS)
+    except (ControlError, LawEvaluationError) as err:
+        if at.cuts == MAX_CUTS:
+            return f"stopped: {err}"[:300]
+        at.targets.insert(0, 0.5 * (at.done + at.targets[0]))
+        at.cuts += 1
+        return ""
+    at.done = at.targets.pop(0)
+    if len(at.targets) < at.left:  # one of the targets reached: the next gets its halvings
+        at.left, at.cuts = len(at.targets), 0
+    at.rows.append(step_row(loading, law, law.friction, at.Fc, at.dissipation_c, r, before,
+                            time.perf_counter() - t_row, collapses))  # fmt: skip
+    return off_target(at.rows, P)
+
+
+def _keep(keep, at: Progress, point: MaterialPoint, t0: float) -> None:
+    """``keep(at)`` with the point's committed F and state and the seconds since ``t0``."""
+    at.F, at.state, at.seconds = point.F, point.state, time.perf_counter() - t0
+    if keep is not None:
+        keep(at)
 
 
 def held_guess(rows, loading, target, P) -> float:

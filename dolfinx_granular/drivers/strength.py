@@ -99,7 +99,8 @@ def strength_tests(
         law: ``"relaxed"`` (:class:`~dolfinx_granular.FrictionalRelaxedRVE`) or ``"taylor"``
             (:class:`~dolfinx_granular.FrictionalRVE`).
         substep: the relaxed RVE's substep (None: its default; part of the model).
-        budget: wall seconds per test (None: no limit); a test stopped by it says so.
+        budget: wall seconds per test (None: no limit); a test stopped by it says so, and goes
+            on from its last step under a larger budget (or none).
         cache: folder of the packings (``packings/``) and the tests (``tests/``), reused.
         say: called with a line per test (None: silent).
         rolling: rolling friction mu_r of the relaxed RVE (its cap mu_r r_eff f_n), each with
