@@ -108,10 +108,12 @@ def test_a_test_stopped_by_its_budget_goes_on_under_a_larger_one(tmp_path, packi
     cache = ElementTestCache(tmp_path)
     stopped = run(cache, packing, budget=0.0)  # (the budget is spent by the confinement)
     assert stopped.stop.startswith(f"stopped: {et.BUDGET_STOP}") and len(stopped.rows) == 1
+    assert stopped.resumed_rows == 0
     [progress] = tmp_path.glob("*.progress.npz")  # (kept: the test can go on)
     assert run(cache, packing, budget=0.0).cached
     whole = run(cache, packing, budget=None)
     assert not whole.cached and whole.stop == "" and len(whole.rows) == 3
+    assert whole.resumed_rows == 1  # (the confined state's row)
     assert whole.seconds > stopped.seconds  # (the confinement's seconds counted once, in both)
     assert not progress.exists()  # (the test has ended)
     assert run(cache, packing, budget=0.0).cached  # (the whole test serves any budget)
@@ -220,6 +222,24 @@ def test_a_second_command_reads_its_tests_from_the_cache(command):
     code, printed = _main(["strength", *SMALL, "-o", str(out), "--force"])
     assert code == 0 and "(0 run, 2 from" in printed and printed.count("(cached)") == 2
     assert out.read_text() == before
+
+
+def test_a_command_stopped_by_its_budget_goes_on_and_says_so(tmp_path, command):
+    _, out, _ = command
+    first = tmp_path / "first.csv"
+    code, printed = _main(["strength", *SMALL, "--budget", "1e-6", "-o", str(first)])
+    stopped = f"(stopped: {et.BUDGET_STOP} of 1e-06 s reached)"
+    assert code == 0 and printed.count(stopped) == 2, printed
+    code, printed = _main(["strength", *SMALL, "-o", str(tmp_path / "second.csv"),
+                           "--cache", str(tmp_path / "strength_cache")])  # fmt: skip
+    assert code == 0 and printed.count("eps1 2.00 % (went on from 0.00 %)") == 2, printed
+    # the curve of the tests run in one go (to round-off: the resumed RVEs list their
+    # candidate contacts afresh)
+    a, b = read_curve(tmp_path / "second.csv"), read_curve(out)
+    assert [r["mu"] for r in a] == [r["mu"] for r in b] and len(a) == 2
+    for ra, rb in zip(a, b):
+        for k in ("sin_phi_peak_mean", "sin_phi_cs_mean", "eps1_reached_mean"):
+            np.testing.assert_allclose(ra[k], rb[k], rtol=1e-10, err_msg=k)
 
 
 def test_the_python_function_gives_the_commands_curve(command):

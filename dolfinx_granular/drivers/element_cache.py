@@ -70,13 +70,15 @@ def packing_digest(packing: Packing) -> str:
 @dataclass(frozen=True)
 class ElementTestRun:
     """One test's outcome: ``rows`` and ``stop`` as :func:`~.element_tests.load_test` returns
-    them, ``seconds`` the wall time of the run that computed them, ``cached`` True where they
-    were read back from the cache."""
+    them, ``seconds`` the wall time of the runs that computed them, ``cached`` True where they
+    were read back from the cache, ``resumed_rows`` the rows this run went on from (0: none, a
+    test run from the start or read back)."""
 
     rows: list
     stop: str
     seconds: float
     cached: bool
+    resumed_rows: int = 0
 
 
 class ElementTestCache:
@@ -162,7 +164,7 @@ class ElementTestCache:
             return found
         progress = self.progress_path(key)
         resume = test_progress.load(progress, key, type(law.initial_state(1)))
-        kept = [resume]
+        kept, went_on = [resume], len(resume.rows) if resume is not None else 0
 
         def keep(at):
             test_progress.save(progress, at, key)
@@ -179,4 +181,4 @@ class ElementTestCache:
         atomic_write(self.path(key), json.dumps(record, default=plain, indent=None))
         if not stop.startswith(f"stopped: {BUDGET_STOP}") and os.path.exists(progress):
             os.remove(progress)  # (the test has ended: nothing to go on from)
-        return ElementTestRun(rows, stop, seconds, False)
+        return ElementTestRun(rows, stop, seconds, False, went_on)

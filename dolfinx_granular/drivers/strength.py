@@ -89,7 +89,8 @@ def strength_tests(
 ) -> list[dict]:
     """One row per biaxial test (law, mu, mu_r, p_over_kn, seed, particles, k_n, k_t):
     :data:`MEASURES`, ``eps1_target``, ``eps1_reached``, ``stopped``, ``message``, ``seconds``
-    (of the run that computed it) and ``cached``.
+    (of the runs that computed it), ``cached`` and ``went_on_from`` (the strain eps1 this run
+    went on from, where a time budget had stopped the test before; None: none).
 
     Args:
         particles, seeds: the packings, ``generate_packing(particles, seed, pressure=p)``.
@@ -121,7 +122,8 @@ def strength_tests(
         row = dict(law=law, mu=float(mu), mu_r=float(mu_r), p_over_kn=float(p), seed=int(seed),
                    particles=int(particles), k_n=float(k_n), k_t=float(k_t))  # fmt: skip
         row.update(strength_of(run.rows, run.stop, max_strain))
-        rows.append(dict(row, seconds=run.seconds, cached=run.cached))
+        went_on = run.rows[run.resumed_rows - 1]["eps1"] if run.resumed_rows else None
+        rows.append(dict(row, seconds=run.seconds, cached=run.cached, went_on_from=went_on))
         if say is not None:
             say(progress_line(rows[-1]))
     return rows
@@ -147,6 +149,8 @@ def progress_line(t):
     where = f"eps1 {100 * t['eps1_reached']:.2f} %"
     why = f" ({t['message'][:100]})" if t["stopped"] else ""
     rolling = f" mu_r {t['mu_r']:g}" if t["mu_r"] else ""
+    if t.get("went_on_from") is not None:
+        where += f" (went on from {100 * t['went_on_from']:.2f} %)"
     return (f"{t['law']} mu {t['mu']:g}{rolling} p/kn {t['p_over_kn']:g} seed {t['seed']}: "
             f"{where}, "
             f"sin phi peak {t['sin_phi_peak']:.3f}, cs {t['sin_phi_cs']:.3f} in "
