@@ -11,7 +11,7 @@ Commands:
         overlaps too large for that, the disks jammed afresh in the same cell.
     strength [--law relaxed|taylor] [--particles N] [--seeds 0,1,2] [--mus 0,0.1,0.3,0.5,1]
             [--pressures 1e-2,1e-3] [--max-strain 0.3] [--steps K] [--kn KN] [--kt KT]
-            [--substep H] [--budget S] [--cache DIR] [-o strength.csv] [--force]
+            [--substep H] [--budget S] [--cache DIR] [-o strength.csv] [--force] [--each-step]
         Biaxial tests of the frictional relaxed (or Taylor) RVE: print and write the strength
         curve, peak and critical-state friction angles per mu and p / k_n (see
         :func:`dolfinx_granular.drivers.strength.strength_curve`); each test is cached in
@@ -183,6 +183,7 @@ def _add_strength(sub):
         help="output CSV (default strength.csv; kept if it exists, see --force)")  # fmt: skip
     add("--force", action="store_true", help="overwrite an existing output file")
     add("--quiet", action="store_true", help="no line per test")
+    add("--each-step", action="store_true", help="a line per step of the tests that run, too")
     add("--debug", action="store_true", help=argparse.SUPPRESS)
     st.set_defaults(handler=_cmd_strength)
 
@@ -286,7 +287,7 @@ def _cmd_strength(args) -> int:
         particles=args.particles, seeds=args.seeds, mus=args.mus, pressures=args.pressures,
         max_strain=args.max_strain, steps=args.steps, k_n=args.kn, k_t=args.kt, law=args.law,
         substep=args.substep, budget=args.budget or None, cache=cache, say=say,
-        rolling=args.rolling,
+        rolling=args.rolling, each_step=args.each_step,
     )  # fmt: skip
     curve = curve_rows(tests)
     write_curve(args.output, curve)

@@ -242,6 +242,21 @@ def test_a_command_stopped_by_its_budget_goes_on_and_says_so(tmp_path, command):
             np.testing.assert_allclose(ra[k], rb[k], rtol=1e-10, err_msg=k)
 
 
+def test_each_step_prints_a_line_per_step_of_the_tests_that_run(tmp_path, command):
+    _, out, _ = command
+    argv = ["strength", *SMALL, "-o", str(tmp_path / "a.csv"), "--each-step"]
+    code, printed = _main(argv)
+    steps = [line for line in printed.splitlines() if line.startswith("  relaxed mu ")]
+    # the confined state and 4 steps of each of the 2 tests, each before its test's line
+    assert code == 0 and len(steps) == 10, printed
+    assert steps[0].startswith("  relaxed mu 0 p/kn 0.01 seed 0: eps1 0.00 %, q/p ")
+    assert steps[4].startswith("  relaxed mu 0 p/kn 0.01 seed 0: eps1 2.00 %, q/p ")
+    assert printed.index(steps[4]) < printed.index("relaxed mu 0 p/kn 0.01 seed 0: eps1 2.00 %")
+    # the tests read back run no step
+    code, printed = _main([*argv[:-2], str(tmp_path / "b.csv"), "--each-step"])
+    assert code == 0 and "  relaxed mu " not in printed
+
+
 def test_the_python_function_gives_the_commands_curve(command):
     folder, out, _ = command
     curve = strength_curve(particles=70, seeds=(0,), mus=(0.0, 0.5), pressures=(P,),

@@ -35,7 +35,7 @@ from .element_tests import BUDGET_STOP, MAX_CUTS, load_test
 from .test_progress import plain
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
     from os import PathLike
 
     from ..packings.packing import Packing
@@ -153,22 +153,27 @@ class ElementTestCache:
         return self.path(key)[: -len(".json")] + ".progress.npz"
 
     def run(self, loading: Loading, law, packing: Packing, seed: int, pressure: float,
-            targets: Sequence[float], budget: float | None = None) -> ElementTestRun:  # fmt: skip
+            targets: Sequence[float], budget: float | None = None,
+            on_step: Callable[[dict], None] | None = None) -> ElementTestRun:  # fmt: skip
         """:func:`~.element_tests.load_test` of ``law`` (an RVE of ``packing``, the packing of
         ``seed``) confined at ``pressure`` (p / k_n) to ``targets``, from the cache or run and
         stored. A test that a time budget stopped, or that was killed, goes on from its last
-        step (its progress file), its seconds counted in ``budget``."""
+        step (its progress file), its seconds counted in ``budget``. ``on_step`` is called with
+        each row the run adds (the confined state's first)."""
         key = self.key(loading, law, packing, seed, pressure, targets)
         found = self.lookup(key, budget)
         if found is not None:
             return found
         progress = self.progress_path(key)
         resume = test_progress.load(progress, key, type(law.initial_state(1)))
-        kept, went_on = [resume], len(resume.rows) if resume is not None else 0
+        went_on = len(resume.rows) if resume is not None else 0
+        kept, kept_rows = [resume], [went_on]  # (the last progress kept, and its rows)
 
         def keep(at):
             test_progress.save(progress, at, key)
-            kept[0] = at
+            if on_step is not None and len(at.rows) > kept_rows[0]:
+                on_step(at.rows[-1])
+            kept[0], kept_rows[0] = at, len(at.rows)
 
         t0 = time.perf_counter()
         rows, stop = load_test(loading, law, pressure, targets, budget, resume, keep)

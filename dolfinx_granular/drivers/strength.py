@@ -86,6 +86,7 @@ def strength_tests(
     cache: str | PathLike[str] = "strength_cache",
     say: Callable[[str], None] | None = None,
     rolling: Sequence[float] = (0.0,),
+    each_step: bool = False,
 ) -> list[dict]:
     """One row per biaxial test (law, mu, mu_r, p_over_kn, seed, particles, k_n, k_t):
     :data:`MEASURES`, ``eps1_target``, ``eps1_reached``, ``stopped``, ``message``, ``seconds``
@@ -106,6 +107,7 @@ def strength_tests(
         say: called with a line per test (None: silent).
         rolling: rolling friction mu_r of the relaxed RVE (its cap mu_r r_eff f_n), each with
             every mu.
+        each_step: ``say`` a line per step of the tests that run, too (:func:`step_line`).
     """
     check_parameters(mus, pressures, particles, seeds, max_strain, steps, k_n, k_t, law, rolling)
     if substep is not None and law != "relaxed":
@@ -118,9 +120,10 @@ def strength_tests(
         rve = make_law(law, packings.get(particles, seed, p), mu, k_n, k_t, mu_r)
         if substep is not None:
             rve.settings.substep = float(substep)
-        run = stored.run(BIAXIAL, rve, rve.packing, seed, p, targets, budget)
         row = dict(law=law, mu=float(mu), mu_r=float(mu_r), p_over_kn=float(p), seed=int(seed),
                    particles=int(particles), k_n=float(k_n), k_t=float(k_t))  # fmt: skip
+        on_step = (lambda r, t=dict(row): say(step_line(t, r))) if say and each_step else None
+        run = stored.run(BIAXIAL, rve, rve.packing, seed, p, targets, budget, on_step)
         row.update(strength_of(run.rows, run.stop, max_strain))
         went_on = run.rows[run.resumed_rows - 1]["eps1"] if run.resumed_rows else None
         rows.append(dict(row, seconds=run.seconds, cached=run.cached, went_on_from=went_on))
@@ -142,6 +145,15 @@ def strength_of(rows, stop, max_strain):
         out[f"sin_phi_{which}"], out[f"phi_{which}_deg"] = s, phi
         out[f"tan_phi_{which}"] = math.tan(math.radians(phi))
     return out
+
+
+def step_line(t, r):
+    """One step's line: the test ``t`` (law, mu, mu_r, p_over_kn, seed) and its step row r."""
+    rolling = f" mu_r {t['mu_r']:g}" if t["mu_r"] else ""
+    miss = abs(r["control_error_Pa"]) / r["p_Pa"] if r["p_Pa"] else math.nan
+    return (f"  {t['law']} mu {t['mu']:g}{rolling} p/kn {t['p_over_kn']:g} seed {t['seed']}: "
+            f"eps1 {100 * r['eps1']:.2f} %, q/p {r['q_over_p']:.3f}, sigma_11 off -p by "
+            f"{100 * miss:.2f} %, {r['wall_s']:.1f} s")  # fmt: skip
 
 
 def progress_line(t):
