@@ -12,8 +12,8 @@ import math
 
 from dolfinx_granular import friction_angle, generate_packing, strength_curve
 from dolfinx_granular.__main__ import main
+from dolfinx_granular.drivers import element_progress
 from dolfinx_granular.drivers import element_tests as et
-from dolfinx_granular.drivers import test_progress
 from dolfinx_granular.drivers.element_cache import ElementTestCache
 from dolfinx_granular.drivers.strength import COLUMNS, falls, nondecreasing
 from dolfinx_granular.io.strength_table import falling_lines, merge_curves, read_curve, write_curve
@@ -155,15 +155,15 @@ def test_the_progress_round_trips_and_refuses_another_key(tmp_path, packing):
     law = et.make_law("relaxed", packing, 0.5)
     et.load_test(et.BIAXIAL, law, P, TARGETS[:1], keep=kept.append)
     at, key, path = kept[-1], {"test": 1}, tmp_path / "p.npz"
-    test_progress.save(path, at, key)
-    back = test_progress.load(path, key, type(law.initial_state(1)))
+    element_progress.save(path, at, key)
+    back = element_progress.load(path, key, type(law.initial_state(1)))
     assert back.state.equals(at.state) and plain(back.rows) == plain(at.rows)
     assert np.array_equal(back.F, at.F) and np.array_equal(back.Fc, at.Fc)
     for name in ("targets", "done", "cuts", "left", "dissipation_c", "seconds"):
         assert getattr(back, name) == getattr(at, name), name
-    assert test_progress.load(path, {"test": 2}, type(law.initial_state(1))) is None
+    assert element_progress.load(path, {"test": 2}, type(law.initial_state(1))) is None
     path.write_bytes(b"damaged")  # (a run killed while writing, or a file edited by hand)
-    assert test_progress.load(path, key, type(law.initial_state(1))) is None
+    assert element_progress.load(path, key, type(law.initial_state(1))) is None
 
 
 @pytest.fixture(scope="module")

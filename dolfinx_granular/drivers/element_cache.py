@@ -12,7 +12,7 @@ failed step, and a digest of the sources that compute it (the laws and the mater
 drivers), so that a changed solver runs its tests afresh.
 
 While a test runs, its progress after every step is kept beside it
-(``..._<digest>.progress.npz``, :mod:`.test_progress`): a test killed, or stopped by its time
+(``..._<digest>.progress.npz``, :mod:`.element_progress`): a test killed, or stopped by its time
 budget and asked for again under a larger one (or none), goes on from its last step rather than
 from the start. The file is removed when the test ends otherwise.
 """
@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import test_progress
+from . import element_progress
+from .element_progress import plain
 from .element_tests import BUDGET_STOP, MAX_CUTS, load_test
-from .test_progress import plain
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -148,7 +148,7 @@ class ElementTestCache:
         return ElementTestRun(record["rows"], record["stop"], record["seconds"], True)
 
     def progress_path(self, key: dict) -> str:
-        """The file of ``key``'s :class:`~.test_progress.Progress` (``.npz`` beside its rows):
+        """The file of ``key``'s :class:`~.element_progress.Progress` (``.npz`` beside its rows):
         there while the test runs, and after it stopped on its time budget."""
         return self.path(key)[: -len(".json")] + ".progress.npz"
 
@@ -165,12 +165,12 @@ class ElementTestCache:
         if found is not None:
             return found
         progress = self.progress_path(key)
-        resume = test_progress.load(progress, key, type(law.initial_state(1)))
+        resume = element_progress.load(progress, key, type(law.initial_state(1)))
         went_on = len(resume.rows) if resume is not None else 0
         kept, kept_rows = [resume], [went_on]  # (the last progress kept, and its rows)
 
         def keep(at):
-            test_progress.save(progress, at, key)
+            element_progress.save(progress, at, key)
             if on_step is not None and len(at.rows) > kept_rows[0]:
                 on_step(at.rows[-1])
             kept[0], kept_rows[0] = at, len(at.rows)

@@ -29,8 +29,8 @@ from ..laws.friction import FrictionalRVE
 from ..laws.protocol import LawEvaluationError
 from ..laws.relaxed_friction import FrictionalRelaxedRVE
 from .confinement import compress
+from .element_progress import Progress
 from .material_point import ControlError, MaterialPoint
-from .test_progress import Progress
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -197,7 +197,7 @@ def load_test(
     confined at ``pressure`` (p / k_n, times the law's k_n) to the strains ``targets`` (k,):
     ``(step rows, stop message or "")``. Row 0 is the confined state (x = 0); a test whose
     confinement failed has no rows. ``budget``: wall seconds, checked before every step (None:
-    no limit). ``resume``: the :class:`~.test_progress.Progress` of this test after one of its
+    no limit). ``resume``: the :class:`~.element_progress.Progress` of this test after one of its
     steps (what ``keep`` was given): the test goes on from there, its rows first, its seconds
     counted in the budget. ``keep`` is called with the progress after the confinement and
     every step."""
