@@ -63,12 +63,10 @@ def save(path: str | PathLike[str], progress: Progress, key: dict) -> None:
     arrays["key"] = np.asarray(json.dumps(key, sort_keys=True))
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as f:
-        f.write(buffer.getvalue())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    # imported here: runwriter imports mpi4py (MPI_Init), which the tests do not need
+    from ..io.runwriter import atomic_write
+
+    atomic_write(path, buffer.getvalue())
 
 
 def load(path: str | PathLike[str], key: dict, state_type: type) -> Progress | None:
