@@ -147,11 +147,16 @@ def strength_of(rows, stop, max_strain):
     return out
 
 
+def _label(t):
+    """The test ``t`` (law, mu, mu_r, p_over_kn, seed) as its lines name it."""
+    rolling = f" mu_r {t['mu_r']:g}" if t["mu_r"] else ""
+    return f"{t['law']} mu {t['mu']:g}{rolling} p/kn {t['p_over_kn']:g} seed {t['seed']}"
+
+
 def step_line(t, r):
     """One step's line: the test ``t`` (law, mu, mu_r, p_over_kn, seed) and its step row r."""
-    rolling = f" mu_r {t['mu_r']:g}" if t["mu_r"] else ""
     miss = abs(r["control_error_Pa"]) / r["p_Pa"] if r["p_Pa"] else math.nan
-    return (f"  {t['law']} mu {t['mu']:g}{rolling} p/kn {t['p_over_kn']:g} seed {t['seed']}: "
+    return (f"  {_label(t)}: "
             f"eps1 {100 * r['eps1']:.2f} %, q/p {r['q_over_p']:.3f}, sigma_11 off -p by "
             f"{100 * miss:.2f} %, {r['wall_s']:.1f} s")  # fmt: skip
 
@@ -160,11 +165,9 @@ def progress_line(t):
     """One test's progress line."""
     where = f"eps1 {100 * t['eps1_reached']:.2f} %"
     why = f" ({t['message'][:100]})" if t["stopped"] else ""
-    rolling = f" mu_r {t['mu_r']:g}" if t["mu_r"] else ""
     if t.get("went_on_from") is not None:
         where += f" (went on from {100 * t['went_on_from']:.2f} %)"
-    return (f"{t['law']} mu {t['mu']:g}{rolling} p/kn {t['p_over_kn']:g} seed {t['seed']}: "
-            f"{where}, "
+    return (f"{_label(t)}: {where}, "
             f"sin phi peak {t['sin_phi_peak']:.3f}, cs {t['sin_phi_cs']:.3f} in "
             f"{t['seconds']:.1f} s{' (cached)' if t['cached'] else ''}{why}")  # fmt: skip
 
