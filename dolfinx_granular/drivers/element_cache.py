@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..io.atomic_file import atomic_write
 from . import element_progress
 from .element_progress import plain
 from .element_tests import BUDGET_STOP, MAX_CUTS, load_test
@@ -179,9 +180,6 @@ class ElementTestCache:
         rows, stop = load_test(loading, law, pressure, targets, budget, resume, keep)
         seconds = kept[0].seconds if kept[0] is not None else time.perf_counter() - t0
         record = dict(key=key, rows=rows, stop=stop, seconds=seconds, budget=budget)
-        # imported here: runwriter imports mpi4py (MPI_Init), which the tests do not need
-        from ..io.runwriter import atomic_write
-
         # atomic: a study killed while writing leaves no half file to read back
         atomic_write(self.path(key), json.dumps(record, default=plain, indent=None))
         if not stop.startswith(f"stopped: {BUDGET_STOP}") and os.path.exists(progress):

@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..io.atomic_file import atomic_write
+
 if TYPE_CHECKING:
     from os import PathLike
 
@@ -63,9 +65,6 @@ def save(path: str | PathLike[str], progress: Progress, key: dict) -> None:
     arrays["key"] = np.asarray(json.dumps(key, sort_keys=True))
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
-    # imported here: runwriter imports mpi4py (MPI_Init), which the tests do not need
-    from ..io.runwriter import atomic_write
-
     atomic_write(path, buffer.getvalue())
 
 

@@ -8,7 +8,7 @@ the same rule with its own resume-aware check (:mod:`dolfinx_granular.slope.cli`
 
 A command names its files as paths relative to the folder, shell patterns allowed
 (``"fig*.png"``, ``"path_[0-9]*/summary.json"``); the leftovers of an atomic write that a killed
-run left (``summary.json.tmp1234``, see :func:`~dolfinx_granular.io.runwriter.atomic_write`)
+run left (``summary.json.tmp1234``, see :func:`~dolfinx_granular.io.atomic_file.atomic_write`)
 count as its files too.
 """
 

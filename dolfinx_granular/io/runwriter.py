@@ -20,6 +20,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..laws.protocol import check_state
+from .atomic_file import atomic_write
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -32,16 +33,6 @@ if TYPE_CHECKING:
 
 class RestartError(ValueError):
     """A restart file that cannot be used (missing, damaged, another mesh)."""
-
-
-def atomic_write(path: str | os.PathLike[str], data: bytes | str) -> None:
-    """Replace ``path`` by ``data`` (bytes or str) atomically."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as f:
-        f.write(data.encode() if isinstance(data, str) else data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 class RunWriter:

@@ -13,6 +13,7 @@ import os
 import time
 from typing import TYPE_CHECKING
 
+from ..io.atomic_file import atomic_write
 from .generation import generate_packing
 from .packing import Packing
 
@@ -80,10 +81,6 @@ class PackingCache:
             packing = generate_packing(int(n), seed=int(seed), **jammed)
             self.times[self._key(*key)] = time.perf_counter() - t0
             packing.save(path)
-            # imported here: runwriter imports mpi4py (MPI_Init), which the MPI-free studies that
-            # use this cache (rve_study, friction_study) do not need
-            from ..io.runwriter import atomic_write
-
             # atomic: a study killed while writing leaves the previous times, not half a file
             atomic_write(self._times_path, json.dumps(self.times, indent=1))
         self._loaded[key] = packing
