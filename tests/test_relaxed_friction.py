@@ -5,11 +5,14 @@ Each test checks one property against something computed another way: the contac
 derivatives and the tangent by central differences, the equilibrium by a brute-force loop over
 pairs and images, mu = 0 against the frictionless RelaxedRVE, a superposed rotation, a lattice."""
 
+import os
+
 from dolfinx_granular import (
     FrictionalRelaxedRVE,
     FrictionalRelaxedState,
     HistoryLaw,
     HistoryState,
+    Packing,
     RelaxedRVE,
     generate_packing,
 )
@@ -505,6 +508,35 @@ def test_the_tangent_after_a_lowered_friction_is_the_derivative_of_the_stress(re
     rve, committed, _, (_, _, A) = reduced
     dP, _ = _differences(rve, F_TWO, committed)
     assert np.abs(dP - A).max() <= 1e-5 * np.abs(A).max()
+
+
+def test_a_lowered_friction_relaxes_a_point_whose_committed_state_has_no_tangent():
+    """A point of the 160-cell slope's strength reduction (tests/data): its committed state,
+    at mu = 0.12246, lies outside the cones of mu = 0.12240, and the network's stiffness at
+    it (the return map's statuses under the lowered friction) is singular. The law relaxes
+    the point at its F without asking for that tangent: forces in the new cones, every disk
+    in equilibrium, and a tangent at the relaxed state (the slope's continuation stopped
+    here on RigidityLostError before)."""
+    data = np.load(os.path.join(os.path.dirname(__file__), "data", "lowered_friction_point.npz"))
+    packing = Packing(data["centers"], data["radii"], data["box"])
+    kn, kt = float(data["normal_stiffness"]), float(data["tangential_stiffness"])
+    rve = FrictionalRelaxedRVE(packing, kn, kt, float(data["friction"]))
+    committed = FrictionalRelaxedState.from_arrays(
+        {k[len("state_") :]: data[k] for k in data.files if k.startswith("state_")}
+    )
+    F = committed.F[0]
+    _, P0, _, again = rve.evaluate(F, committed)  # (at rest under its own friction)
+    assert _unmoved(again, committed)
+    rve.set_friction(float(data["lowered"]))
+    _, P, A, state = rve.evaluate(F, committed)
+    c = rve.contacts(F, state)
+    assert np.all(np.abs(c.tangential) <= rve.friction * c.force * (1 + 1e-12))
+    f, M, mean = frictional_balance(packing, F, state.w[0], c)
+    assert np.abs(f).max() <= 1e-9 * mean
+    assert np.abs(M).max() <= 1e-9 * mean * packing.radii.mean()
+    assert state.dissipation[0] > committed.dissipation[0]
+    assert np.isfinite(A).all() and np.abs(A).max() > 0.0
+    assert not np.array_equal(P, P0)
 
 
 def test_friction_cannot_be_switched_off_or_rolling_on_without_springs(packing):

@@ -23,7 +23,7 @@ from ..taylor import ContactSet
 from ..tools import as_batch, non_negative, output_buffers, to_float
 from .cell_state import Increment, Springs
 from .contact_law import SLIP
-from .point import Equilibrium, at_rest, follow, within_cones
+from .point import Equilibrium, at_rest, follow, rest_state, within_cones
 from .settings import Settings
 from .state import FrictionalRelaxedState
 
@@ -173,9 +173,11 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
         was lowered below what its state carries (:meth:`set_friction`)."""
         inc = self.increment(state, q)
         if np.array_equal(F, state.F[q]):
-            eq = at_rest(self.cell, self.springs, F, inc, tangent)
-            if within_cones(eq, inc, float(self.cell.radii.mean())):
-                return eq, 0.0
+            # (the cones before the tangent: out of them the committed state is no equilibrium,
+            # and the tangent at it, which need not exist, is not wanted)
+            s = rest_state(self.cell, self.springs, F, inc)
+            if within_cones(s, inc, float(self.cell.radii.mean())):
+                return at_rest(self.cell, self.springs, F, inc, tangent, s), 0.0
         dq = state.sensitivity[q]
         return follow(self.cell, self.springs, F, inc, dq, self.settings, tangent)
 

@@ -223,10 +223,12 @@ def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Eq
     return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, chain)
 
 
-def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> Equilibrium:
+def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool,
+            s: CellState | None = None) -> Equilibrium:  # fmt: skip
     """The committed state itself (F = F0): nothing moves, every contact's trial force is its
-    committed one (a contact at the cone sticks there)."""
-    s = CellState(cell, springs, F, inc.w0, inc.th0, inc)
+    committed one (a contact at the cone sticks there); ``s`` its :class:`CellState` where
+    already built (:func:`rest_state`)."""
+    s = rest_state(cell, springs, F, inc) if s is None else s
     residual, _ = s.residual(cell)
     eq = finish(cell, springs, F, np.eye(4), inc, inc.w0, inc.th0, s, residual, Counts(),
                 tangent)  # fmt: skip
@@ -234,13 +236,18 @@ def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool) -> E
     return eq
 
 
-def within_cones(eq: Equilibrium, inc: Increment, mean_radius: float) -> bool:
+def rest_state(cell: Cell, springs: Springs, F, inc: Increment) -> CellState:
+    """The committed positions and rotations of ``inc`` at F, each contact's trial force its
+    committed one (cut to the law's cap)."""
+    return CellState(cell, springs, F, inc.w0, inc.th0, inc)
+
+
+def within_cones(s: CellState, inc: Increment, mean_radius: float) -> bool:
     """True where the committed tangential forces and rolling moments of ``inc`` lie in the
-    cones of the law at rest (``eq`` from :func:`at_rest`): none was cut to its cap by more than
-    :data:`CONE_SLACK` of the mean contact force (times ``mean_radius`` for a moment). False
-    once the friction was lowered below what the committed state carries: it is no longer in
-    equilibrium and must be relaxed at its F."""
-    s = eq.state
+    cones of the law at rest (``s`` from :func:`rest_state`): none was cut to its cap by more
+    than :data:`CONE_SLACK` of the mean contact force (times ``mean_radius`` for a moment).
+    False once the friction was lowered below what the committed state carries: it is no
+    longer in equilibrium and must be relaxed at its F."""
     on, m = s.on, s.m
     slack = CONE_SLACK * s.mean_force
     ft0, mr0 = inc.forces(m)[:m], inc.moments(m)[:m]
