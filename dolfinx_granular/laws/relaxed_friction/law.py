@@ -177,7 +177,7 @@ class FrictionalRelaxedRVE(HistoryLawMethods):
             # and the tangent at it, which need not exist, is not wanted)
             s = rest_state(self.cell, self.springs, F, inc)
             if within_cones(s, inc, float(self.cell.radii.mean())):
-                return at_rest(self.cell, self.springs, F, inc, tangent, s), 0.0
+                return at_rest(self.cell, self.springs, F, inc, s, tangent), 0.0
         dq = state.sensitivity[q]
         return follow(self.cell, self.springs, F, inc, dq, self.settings, tangent)
 

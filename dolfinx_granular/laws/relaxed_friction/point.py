@@ -223,12 +223,10 @@ def finish(cell, springs, G, DG, inc, w, th, s, residual, counts, tangent) -> Eq
     return Equilibrium(w, th, W, s.P, A, dq, s, D, residual, counts, chain)
 
 
-def at_rest(cell: Cell, springs: Springs, F, inc: Increment, tangent: bool,
-            s: CellState | None = None) -> Equilibrium:  # fmt: skip
-    """The committed state itself (F = F0): nothing moves, every contact's trial force is its
-    committed one (a contact at the cone sticks there); ``s`` its :class:`CellState` where
-    already built (:func:`rest_state`)."""
-    s = rest_state(cell, springs, F, inc) if s is None else s
+def at_rest(cell: Cell, springs: Springs, F, inc: Increment, s: CellState,
+            tangent: bool) -> Equilibrium:  # fmt: skip
+    """The committed state itself (F = F0), ``s`` from :func:`rest_state`: nothing moves, every
+    contact's trial force is its committed one (a contact at the cone sticks there)."""
     residual, _ = s.residual(cell)
     eq = finish(cell, springs, F, np.eye(4), inc, inc.w0, inc.th0, s, residual, Counts(),
                 tangent)  # fmt: skip
