@@ -1,6 +1,7 @@
 """Adaptive load stepping and failure handling: cut-backs on RVE range errors, singular matrices and
 stagnation; a failed step never leaves NaN or an unconverged state behind; the stabiliser."""
 
+import re
 import warnings
 
 import numpy as np
@@ -166,6 +167,10 @@ def test_stagnation_is_detected_before_the_iteration_limit():
     assert (
         result.why.startswith("stagnation: |R| = ") and "has not gone below its best" in result.why
     )
+    # ... and how large the stalled residual is beside the forces (what a residual tolerance
+    # would have to accept)
+    best, share = re.search(r"best value (\S+) N \((\S+) of the force scale\)", result.why).groups()
+    assert float(share) == pytest.approx(float(best) / result.force_scale, rel=0.06)
     assert 5 <= result.iterations < 15
     solver.destroy()
     solver, _, _, p = column("nostag_", material_class=Cycling, max_it=12, stagnation_it=0)

@@ -58,6 +58,9 @@ def test_out_that_holds_a_run_is_refused(old_run):
         (["--confinement", "1e6"], ["confinement", "280000"]),
         (["--rolling-friction", "0.1"], ["rolling resistance", "--rve relaxed"]),
         (["--rolling-friction", "-0.1"], ["--rolling-friction", ">= 0"]),
+        (["--residual-tolerance", "0"], ["residual_tolerance", "(0, 0.01]", "round-off"]),
+        (["--residual-tolerance", "0.5"], ["residual_tolerance", "(0, 0.01]"]),
+        (["--resume", "x", "--residual-tolerance", "1e-5"], ["drop --residual-tolerance"]),
     ],
 )
 def test_options_that_would_be_ignored_are_refused(args, words):

@@ -191,6 +191,30 @@ def test_a_converged_state_returns_at_once():
 
 
 @pytest.mark.mpi
+def test_a_tolerated_residual_ends_the_solve_at_the_first_iterate_within_it():
+    """A residual_rtol above round-off is an out-of-balance force tolerated: the solve takes
+    the round-off solve's iterates and stops at the first whose |R| lies within it."""
+    exact, _, u_exact = column(2e5, prefix="exact_")
+    full = exact.solve()
+    scale = full.force_scale
+    starts = [r for _, r, _ in full.history] + [full.residual_norm]  # |R| at iterate 0, 1, ...
+    tolerance = 1e-5
+    first = next(k for k, r in enumerate(starts) if r <= tolerance * scale)
+    assert 0 < first < full.iterations, (starts, scale)  # (the test needs one in between)
+    loose, _, u_loose = column(2e5, prefix="loose_", residual_rtol=tolerance)
+    result = loose.solve()
+    assert result.converged and result.stopped_by == "tolerance", result
+    assert result.iterations == first and result.force_scale == pytest.approx(scale)
+    assert result.residual_norm == pytest.approx(starts[first], rel=1e-6)
+    assert [r for _, r, _ in result.history] == pytest.approx(starts[:first], rel=1e-6)
+    # the iterate it stopped at is within the tolerance of the exact solution's displacement
+    err = np.linalg.norm(u_loose.x.array - u_exact.x.array)
+    assert 0.0 < err <= 1e-3 * np.linalg.norm(u_exact.x.array)
+    exact.destroy()
+    loose.destroy()
+
+
+@pytest.mark.mpi
 def test_readme_loop_from_zero_load_and_after_a_failure():
     """The README's loop with the loads 0, 1e5, 2e5 Pa: at zero load the reference state's
     overlaps (P(I) ~ 1e-11 of the modulus) are all there is to balance: converged at once. A

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 
     from .problem import GranularProblem
 
+ROUNDOFF = 1e-12  # the default residual_rtol: |R| at round-off of the force scale
 ITERATING, CONVERGED, NAN, MAX_IT, STAGNATION = (
     "iterating",
     "converged",
@@ -44,6 +45,7 @@ class ConvergenceTest:
         history: one ``(iteration, |R| at its start (N), relative energy norm)`` per step.
         rnorm: |R| at the last iterate checked (N); scale: the force scale (N) compared with it.
         stopped_by: the test that ended a converged iteration (``energy norm``, ``round-off``,
+            ``tolerance`` (the residual test with a ``residual_rtol`` above round-off),
             ``residual_atol``, ``no load``), else ''.
         error: what the stagnation test measured, else None.
     """
@@ -53,7 +55,7 @@ class ConvergenceTest:
         problem: GranularProblem,
         *,
         energy_rtol: float = 1e-20,
-        residual_rtol: float = 1e-12,
+        residual_rtol: float = ROUNDOFF,
         residual_atol: float = 0.0,
         roundoff_energy: float = 1e-14,
         stagnation_it: int = 4,
@@ -113,9 +115,10 @@ class ConvergenceTest:
             return MAX_IT
         if 0 < self.stagnation_it <= self.no_progress:
             steps = "corrector" if self.corrector else "Newton"
+            share = f" ({self.best / self.scale:.1e} of the force scale)" if self.scale > 0 else ""
             self.error = (
                 f"|R| = {fnorm:.3e} N has not gone below its best value "
-                f"{self.best:.3e} N for {self.no_progress} {steps} steps"
+                f"{self.best:.3e} N{share} for {self.no_progress} {steps} steps"
             )
             return STAGNATION
         return ITERATING
@@ -125,7 +128,10 @@ class ConvergenceTest:
         roundoff = stalled and rel <= self.roundoff_energy
         if not self.corrector and (fnorm == 0.0 or fnorm <= self.residual_atol):
             return "residual_atol"
-        if fnorm <= self.residual_rtol * self.scale or (self.corrector and roundoff):
+        if fnorm <= self.residual_rtol * self.scale:
+            # a residual_rtol above round-off is a tolerated out-of-balance force
+            return "round-off" if self.residual_rtol <= ROUNDOFF else "tolerance"
+        if self.corrector and roundoff:
             return "round-off"
         if not self.corrector and self._no_load(fnorm):
             # no load and a stress-free material: R is the forces of its reference stress

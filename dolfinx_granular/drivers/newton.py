@@ -42,7 +42,7 @@ from petsc4py import PETSc
 from ..fem.compat import SNES_NAN_REASON
 from ..fem.diagnose import singular_jacobian
 from . import linear_solver as linear
-from .convergence import CONVERGED, MAX_IT, NAN, ConvergenceTest
+from .convergence import CONVERGED, MAX_IT, NAN, ROUNDOFF, ConvergenceTest
 from .convergence import STAGNATION as STAGNATION_VERDICT
 from .problem import GranularProblem, collect_garbage
 from .protocol import UNCONFINED_RELAXED, SolveFailedWarning, unconfined_relaxed, warn_failure
@@ -137,7 +137,8 @@ class NewtonSolver:
             :class:`~dolfinx_granular.LinearElasticMaterial`, ...).
         energy_rtol: relative energy norm that counts as converged.
         residual_rtol: residual norm relative to the force scale that counts as converged
-            (round-off); 0 disables.
+            (default: round-off; a larger one is an out-of-balance force tolerated, and the
+            solve's ``converged_by`` says ``tolerance``); 0 disables.
         residual_atol: residual norm (N) that counts as converged; 0 disables.
         roundoff_energy: below this relative energy norm a residual that fails to halve in one
             Newton step is taken as round-off (converged).
@@ -185,7 +186,7 @@ class NewtonSolver:
         materials: QuadratureMaterial | Sequence[QuadratureMaterial] | None = (),
         *,
         energy_rtol: float = 1e-20,
-        residual_rtol: float = 1e-12,
+        residual_rtol: float = ROUNDOFF,
         residual_atol: float = 0.0,
         roundoff_energy: float = 1e-14,
         max_it: int = 20,

@@ -41,6 +41,7 @@ def options_of(a: argparse.Namespace) -> SlopeOptions:
             linear_solver=a.linear_solver,
             confinement=a.confinement,
             rolling_friction=a.rolling_friction,
+            residual_tolerance=a.residual_tolerance,
         )
     except ValueError as err:
         raise UserError(str(err)) from None

@@ -32,7 +32,7 @@ from ..packings.packing import PackingFileError
 from .arguments import UserError, make_packing, options_of
 from .geometry import SlopeGeometry
 from .interrupt import SIGNALS, RunInterrupted, StopRequest, exit_status
-from .options import K_N, LINEAR_SOLVERS, PHASES, RVES
+from .options import K_N, LINEAR_SOLVERS, PHASES, ROUNDOFF, RVES
 from .run import (
     clear_run,
     converged_steps,
@@ -168,6 +168,15 @@ def _add_model(p: argparse.ArgumentParser) -> None:
         choices=["basic", "bt", "l2", "cp"],
         default="basic",
         help="SNES line search (default basic: full Newton steps)",
+    )
+    p.add_argument(
+        "--residual-tolerance",
+        type=_finite(0.0),
+        default=ROUNDOFF,
+        metavar="R",
+        help="Newton accepts a residual norm of at most R times the force scale (default "
+        f"{ROUNDOFF:g}: round-off; 1e-6 to 1e-4 tolerates an out-of-balance force, which "
+        "lets load steps pass the stress jumps of relaxed RVEs that rearrange)",
     )
     p.add_argument(
         "--linear-solver",

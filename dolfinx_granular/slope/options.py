@@ -8,6 +8,7 @@ import math
 import warnings
 from typing import TYPE_CHECKING, Any
 
+from ..drivers.convergence import ROUNDOFF
 from ..drivers.linear_solver import LINEAR_SOLVERS  # noqa: F401  (the CLI reads it here)
 from ..drivers.linear_solver import check as check_linear_solver
 from ..laws.taylor import PrestressWarning, TaylorRVE
@@ -74,6 +75,11 @@ class SlopeOptions:
             Only with the frictional relaxed RVE, under load control.
         reduction_steps: nominal steps of the reduction phase (each lowers the friction by
             the same factor; cut-backs halve it).
+        residual_tolerance: Newton (and the path's corrector) accepts an iterate whose
+            residual norm is at most this times the force scale (the larger of the internal
+            and external force norms). The default 1e-12 is round-off; a larger one (1e-6 to
+            1e-4) is an out-of-balance force tolerated, as geotechnical codes tolerate one,
+            which lets load steps pass the stress jumps of RVEs that rearrange.
     """
 
     steps: int = 20
@@ -97,12 +103,19 @@ class SlopeOptions:
     rolling_friction: float = 0.0
     reduction: float | None = None
     reduction_steps: int = 16
+    residual_tolerance: float = ROUNDOFF
 
     def __post_init__(self):
         self._check_rve()
         self._check_path()
         self._check_reduction()
         check_linear_solver(self.linear_solver)
+        if not (math.isfinite(self.residual_tolerance) and 0.0 < self.residual_tolerance <= 1e-2):
+            raise ValueError(
+                "residual_tolerance is the out-of-balance force Newton accepts, relative to the "
+                f"force scale, in (0, 0.01] (default {ROUNDOFF:g}: round-off), got "
+                f"{self.residual_tolerance!r}"
+            )
         if self.path_following and self.linear_solver != "direct":
             raise ValueError(
                 "path following reads the sign of det K from the LU factorisation: drop "

@@ -36,7 +36,7 @@ from .interrupt import SIGNALS, signal_name
 from .model import SlopeModel, granular_material, newton_solver
 from .options import K_N as K_N
 from .options import PHASES as PHASES
-from .options import SlopeOptions
+from .options import ROUNDOFF, SlopeOptions
 from .path import last_increment, load_path, path_failure, path_summary
 from .summary import draw_figure, draw_load_settlement, report_stop, summarise
 
@@ -213,7 +213,11 @@ class SlopeRun:
         )
         solver_factory = solver_factory or (
             lambda *a: newton_solver(
-                *a, petsc_options=o.petsc_options, verbose=verbose, linear_solver=o.linear_solver
+                *a,
+                petsc_options=o.petsc_options,
+                verbose=verbose,
+                linear_solver=o.linear_solver,
+                residual_rtol=o.residual_tolerance,
             )
         )
         self.law = law_factory(packing, o.normal_stiffness) if law_factory else o.law(packing)
@@ -657,6 +661,11 @@ def run_slope(
         + (f", footing load x{o.load_factor:g}" if "footing" in o.phases else "")
         + (f", the {o.path_following} by path following" if o.path_following else "")
         + (f", stabiliser {o.stabilise:g}" if o.stabilise else "")
+        + (
+            f", out-of-balance force tolerated: {o.residual_tolerance:g} of the force scale"
+            if o.residual_tolerance > ROUNDOFF
+            else ""
+        )
     )
     if getattr(run.law, "prestress", None) is not None:
         run.say(
