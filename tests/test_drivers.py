@@ -34,6 +34,28 @@ def test_snes_rule_counts_stagnation_from_iterate_1_the_corrector_from_iterate_0
     assert corrector == [ITERATING] * 5 + [STAGNATION, STAGNATION]
 
 
+class _Scaled(_Forces):
+    """A problem whose forces are 1e6 N."""
+
+    def force_scale(self, R):
+        return 1e6
+
+
+@pytest.mark.parametrize("corrector", [False, True])
+def test_a_stall_tolerance_accepts_a_stalled_residual_within_it_and_nothing_else(corrector):
+    """stall_rtol 1e-4 (100 N of 1e6 N): a residual Newton still halves goes on to round-off
+    however small it is; one that has stalled is accepted within the tolerance, not above it."""
+    test = ConvergenceTest(_Scaled(), stall_rtol=1e-4, corrector=corrector, stagnation_it=4)
+    # converging: 50 N and 1 N are within 100 N, but Newton halves them: it goes on
+    assert _verdicts(test, [1e5, 5e2, 50.0, 1.0]) == [ITERATING] * 4
+    # cycling at 150 N (above the tolerance) and then at 80 N (within it): accepted at 80 N
+    assert _verdicts(test, [1e5, 150.0, 140.0, 80.0]) == [ITERATING] * 3 + [CONVERGED]
+    assert test.stopped_by == "tolerance"
+    # the same cycle without the tolerance goes on (and stagnates)
+    plain = ConvergenceTest(_Scaled(), corrector=corrector, stagnation_it=4)
+    assert CONVERGED not in _verdicts(plain, [1e5, 150.0, 140.0, 80.0, 90.0, 85.0, 88.0, 86.0])
+
+
 def test_one_test_energy_norm_and_round_off_in_both_variants():
     """The energy norm relative to the first step's ends both; a stalled |R| with the energy at
     round-off is 'round-off' in both; only SNES's rule has the absolute test."""

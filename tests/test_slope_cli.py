@@ -58,8 +58,8 @@ def test_out_that_holds_a_run_is_refused(old_run):
         (["--confinement", "1e6"], ["confinement", "280000"]),
         (["--rolling-friction", "0.1"], ["rolling resistance", "--rve relaxed"]),
         (["--rolling-friction", "-0.1"], ["--rolling-friction", ">= 0"]),
-        (["--residual-tolerance", "0"], ["residual_tolerance", "(0, 0.01]", "round-off"]),
-        (["--residual-tolerance", "0.5"], ["residual_tolerance", "(0, 0.01]"]),
+        (["--residual-tolerance", "0.5"], ["residual_tolerance", "[0, 0.01]", "stalls"]),
+        (["--residual-tolerance", "-1e-4"], ["--residual-tolerance", ">= 0"]),
         (["--resume", "x", "--residual-tolerance", "1e-5"], ["drop --residual-tolerance"]),
     ],
 )

@@ -386,6 +386,7 @@ class ArcLength:
             roundoff_energy=t.roundoff_energy,
             stagnation_it=t.stagnation_it,
             corrector=True,
+            stall_rtol=t.stall_rtol,
         )
 
     def _converged(self, test, it, x, R, energy):

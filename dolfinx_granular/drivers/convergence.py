@@ -8,7 +8,10 @@ at round-off: ``|R| <= residual_rtol * scale`` (scale: the force scale of
 residual_atol`` and under no load on stress-free materials (the residual and the external forces
 both within twice the forces of the materials' reference stress). It fails on a NaN residual,
 at ``max_it`` steps, or on stagnation: |R| has not gone below its best value for
-``stagnation_it`` steps (Newton cycling between contact sets).
+``stagnation_it`` steps (Newton cycling between contact sets). With ``stall_rtol`` > 0 an
+iterate whose |R| Newton no longer halves is accepted when ``|R| <= stall_rtol * scale``: an
+out-of-balance force tolerated where Newton stalls, while a converging Newton still goes on to
+round-off (``stopped_by`` ``tolerance``, as for a ``residual_rtol`` above round-off).
 
 ``corrector=True`` is the arc-length corrector's variant, kept as the paths traced so far depend
 on it: iterate 1 does not reset the best |R| to its own, the force scale is that of iterate 0
@@ -61,9 +64,11 @@ class ConvergenceTest:
         stagnation_it: int = 4,
         max_it: int | None = None,
         corrector: bool = False,
+        stall_rtol: float = 0.0,
     ) -> None:
         self.problem = problem
         self.energy_rtol, self.residual_rtol = float(energy_rtol), float(residual_rtol)
+        self.stall_rtol = float(stall_rtol)
         self.residual_atol, self.roundoff_energy = float(residual_atol), float(roundoff_energy)
         self.stagnation_it = int(stagnation_it)
         self.max_it = None if max_it is None else int(max_it)
@@ -133,6 +138,10 @@ class ConvergenceTest:
             return "round-off" if self.residual_rtol <= ROUNDOFF else "tolerance"
         if self.corrector and roundoff:
             return "round-off"
+        if stalled and fnorm <= self.stall_rtol * self.scale:
+            # Newton no longer halves |R| (it cycles as RVEs rearrange within an iterate): the
+            # out-of-balance force tolerated
+            return "tolerance"
         if not self.corrector and self._no_load(fnorm):
             # no load and a stress-free material: R is the forces of its reference stress
             # (contacts overlapping by 1e-11), which Newton cannot remove without opening them

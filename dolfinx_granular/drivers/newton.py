@@ -153,6 +153,10 @@ class NewtonSolver:
         stagnation_it: fail the solve (reason ``DIVERGED_STAGNATION``) when the residual norm has
             not gone below its smallest value since the first Newton step for this many
             consecutive Newton steps (Newton cycling between contact sets); 0 disables the test.
+        stall_rtol: where Newton no longer halves the residual (it cycles as RVEs rearrange
+            within an iterate), accept an iterate whose residual is at most this times the
+            force scale: an out-of-balance force tolerated (``converged_by`` ``tolerance``);
+            0 (default) never.
         skip_final_tangent: evaluate only the stress (no tangent) for a residual that ends the
             solve whatever its value: the energy norm of the step that led to it is already
             converged, so SNES asks for no Jacobian there.
@@ -196,6 +200,7 @@ class NewtonSolver:
         skip_final_tangent: bool = False,
         stagnation_it: int = 4,
         linear_solver: str = "direct",
+        stall_rtol: float = 0.0,
     ) -> None:
         self.linear_solver = linear.check(linear_solver)
         self._fnorm0 = 0.0  # |R| at the start of the solve (the iterative solver's forcing)
@@ -210,6 +215,7 @@ class NewtonSolver:
             roundoff_energy=roundoff_energy,
             stagnation_it=stagnation_it,
             max_it=max_it,
+            stall_rtol=stall_rtol,
         )
         p = self.problem
         self.u, self.bcs, self.materials, self.comm = u, p.bcs, p.materials, p.comm
@@ -227,6 +233,7 @@ class NewtonSolver:
     residual_atol = _threshold("residual_atol")
     roundoff_energy = _threshold("roundoff_energy")
     stagnation_it = _threshold("stagnation_it")
+    stall_rtol = _threshold("stall_rtol")
     max_it = _threshold("max_it")
 
     @property

@@ -32,7 +32,7 @@ from ..packings.packing import PackingFileError
 from .arguments import UserError, make_packing, options_of
 from .geometry import SlopeGeometry
 from .interrupt import SIGNALS, RunInterrupted, StopRequest, exit_status
-from .options import K_N, LINEAR_SOLVERS, PHASES, ROUNDOFF, RVES
+from .options import K_N, LINEAR_SOLVERS, PHASES, RVES
 from .run import (
     clear_run,
     converged_steps,
@@ -172,11 +172,11 @@ def _add_model(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--residual-tolerance",
         type=_finite(0.0),
-        default=ROUNDOFF,
+        default=0.0,
         metavar="R",
-        help="Newton accepts a residual norm of at most R times the force scale (default "
-        f"{ROUNDOFF:g}: round-off; 1e-6 to 1e-4 tolerates an out-of-balance force, which "
-        "lets load steps pass the stress jumps of relaxed RVEs that rearrange)",
+        help="where Newton no longer halves the residual (it cycles as relaxed RVEs "
+        "rearrange), accept a residual of at most R times the force scale, an out-of-balance "
+        "force carried into the next step (default 0: none; e.g. 1e-4)",
     )
     p.add_argument(
         "--linear-solver",

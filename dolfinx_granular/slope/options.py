@@ -8,7 +8,6 @@ import math
 import warnings
 from typing import TYPE_CHECKING, Any
 
-from ..drivers.convergence import ROUNDOFF
 from ..drivers.linear_solver import LINEAR_SOLVERS  # noqa: F401  (the CLI reads it here)
 from ..drivers.linear_solver import check as check_linear_solver
 from ..laws.taylor import PrestressWarning, TaylorRVE
@@ -75,11 +74,12 @@ class SlopeOptions:
             Only with the frictional relaxed RVE, under load control.
         reduction_steps: nominal steps of the reduction phase (each lowers the friction by
             the same factor; cut-backs halve it).
-        residual_tolerance: Newton (and the path's corrector) accepts an iterate whose
-            residual norm is at most this times the force scale (the larger of the internal
-            and external force norms). The default 1e-12 is round-off; a larger one (1e-6 to
-            1e-4) is an out-of-balance force tolerated, as geotechnical codes tolerate one,
-            which lets load steps pass the stress jumps of RVEs that rearrange.
+        residual_tolerance: where Newton (or the path's corrector) no longer halves the
+            residual, as it cycles while RVEs rearrange within an iterate, it accepts an
+            iterate whose residual norm is at most this times the force scale (the larger of
+            the internal and external force norms): an out-of-balance force tolerated, as
+            geotechnical codes tolerate one, carried into the next step. 0 (default): never,
+            every step ends at round-off or the energy norm.
     """
 
     steps: int = 20
@@ -103,17 +103,17 @@ class SlopeOptions:
     rolling_friction: float = 0.0
     reduction: float | None = None
     reduction_steps: int = 16
-    residual_tolerance: float = ROUNDOFF
+    residual_tolerance: float = 0.0
 
     def __post_init__(self):
         self._check_rve()
         self._check_path()
         self._check_reduction()
         check_linear_solver(self.linear_solver)
-        if not (math.isfinite(self.residual_tolerance) and 0.0 < self.residual_tolerance <= 1e-2):
+        if not (math.isfinite(self.residual_tolerance) and 0.0 <= self.residual_tolerance <= 1e-2):
             raise ValueError(
-                "residual_tolerance is the out-of-balance force Newton accepts, relative to the "
-                f"force scale, in (0, 0.01] (default {ROUNDOFF:g}: round-off), got "
+                "residual_tolerance is the out-of-balance force Newton accepts where it stalls, "
+                "relative to the force scale, in [0, 0.01] (0, the default: none), got "
                 f"{self.residual_tolerance!r}"
             )
         if self.path_following and self.linear_solver != "direct":

@@ -36,7 +36,7 @@ from .interrupt import SIGNALS, signal_name
 from .model import SlopeModel, granular_material, newton_solver
 from .options import K_N as K_N
 from .options import PHASES as PHASES
-from .options import ROUNDOFF, SlopeOptions
+from .options import SlopeOptions
 from .path import last_increment, load_path, path_failure, path_summary
 from .summary import draw_figure, draw_load_settlement, report_stop, summarise
 
@@ -217,7 +217,7 @@ class SlopeRun:
                 petsc_options=o.petsc_options,
                 verbose=verbose,
                 linear_solver=o.linear_solver,
-                residual_rtol=o.residual_tolerance,
+                stall_rtol=o.residual_tolerance,
             )
         )
         self.law = law_factory(packing, o.normal_stiffness) if law_factory else o.law(packing)
@@ -663,7 +663,7 @@ def run_slope(
         + (f", stabiliser {o.stabilise:g}" if o.stabilise else "")
         + (
             f", out-of-balance force tolerated: {o.residual_tolerance:g} of the force scale"
-            if o.residual_tolerance > ROUNDOFF
+            if o.residual_tolerance > 0.0
             else ""
         )
     )
