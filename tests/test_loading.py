@@ -181,6 +181,29 @@ def test_stagnation_is_detected_before_the_iteration_limit():
 
 
 @pytest.mark.mpi
+def test_a_stall_within_the_stall_tolerance_is_accepted_and_one_above_it_is_not():
+    """The cycling stress stalls Newton at a residual of some share of the force scale: a
+    stall_rtol of twice that share accepts the stalled iterate (``tolerance``, its residual
+    within it, the state finite and kept), half of it stagnates as without one."""
+    solver, _, _, p = column("share_", material_class=Cycling, max_it=40)
+    p.value = 2e5
+    share = float(re.search(r"\((\S+) of the force scale\)", solver.solve().why).group(1))
+    solver.destroy()
+    solver, _, u, p = column("accept_", material_class=Cycling, max_it=40, stall_rtol=2 * share)
+    p.value = 2e5
+    result = solver.solve()
+    assert result.converged and result.stopped_by == "tolerance", result
+    assert result.residual_norm <= 2 * share * result.force_scale
+    assert result.iterations < 15 and all_finite(u.x.array) and u.x.array.any()
+    solver.destroy()
+    solver, _, _, p = column("refuse_", material_class=Cycling, max_it=40, stall_rtol=share / 2)
+    p.value = 2e5
+    result = solver.solve()
+    assert not result.converged and result.reason_name == STAGNATION
+    solver.destroy()
+
+
+@pytest.mark.mpi
 def test_stabiliser_acts_only_where_every_contact_is_open():
     """Stretched half (x > 5: every contact open) gets alpha C : (F - I) and alpha C; the
     compressed half is bit for bit the plain material."""
