@@ -215,6 +215,34 @@ def test_a_tolerated_residual_ends_the_solve_at_the_first_iterate_within_it():
 
 
 @pytest.mark.mpi
+@pytest.mark.parametrize("stall_rtol, accepted", [(1e-2, True), (1e-3, False)])
+def test_a_newton_cut_off_goes_back_to_its_best_iterate_within_the_stall_tolerance(
+    stall_rtol, accepted
+):
+    """max_it 2 ends the column's Newton at |R| about 2e-3 of the force scale (quadratic, not
+    stalled): with stall_rtol 1e-2 the solve takes its best iterate, evaluated again, and
+    converges by 'tolerance' with the materials at that state; with 1e-3 it fails as before."""
+    exact, _, u_exact = column(2e5, prefix="bestx_")
+    full = exact.solve()
+    starts = [r for _, r, _ in full.history]
+    assert 1e-3 < starts[2] / full.force_scale < 1e-2, starts  # (what the test needs)
+    cut, _, u = column(2e5, prefix=f"best{accepted}_", max_it=2, stall_rtol=stall_rtol)
+    result = cut.solve(warn=False)
+    assert result.converged is accepted, result
+    if accepted:
+        assert result.stopped_by == "tolerance" and result.iterations == 2
+        assert result.residual_norm == pytest.approx(starts[2], rel=1e-6)
+        # u and the materials are that iterate's: a solve from it starts at its residual
+        again = cut.solve()
+        assert again.history[0][1] == pytest.approx(starts[2], rel=1e-6)
+        assert again.converged and again.stopped_by in ("round-off", "energy norm"), again
+    else:
+        assert result.reason_name == "DIVERGED_MAX_IT" and not u.x.array.any()
+    exact.destroy()
+    cut.destroy()
+
+
+@pytest.mark.mpi
 def test_readme_loop_from_zero_load_and_after_a_failure():
     """The README's loop with the loads 0, 1e5, 2e5 Pa: at zero load the reference state's
     overlaps (P(I) ~ 1e-11 of the modulus) are all there is to balance: converged at once. A

@@ -51,6 +51,8 @@ class ConvergenceTest:
             ``tolerance`` (the residual test with a ``residual_rtol`` above round-off),
             ``residual_atol``, ``no load``), else ''.
         error: what the stagnation test measured, else None.
+        best_within: the iterate last checked has the smallest |R| so far, within
+            ``stall_rtol`` (a Newton that then stagnates may go back to it).
     """
 
     def __init__(
@@ -81,6 +83,9 @@ class ConvergenceTest:
         self.e0 = None
         self.rnorm = self.scale = self.best = float("nan")
         self.no_progress, self.stopped_by, self.error = 0, "", None
+        self.best_within = (
+            False  # the last iterate checked is the best so far and within stall_rtol
+        )
 
     def relative(self, energy: float) -> float:
         """The energy |R . du| of a step relative to the first step's (which it is, before any
@@ -112,6 +117,7 @@ class ConvergenceTest:
             return NAN
         if it == 0 or (stalled and not self.corrector):  # (dead loads: once is enough)
             self.scale = self.problem.force_scale(R)
+        self.best_within = fnorm == self.best and fnorm <= self.stall_rtol * self.scale
         test = self._converged_by(it, fnorm, rel, stalled)
         if test:
             self.stopped_by = test

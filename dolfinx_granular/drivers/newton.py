@@ -223,7 +223,9 @@ class NewtonSolver:
         self.skip_final_tangent = bool(skip_final_tangent)
         self.verbose = verbose
         # SNES's own vector x (line searches write trial points there) and work vectors
-        self.b, self.x, self._x_prev, self._R_prev = (p.u_vec.duplicate() for _ in range(4))
+        self.b, self.x, self._x_prev, self._R_prev, self._x_best = (
+            p.u_vec.duplicate() for _ in range(5)
+        )
         linear.prepare(self.linear_solver, self.A, u.function_space)
         self.snes = self._create_snes(prefix, petsc_options)
 
@@ -367,6 +369,9 @@ class NewtonSolver:
             print(f"    Newton {it:2d}: |R| = {fnorm:.3e} N{energy}", flush=True)
         x.copy(self._x_prev)
         R.copy(self._R_prev)
+        if self.test.best_within:
+            x.copy(self._x_best)
+            self._have_best = True
         if verdict == CONVERGED:
             if self.test.stopped_by == "energy norm":
                 return _CR.CONVERGED_SNORM_RELATIVE
@@ -389,6 +394,7 @@ class NewtonSolver:
         """
         self.test.reset()
         self._error, self._stagnated, self._verdict, self._raised = None, False, 0, None
+        self._have_best = False
         self.problem.external = float("nan")
         self.problem.invalidate()
         start = self.u.x.array.copy()
@@ -400,8 +406,11 @@ class NewtonSolver:
         if self._raised is not None:  # a bug in a callback reaches the user with its traceback
             raise self._raised
         with self.clock("after"):
+            back = petsc_error is None and self._back_to_best()
             self._error = self._error or self._final_evaluation()
         reason, name = self._outcome(petsc_error)
+        if back and not self._error:
+            reason, name = int(_CR.CONVERGED_FNORM_ABS), _REASON_NAMES[_CR.CONVERGED_FNORM_ABS]
         result = SolveResult(
             converged=reason > 0,
             reason=reason,
@@ -450,6 +459,22 @@ class NewtonSolver:
             return f"PETSc error {err.ierr} in SNES solve"
         return None
 
+    def _back_to_best(self) -> bool:
+        """After a stagnation or the iteration limit: x = the best iterate where its |R| was
+        within ``stall_rtol`` (the out-of-balance force tolerated where Newton stalls), if its
+        residual, evaluated again, still is; True then (the solve converged by ``tolerance``)."""
+        verdict = self.snes.getConvergedReason()
+        if not (self._have_best and (self._stagnated or verdict == _CR.DIVERGED_MAX_IT)):
+            return False
+        self._x_best.copy(self.x)
+        error = self.problem.residual(self.x, self.b, True)
+        fnorm = self.b.norm()
+        if error or not fnorm <= self.test.stall_rtol * self.test.scale:
+            return False
+        self._stagnated, self._error = False, None
+        self.test.rnorm, self.test.stopped_by = fnorm, "tolerance"
+        return True
+
     def _final_evaluation(self):
         """Make u and the material data those of SNES's x (the last residual was at x with
         full Newton steps); an evaluation error message or None."""
@@ -490,7 +515,7 @@ class NewtonSolver:
         """Free the PETSc objects (collective: call it on every rank at the same point)."""
         # (flush petsc4py's deferred destruction first on every rank: see collect_garbage)
         collect_garbage(self.comm)
-        for obj in (self.snes, self.b, self.x, self._x_prev, self._R_prev):
+        for obj in (self.snes, self.b, self.x, self._x_prev, self._R_prev, self._x_best):
             obj.destroy()
         if self._held_options is not None:
             linear.release(*self._held_options)
