@@ -13,6 +13,7 @@ from dolfinx_granular.slope.safety import (
     next_friction,
     outcome,
     search,
+    settlement_growth,
     trial_of,
 )
 from dolfinx_granular.slope.safety_strength import Strength
@@ -318,6 +319,36 @@ def test_a_continuation_that_fails_in_its_reduction_brackets_mu_f():
     answer = outcome(rows, 0.5, strength.factor_of_safety, strength.factor_of_safety)
     assert answer["mu_f_bracket"] == [reduced(0.54), reduced(0.53)] and answer["bound"] is None
     assert reduced(0.54) < answer["mu_f"] < reduced(0.53)
+
+
+def settling(rates, mu=0.5, dlog=0.1):
+    """Reduction steps lowering ln(mu) by ``dlog`` each, the slope settling by rate x dlog."""
+    u, rows = 0.0, []
+    for k, rate in enumerate(rates):
+        u -= rate * dlog
+        rows.append(
+            {"phase": "reduction", "friction": mu * math.exp(-dlog * (k + 1)), "settlement": u}
+        )
+    return rows
+
+
+def test_the_settlement_growth_tells_a_collapse_from_a_stall():
+    """A steady rate with one jump (an RVE's rearrangement) stays near 1 at its end; a rate
+    that grows at the end, as near a collapse, gives its growth; too few steps give None."""
+    steady = [0.25] * 12 + [7.7, 0.3, 0.25, 0.24]
+    assert settlement_growth(settling(steady)) == pytest.approx((0.3 + 0.25 + 0.24) / 3 / 0.25)
+    collapse = [0.6] * 12 + [0.9, 3.0, 6.0, 9.0]
+    assert settlement_growth(settling(collapse)) == pytest.approx(6.0 / 0.6)
+    assert settlement_growth(settling([0.6] * 4)) is None
+    steps = settling([0.6] * 10)
+    del steps[3]["settlement"]
+    assert settlement_growth(steps) is None
+    # and the failed row of a continuation says it
+    run = continued(ts=(0.1, 0.2, 0.3, 0.4, 0.5, 0.53))
+    for s, rate in zip([s for s in run["step_info"] if s["phase"] == "reduction"], range(6)):
+        s["settlement"] = -0.1 * 2.0**rate
+    _, bad = continuation_trials(run, 0.5, reduced, 0.0, -4e7, "trials/reduction")
+    assert "the settlement per unit ln(mu) over the last 3 steps" in bad.why, bad.why
 
 
 def test_a_continuation_to_its_end_is_a_lower_bound():

@@ -26,6 +26,8 @@ import math
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
 
@@ -152,10 +154,41 @@ def continuation_trials(
         cut = [c for c in summary.get("cutbacks") or [] if c["phase"] == "reduction"][-1]
         mu_fail = reduced(cut["t_to"])
         why = f"no equilibrium at mu_f = {mu_fail:.6g} after every cut-back: {failed['reason']}"
+        growth = settlement_growth(steps)
+        if growth is not None:
+            why += (
+                f"; the settlement per unit ln(mu) over the last {GROWTH_STEPS} steps: "
+                f"{growth:.3g} x its median step's"
+            )
         rows.append(
             Trial(mu_fail, False, "reduction", 1.0, 1.0, load, seconds, why, status, folder)
         )
     return rows
+
+
+#: the steps at the end of a reduction whose settlement rate :func:`settlement_growth` compares
+GROWTH_STEPS = 3
+
+
+def settlement_growth(steps: Sequence[Mapping[str, Any]]) -> float | None:
+    """How fast a reduction's last steps settled the slope beside its steps before: the
+    settlement (m) per unit ln(mu) over the last :data:`GROWTH_STEPS` steps, divided by the
+    median of every step's own rate. Near a collapse it grows without bound (10 and more);
+    where Newton stopped on the stress jumps of rearranging RVEs with the slope far from
+    collapse it stays near 1. None with fewer than ``GROWTH_STEPS + 2`` steps or no settlement.
+
+    ``steps``: the reduction's converged steps (``summary.json`` ``step_info`` rows, with
+    ``friction`` and ``settlement``), in order.
+    """
+    if len(steps) < GROWTH_STEPS + 2 or any("settlement" not in s for s in steps):
+        return None
+    mu = np.log([s["friction"] for s in steps])
+    u = np.array([s["settlement"] for s in steps], dtype=float)
+    rates = np.abs(np.diff(u) / np.diff(mu))
+    typical = float(np.median(rates[np.isfinite(rates)]))
+    k = GROWTH_STEPS
+    last = abs((u[-1] - u[-1 - k]) / (mu[-1] - mu[-1 - k]))
+    return last / typical if typical > 0.0 and np.isfinite(last) else None
 
 
 def bracket(trials: Sequence[Trial]) -> tuple[Trial | None, Trial | None]:
