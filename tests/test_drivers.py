@@ -51,6 +51,12 @@ def test_a_stall_tolerance_accepts_a_stalled_residual_within_it_and_nothing_else
     # cycling at 150 N (above the tolerance) and then at 80 N (within it): accepted at 80 N
     assert _verdicts(test, [1e5, 150.0, 140.0, 80.0]) == [ITERATING] * 3 + [CONVERGED]
     assert test.stopped_by == "tolerance"
+    # the best iterate within the tolerance, where a stagnating Newton may go back to: a
+    # Newton iterate (30 N, reached by halving), never the start (80 N: the step's imbalance)
+    test.reset()
+    assert test.check(0, 80.0, None) == ITERATING and not test.best_within
+    assert test.check(1, 30.0, None, 1.0) == ITERATING and test.best_within
+    assert test.check(2, 120.0, None, 1.0) == ITERATING and not test.best_within
     # the same cycle without the tolerance goes on (and stagnates)
     plain = ConvergenceTest(_Scaled(), corrector=corrector, stagnation_it=4)
     assert CONVERGED not in _verdicts(plain, [1e5, 150.0, 140.0, 80.0, 90.0, 85.0, 88.0, 86.0])

@@ -51,8 +51,9 @@ class ConvergenceTest:
             ``tolerance`` (the residual test with a ``residual_rtol`` above round-off),
             ``residual_atol``, ``no load``), else ''.
         error: what the stagnation test measured, else None.
-        best_within: the iterate last checked has the smallest |R| so far, within
-            ``stall_rtol`` (a Newton that then stagnates may go back to it).
+        best_within: the iterate last checked (a Newton iterate, not the start) has the
+            smallest |R| so far, within ``stall_rtol`` (a Newton that then stagnates may go
+            back to it).
     """
 
     def __init__(
@@ -117,7 +118,8 @@ class ConvergenceTest:
             return NAN
         if it == 0 or (stalled and not self.corrector):  # (dead loads: once is enough)
             self.scale = self.problem.force_scale(R)
-        self.best_within = fnorm == self.best and fnorm <= self.stall_rtol * self.scale
+        # (not the start: a step that went back to it would accept its imbalance and not move)
+        self.best_within = it > 0 and fnorm == self.best and fnorm <= self.stall_rtol * self.scale
         test = self._converged_by(it, fnorm, rel, stalled)
         if test:
             self.stopped_by = test
