@@ -59,7 +59,7 @@ def test_out_that_holds_a_run_is_refused(old_run):
         (["--rolling-friction", "0.1"], ["rolling resistance", "--rve relaxed"]),
         (["--rolling-friction", "-0.1"], ["--rolling-friction", ">= 0"]),
         (["--residual-tolerance", "0.5"], ["residual_tolerance", "[0, 0.01]", "stalls"]),
-        (["--residual-tolerance", "-1e-4"], ["--residual-tolerance", ">= 0"]),
+        (["--residual-tolerance", "-0.0001"], ["--residual-tolerance", ">= 0"]),
         (["--resume", "x", "--residual-tolerance", "1e-5"], ["drop --residual-tolerance"]),
     ],
 )
