@@ -84,9 +84,7 @@ class ConvergenceTest:
         self.e0 = None
         self.rnorm = self.scale = self.best = float("nan")
         self.no_progress, self.stopped_by, self.error = 0, "", None
-        self.best_within = (
-            False  # the last iterate checked is the best so far and within stall_rtol
-        )
+        self.best_within = False
 
     def relative(self, energy: float) -> float:
         """The energy |R . du| of a step relative to the first step's (which it is, before any
