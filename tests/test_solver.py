@@ -222,7 +222,7 @@ def test_a_newton_cut_off_goes_back_to_its_best_iterate_within_the_stall_toleran
     """max_it 2 ends the column's Newton at |R| about 2e-3 of the force scale (quadratic, not
     stalled): with stall_rtol 1e-2 the solve takes its best iterate, evaluated again, and
     converges by 'tolerance' with the materials at that state; with 1e-3 it fails as before."""
-    exact, _, u_exact = column(2e5, prefix="bestx_")
+    exact, _, _ = column(2e5, prefix="bestx_")
     full = exact.solve()
     starts = [r for _, r, _ in full.history]
     assert 1e-3 < starts[2] / full.force_scale < 1e-2, starts  # (what the test needs)
