@@ -5,10 +5,13 @@ and the command line's one-line refusals (bad options, an --out that holds a run
 import math
 
 from dolfinx_granular.slope.safety import (
+    COLLAPSE_GROWTH,
     DOUBLINGS,
     HALVINGS,
+    JUMP_GROWTH,
     Trial,
     bracket,
+    continuation_stop,
     continuation_trials,
     next_friction,
     outcome,
@@ -349,6 +352,26 @@ def test_the_settlement_growth_tells_a_collapse_from_a_stall():
         s["settlement"] = -0.1 * 2.0**rate
     _, bad = continuation_trials(run, 0.5, reduced, 0.0, -4e7, "trials/reduction")
     assert "the settlement per unit ln(mu) over the last 3 steps" in bad.why, bad.why
+
+
+def test_a_continuations_stop_is_read_from_the_settlements_growth():
+    """Below JUMP_GROWTH a stress jump, from COLLAPSE_GROWTH on a collapse, unclear between
+    and without a growth; nothing for a continuation whose reduction did not fail."""
+
+    def stopped_with(rates):
+        run = continued()
+        weight = [s for s in run["step_info"] if s["phase"] != "reduction"]
+        return continuation_stop({**run, "step_info": weight + settling(rates)})
+
+    jump = stopped_with([0.25] * 12 + [0.3, 0.25, 0.24])
+    growth = (0.3 + 0.25 + 0.24) / 3 / 0.25
+    assert jump == {"settlement_growth": pytest.approx(growth), "stopped_on": "stress jump"}
+    assert JUMP_GROWTH <= 3.0 < COLLAPSE_GROWTH <= 10.0
+    assert stopped_with([0.6] * 12 + [3.0, 6.0, 9.0])["stopped_on"] == "collapse"
+    assert stopped_with([0.6] * 12 + [1.2, 1.8, 2.4])["stopped_on"] == "unclear"
+    assert stopped_with([0.6] * 4) == {"settlement_growth": None, "stopped_on": "unclear"}
+    assert continuation_stop(continued("converged", ts=(0.5, 1.0))) is None
+    assert continuation_stop(continued(load_failed=True)) is None
 
 
 def test_a_continuation_to_its_end_is_a_lower_bound():

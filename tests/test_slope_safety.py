@@ -18,6 +18,7 @@ from dolfinx_granular.slope.limit_equilibrium import (
     bishop_factor_of_safety,
     infinite_slope_factor_of_safety,
 )
+from dolfinx_granular.slope.safety import continuation_stop
 from dolfinx_granular.slope.safety_strength import Strength
 
 import pytest
@@ -357,6 +358,9 @@ def test_the_continuation_brackets_the_factor_of_safety_in_one_run(tmp_path):
         run = json.load(f)
     reduction = [x for x in run["step_info"] if x["phase"] == "reduction"]
     assert reduction[-1]["friction"] == passing["mu_f"] and run["failed"]["phase"] == "reduction"
+    stop = continuation_stop(run)  # (how it ended, read from the run's own steps)
+    assert {k: s[k] for k in stop} == stop and stop["settlement_growth"] is not None
+    assert "the settlement's growth over the last steps" in proc.stdout
     assert is_png(out / "mechanism.png")
     assert "safety: continuation from mu = 0.5" in proc.stdout
     proc, _ = run_slope_demo(None, "--factor-of-safety", "--resume", out)

@@ -154,11 +154,11 @@ def continuation_trials(
         cut = [c for c in summary.get("cutbacks") or [] if c["phase"] == "reduction"][-1]
         mu_fail = reduced(cut["t_to"])
         why = f"no equilibrium at mu_f = {mu_fail:.6g} after every cut-back: {failed['reason']}"
-        growth = settlement_growth(steps)
-        if growth is not None:
+        stop = continuation_stop(summary)
+        if stop["settlement_growth"] is not None:
             why += (
                 f"; the settlement per unit ln(mu) over the last {GROWTH_STEPS} steps: "
-                f"{growth:.3g} x its median step's"
+                f"{stop['settlement_growth']:.3g} x its median step's ({stop['stopped_on']})"
             )
         rows.append(
             Trial(mu_fail, False, "reduction", 1.0, 1.0, load, seconds, why, status, folder)
@@ -189,6 +189,34 @@ def settlement_growth(steps: Sequence[Mapping[str, Any]]) -> float | None:
     k = GROWTH_STEPS
     last = abs((u[-1] - u[-1 - k]) / (mu[-1] - mu[-1 - k]))
     return last / typical if typical > 0.0 and np.isfinite(last) else None
+
+
+#: a continuation's stop whose :func:`settlement_growth` lies below this was a stress jump
+JUMP_GROWTH = 2.0
+#: ... and at this or above, a collapse (between the two it is left unread: ``unclear``)
+COLLAPSE_GROWTH = 5.0
+
+
+def continuation_stop(summary: Mapping[str, Any]) -> dict | None:
+    """What ended a continuation whose reduction found no equilibrium (its ``summary.json``
+    dict; None for any other run): ``settlement_growth`` (:func:`settlement_growth`, None
+    with too few steps) and ``stopped_on``: ``"collapse"`` (at least
+    :data:`COLLAPSE_GROWTH`: the slope's settlement ran away), ``"stress jump"`` (below
+    :data:`JUMP_GROWTH`: it settled at its steady rate, and Newton stopped on the stress
+    jump of a rearranging RVE; the slope stands at a lower friction, so mu_f is an upper
+    bound of the collapse's and FS a lower bound) or ``"unclear"`` (between, or no growth)."""
+    failed = summary.get("failed")
+    if failed is None or failed["phase"] != "reduction":
+        return None
+    growth = settlement_growth(
+        [s for s in summary.get("step_info") or [] if s["phase"] == "reduction"]
+    )
+    stopped_on = "unclear"
+    if growth is not None and growth >= COLLAPSE_GROWTH:
+        stopped_on = "collapse"
+    elif growth is not None and growth < JUMP_GROWTH:
+        stopped_on = "stress jump"
+    return {"settlement_growth": growth, "stopped_on": stopped_on}
 
 
 def bracket(trials: Sequence[Trial]) -> tuple[Trial | None, Trial | None]:

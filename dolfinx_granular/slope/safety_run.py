@@ -29,10 +29,13 @@ from .limit_equilibrium import bishop_factor_of_safety, infinite_slope_factor_of
 from .options import SlopeOptions
 from .run import RUN_FILES, clear_run, converged_steps, load_restart, run_slope
 from .safety import (
+    COLLAPSE_GROWTH,
+    JUMP_GROWTH,
     TOLERANCE,
     TRIAL_COLUMNS,
     Trial,
     bracket,
+    continuation_stop,
     continuation_trials,
     outcome,
     search,
@@ -137,6 +140,7 @@ class SafetyRun:
         self.writer = RunWriter(self.out, comm)
         self.started = time.perf_counter() if started is None else started
         self.interrupted_by = None  # (the signal's name that stopped a trial)
+        self.stop = None  # (a continuation's: :func:`~.safety.continuation_stop`)
         g, mu = options.geometry, strength.mu
         self.phi = {w: strength.phi(mu, w) for w in ("cs", "peak")}
         limit = None  # (a grid search of a few seconds: once, on rank 0)
@@ -225,10 +229,11 @@ class SafetyRun:
         mu_f until no equilibrium is found after every cut-back. Returns the bracket's
         :class:`Trial` rows (:func:`~.safety.continuation_trials`) and whether the run
         finished (False: a signal stopped it; its restart file goes on)."""
-        if finished:  # (safety.json holds them: the run was done)
-            return list(finished), True
         path = os.path.join(self.out, CONTINUATION)
         summary, restart = self._stored(path)
+        if finished:  # (safety.json holds them: the run was done)
+            self.stop = None if summary is None else continuation_stop(summary)
+            return list(finished), True
         o = self.options
         if summary is None:
             more = " (continued from its restart file)" if restart else ""
@@ -243,6 +248,7 @@ class SafetyRun:
         if summary["status"] == "interrupted":
             self.interrupted_by = summary["interrupted_by"]
             return [], False
+        self.stop = continuation_stop(summary)
         trials = continuation_trials(
             summary,
             o.friction,
@@ -334,6 +340,7 @@ class SafetyRun:
             **answer,
             "tolerance": self.tolerance,
             "method": "bisection" if o.reduction is None else "continuation",
+            **(self.stop or {"settlement_growth": None, "stopped_on": None}),
             "mu": self.strength.mu,
             "rolling_friction": self.options.rolling_friction,
             "phi_cs": self.phi["cs"],
@@ -414,8 +421,28 @@ class SafetyRun:
             f"{record['bishop_cs']:.4g} (cs), {record['bishop_peak']:.4g} (peak)"
             f"{_confined(record)}, infinite slope {record['infinite_slope_cs']:.4g}; "
             f"{len(record['trials'])} trials, "
-            f"{record['wall_time']:.1f} s; results in {self.out}"
+            f"{record['wall_time']:.1f} s; results in {self.out}{_stop_note(record)}"
         )
+
+
+def _stop_note(record):
+    """What a continuation's stop was, for its end line ("" for any other run)."""
+    growth, stopped_on = record["settlement_growth"], record["stopped_on"]
+    if stopped_on is None or growth is None:
+        return ""
+    said = f"the settlement's growth over the last steps {growth:.3g}"
+    if stopped_on == "stress jump":
+        return (
+            f"; the reduction stopped on a stress jump of rearranging RVEs, not a collapse "
+            f"({said}): the slope stands at a lower friction, so the factor of safety is at "
+            "least this (--residual-tolerance passes such jumps)"
+        )
+    if stopped_on == "collapse":
+        return f"; the reduction stopped where the slope collapsed ({said})"
+    return (
+        f"; {said} tells no stress jump (below {JUMP_GROWTH:g}) from a collapse "
+        f"({COLLAPSE_GROWTH:g} and more)"
+    )
 
 
 def _confined(limit):
