@@ -175,7 +175,8 @@ def settlement_growth(steps: Sequence[Mapping[str, Any]]) -> float | None:
     settlement (m) per unit ln(mu) over the last :data:`GROWTH_STEPS` steps, divided by the
     median of every step's own rate. Near a collapse it grows without bound; where Newton
     stopped on the stress jumps of rearranging RVEs with the slope far from collapse it stays
-    near 1 (:func:`continuation_stop` reads it). None with fewer than ``GROWTH_STEPS + 2`` steps or no settlement.
+    near 1 (:func:`continuation_stop` reads it). None with fewer than ``GROWTH_STEPS + 2``
+    steps or no settlement.
 
     ``steps``: the reduction's converged steps (``summary.json`` ``step_info`` rows, with
     ``friction`` and ``settlement``), in order.
