@@ -365,3 +365,11 @@ def test_the_continuation_brackets_the_factor_of_safety_in_one_run(tmp_path):
     assert "safety: continuation from mu = 0.5" in proc.stdout
     proc, _ = run_slope_demo(None, "--factor-of-safety", "--resume", out)
     assert "nothing to resume" in proc.stdout
+    # a run stopped after its trials were written (status running) ends from them alone
+    with open(out / "safety.json", "w") as f:
+        json.dump({**s, "status": "running"}, f)
+    proc, _ = run_slope_demo(None, "--factor-of-safety", "--resume", out)
+    with open(out / "safety.json") as f:
+        again = json.load(f)
+    assert again["status"] == "done" and again["trials"] == s["trials"]
+    assert {k: again[k] for k in stop} == stop

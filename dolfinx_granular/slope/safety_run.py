@@ -230,10 +230,11 @@ class SafetyRun:
         :class:`Trial` rows (:func:`~.safety.continuation_trials`) and whether the run
         finished (False: a signal stopped it; its restart file goes on)."""
         path = os.path.join(self.out, CONTINUATION)
-        summary, restart = self._stored(path)
-        if finished:  # (safety.json holds them: the run was done)
-            self.stop = None if summary is None else continuation_stop(summary)
+        if finished:  # (safety.json holds them: the run was done; its folder is only read)
+            summary = _finished_summary(path) if self.comm.rank == 0 else None
+            self.stop = self.comm.bcast(summary and continuation_stop(summary), root=0)
             return list(finished), True
+        summary, restart = self._stored(path)
         o = self.options
         if summary is None:
             more = " (continued from its restart file)" if restart else ""
