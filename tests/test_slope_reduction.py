@@ -9,7 +9,12 @@ import pytest
 pytest.importorskip("dolfinx")
 from dolfinx_granular import generate_packing  # noqa: E402
 from dolfinx_granular.slope.geometry import SlopeGeometry  # noqa: E402
-from dolfinx_granular.slope.run import SlopeOptions, SlopeRun, load_restart  # noqa: E402
+from dolfinx_granular.slope.run import (  # noqa: E402
+    SlopeOptions,
+    SlopeRun,
+    _tolerated_note,
+    load_restart,
+)
 
 CONFINEMENT = 2.8e5  # Pa: p / k_n = 1e-2
 MU = 0.5
@@ -84,6 +89,13 @@ def test_the_phases_are_the_weight_then_the_reduction():
 def test_bad_reductions_are_named(change, words):
     with pytest.raises(ValueError, match=words):
         SlopeOptions(**{**OPTIONS, **change})
+
+
+def test_a_step_accepted_out_of_balance_says_so_in_its_line():
+    """A step that --residual-tolerance accepted says its residual; one at round-off does not."""
+    tolerated = {"converged_by": "tolerance", "residual_norm": 4692.1}
+    assert _tolerated_note(tolerated) == ", out of balance by 4.69e+03 N (--residual-tolerance)"
+    assert _tolerated_note({**tolerated, "converged_by": "round-off"}) == ""
 
 
 @pytest.mark.mpi

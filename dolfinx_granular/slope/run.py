@@ -485,7 +485,8 @@ class SlopeRun:
             f"x{lam_g:.2f}, footing "
             f"{footing:.3e} N/m{_friction_note(self.step_info[-1])}, {result.iterations} "
             "iterations, "
-            f"{elapsed:.2f} s{_overlap_note(self.step_info[-1])}{self._time_left(step)}"
+            f"{elapsed:.2f} s{_tolerated_note(self.step_info[-1])}"
+            f"{_overlap_note(self.step_info[-1])}{self._time_left(step)}"
         )
 
     def _friction(self, phase_index, t):
@@ -617,6 +618,14 @@ def _duration(seconds):
 def _friction_note(info):
     """``, mu 0.125`` for a step's log line where the run reduces the friction ('' without)."""
     return f", mu {info['friction']:.5g}" if "friction" in info else ""
+
+
+def _tolerated_note(info):
+    """``, out of balance by 4.7e+03 N (--residual-tolerance)`` for a step's log line where the
+    step was accepted within the residual tolerance, not at round-off ('' otherwise)."""
+    if info["converged_by"] != "tolerance":
+        return ""
+    return f", out of balance by {info['residual_norm']:.3g} N (--residual-tolerance)"
 
 
 def _overlap_note(info):
