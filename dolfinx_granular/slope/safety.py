@@ -204,8 +204,8 @@ def continuation_stop(summary: Mapping[str, Any]) -> dict | None:
     with too few steps) and ``stopped_on``: ``"collapse"`` (at least
     :data:`COLLAPSE_GROWTH`: the slope's settlement ran away), ``"stress jump"`` (below
     :data:`JUMP_GROWTH`: it settled at its steady rate, and Newton stopped on the stress
-    jump of a rearranging RVE; the slope stands at a lower friction, so mu_f is an upper
-    bound of the collapse's and FS a lower bound) or ``"unclear"`` (between, or no growth)."""
+    jump of a rearranging RVE; as far as that tells, mu_f is an upper bound of the
+    collapse's and FS a lower bound) or ``"unclear"`` (between, or no growth)."""
     failed = summary.get("failed")
     if failed is None or failed["phase"] != "reduction":
         return None

@@ -435,8 +435,8 @@ def _stop_note(record):
     if stopped_on == "stress jump":
         return (
             f"; the reduction stopped on a stress jump of rearranging RVEs, not a collapse "
-            f"({said}): the slope stands at a lower friction, so the factor of safety is at "
-            "least this (--residual-tolerance passes such jumps)"
+            f"({said}): the slope was settling at its steady rate, so its factor of safety is "
+            "likely larger than this (--residual-tolerance passes such jumps)"
         )
     if stopped_on == "collapse":
         return f"; the reduction stopped where the slope collapsed ({said})"
